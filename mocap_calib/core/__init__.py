@@ -1,0 +1,1 @@
+"""Estimation core: knows nothing of files, the CLI or the viewer."""

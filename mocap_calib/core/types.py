@@ -1,0 +1,142 @@
+"""Typed containers for the two input streams and the IMU noise model.
+
+Times are float64 seconds since ``time_origin_ns`` (an integer nanosecond stamp on the stream's
+own clock), so nanosecond stamps survive a read/write round trip and float times stay precise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core import so3
+
+Array = NDArray[np.float64]
+
+
+def _as_float(a: object, shape_tail: tuple[int, ...]) -> Array:
+    arr = np.ascontiguousarray(np.asarray(a, dtype=np.float64))
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+        raise ValueError(f"expected shape (N, {', '.join(map(str, shape_tail))}), got {arr.shape}")
+    return arr
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """Raw IMU samples on the IMU clock.
+
+    Attributes:
+        t: (N,) seconds since ``time_origin_ns``.
+        gyro: (N, 3) angular rate in rad/s, IMU frame.
+        accel: (N, 3) specific force in m/s^2, IMU frame.
+        time_origin_ns: integer stamp (ns) of ``t == 0`` on the IMU clock.
+        source: where the samples came from, for messages.
+    """
+
+    t: Array
+    gyro: Array
+    accel: Array
+    time_origin_ns: int = 0
+    source: str = "imu"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t", _as_float(self.t, ()))
+        object.__setattr__(self, "gyro", _as_float(self.gyro, (3,)))
+        object.__setattr__(self, "accel", _as_float(self.accel, (3,)))
+        if not (len(self.t) == len(self.gyro) == len(self.accel)):
+            raise ValueError("t, gyro and accel must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        return float(1.0 / np.median(np.diff(self.t))) if len(self.t) > 1 else 0.0
+
+    def stamps_ns(self) -> NDArray[np.int64]:
+        """Integer nanosecond stamps on the IMU clock."""
+        return self.time_origin_ns + np.round(self.t * 1e9).astype(np.int64)
+
+    def select(self, mask: NDArray[np.bool_]) -> ImuSamples:
+        return ImuSamples(self.t[mask], self.gyro[mask], self.accel[mask],
+                          self.time_origin_ns, self.source)
+
+
+@dataclass(frozen=True)
+class MocapPoses:
+    """Poses ``T_WM`` of the marker body measured by the motion-capture system.
+
+    Attributes:
+        t: (N,) seconds since ``time_origin_ns`` on the mocap clock.
+        quat_wxyz: (N, 4) unit Hamilton quaternions of ``R_WM``.
+        position: (N, 3) ``p_WM`` in metres.
+        time_origin_ns: integer stamp (ns) of ``t == 0`` on the mocap clock.
+        source: where the poses came from, for messages.
+        dropped_rows: rows removed while reading (occlusions reported as NaN).
+    """
+
+    t: Array
+    quat_wxyz: Array
+    position: Array
+    time_origin_ns: int = 0
+    source: str = "mocap"
+    dropped_rows: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t", _as_float(self.t, ()))
+        object.__setattr__(self, "quat_wxyz", _as_float(self.quat_wxyz, (4,)))
+        object.__setattr__(self, "position", _as_float(self.position, (3,)))
+        if not (len(self.t) == len(self.quat_wxyz) == len(self.position)):
+            raise ValueError("t, quat_wxyz and position must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        return float(1.0 / np.median(np.diff(self.t))) if len(self.t) > 1 else 0.0
+
+    @property
+    def rotation(self) -> Array:
+        """(N, 3, 3) rotation matrices ``R_WM``."""
+        return so3.quat_to_rotmat(self.quat_wxyz)
+
+    def stamps_ns(self) -> NDArray[np.int64]:
+        return self.time_origin_ns + np.round(self.t * 1e9).astype(np.int64)
+
+    def select(self, mask: NDArray[np.bool_]) -> MocapPoses:
+        return MocapPoses(self.t[mask], self.quat_wxyz[mask], self.position[mask],
+                          self.time_origin_ns, self.source, self.dropped_rows)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Continuous-time IMU noise (Kalibr ``imu.yaml`` units) and mocap noise.
+
+    Defaults are EuRoC's ADIS16448 values and a typical Vicon room.
+    """
+
+    gyroscope_noise_density: float = 1.6968e-04  # rad/s/sqrt(Hz)
+    gyroscope_random_walk: float = 1.9393e-05  # rad/s^2/sqrt(Hz)
+    accelerometer_noise_density: float = 2.0e-3  # m/s^2/sqrt(Hz)
+    accelerometer_random_walk: float = 3.0e-3  # m/s^3/sqrt(Hz)
+    mocap_position_sigma: float = 0.5e-3  # m, per axis and sample
+    mocap_rotation_sigma: float = float(np.radians(0.05))  # rad, per axis and sample
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in self.__dict__.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, float]) -> NoiseModel:
+        known = {k: float(v) for k, v in d.items() if k in cls.__dataclass_fields__}
+        return cls(**known)

@@ -1,0 +1,49 @@
+"""One exception tree for everything a user can get wrong or the data cannot support.
+
+The CLI turns these into a one-line message and an exit code in one place
+(:func:`mocap_calib.cli.main.run_guarded`); library users catch :class:`CalibrationError`.
+"""
+
+from __future__ import annotations
+
+
+class CalibrationError(Exception):
+    """Base class of every expected failure; its message is one line for the user."""
+
+    exit_code = 1
+
+
+class InputError(CalibrationError):
+    """The input files or options are wrong (format, units, timestamps, overlap...)."""
+
+    exit_code = 2
+
+
+class ObservabilityError(CalibrationError):
+    """The motion in the session cannot determine what was asked (static, too short...)."""
+
+    exit_code = 3
+
+
+class ConvergenceError(CalibrationError):
+    """The solver did not reach a trustworthy solution."""
+
+    exit_code = 4
+
+
+def input_error(what: str, fix: str, source: str | None = None, row: int | None = None) -> InputError:
+    """Build an :class:`InputError` whose message names the file, the row and the fix.
+
+    Args:
+        what: What is wrong, e.g. ``"timestamps are not increasing"``.
+        fix: How to fix it, e.g. ``"sort the file by time"``.
+        source: File (or stream) the problem is in.
+        row: 1-based line number in the file, when one row is to blame.
+    """
+    where = ""
+    if source is not None:
+        where = f"{source}"
+        if row is not None:
+            where += f", line {row}"
+        where += ": "
+    return InputError(f"{where}{what}; {fix}")

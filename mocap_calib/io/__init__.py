@@ -1,0 +1,1 @@
+"""File formats: EuRoC/ASL, TUM, generic CSV, result YAML."""

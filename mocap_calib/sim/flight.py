@@ -1,0 +1,287 @@
+"""Simulated mocap flights with known truth.
+
+The IMU samples are computed exactly from the trajectory's analytic derivatives through the
+measurement model of ``docs/conventions.md``; the mocap poses are the exact marker poses plus
+noise. Effects beyond the base model are injected by their canonical names. One seeded
+generator drives every random draw, so the same configuration gives the same bytes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core import so3
+from mocap_calib.core.effects import CANONICAL_EFFECTS
+from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.errors import InputError
+from mocap_calib.sim.trajectory import random_trajectory
+
+Array = NDArray[np.float64]
+
+#: Effects only the simulator knows: faults of the mocap stream, not of the IMU model.
+MOCAP_FAULTS = ("mocap_dropouts", "mocap_outliers")
+
+#: What a bare ``--effect NAME`` injects: a realistic magnitude (see ``effect_help``).
+DEFAULT_MAGNITUDE: dict[str, float] = {
+    "time_offset": 0.005,
+    "gyro_scale_misalignment": 0.003,
+    "accel_scale_misalignment": 0.003,
+    "gyro_g_sensitivity": 3e-4,
+    "gyro_bias_drift": 2e-5,
+    "accel_bias_drift": 1e-3,
+    "gravity_magnitude": 9.79,
+    "mocap_dropouts": 5,
+    "mocap_outliers": 5,
+}
+
+EFFECT_HELP: dict[str, str] = {
+    "time_offset": "t_d in s (IMU stamp t was measured at mocap time t + t_d)",
+    "gyro_scale_misalignment": "std of the entries of M_g - I, or 9 values row-major",
+    "accel_scale_misalignment": "std of the entries of the lower-triangular M_a - I, or 9 values",
+    "gyro_g_sensitivity": "std of the entries of G in rad/s per m/s^2, or 9 values",
+    "gyro_bias_drift": "trend magnitude in rad/s per s, or 3 values",
+    "accel_bias_drift": "trend magnitude in m/s^2 per s, or 3 values",
+    "gravity_magnitude": "true |g| in m/s^2 (the calibration assumes 9.81)",
+    "mocap_dropouts": "number of mocap gaps (0.05-1 s each, rows removed)",
+    "mocap_outliers": "number of marker-swap events (1-4 samples jump by 3-10 cm, 5-30 deg)",
+}
+
+
+def parse_effect(spec: str) -> tuple[str, list[float] | None]:
+    """Parse ``NAME`` or ``NAME=VALUE`` or ``NAME=v1,v2,...``."""
+    name, _, value = spec.partition("=")
+    name = name.strip()
+    known = (*CANONICAL_EFFECTS, *MOCAP_FAULTS)
+    if name not in known:
+        raise InputError(f"unknown effect '{name}'; choose one of: {', '.join(known)}")
+    if not value.strip():
+        return name, None
+    try:
+        values = [float(v) for v in value.split(",")]
+    except ValueError:
+        raise InputError(f"effect '{spec}': value must be a number or comma-separated numbers, "
+                         f"e.g. {name}=0.01") from None
+    if not all(np.isfinite(values)):
+        raise InputError(f"effect '{spec}': value must be finite")
+    return name, values
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """What to simulate. ``effects`` maps a canonical name to its value(s) or None (default)."""
+
+    seed: int = 0
+    duration: float = 90.0
+    imu_rate: float = 200.0
+    mocap_rate: float = 100.0
+    gravity: float = 9.81
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    effects: dict[str, list[float] | None] = field(default_factory=dict)
+    imu_time_origin_ns: int = 1_600_000_000_000_000_000
+    mocap_time_origin_ns: int = 1_600_000_000_000_000_000
+    aggressiveness: float = 1.0
+
+    def validate(self) -> None:
+        if not self.duration > 1.0:
+            raise InputError(f"--duration {self.duration}: must be more than 1 s")
+        if self.duration > 4 * 3600:
+            raise InputError(f"--duration {self.duration}: more than 4 h; simulate shorter sessions")
+        for name, rate in (("--imu-rate", self.imu_rate), ("--mocap-rate", self.mocap_rate)):
+            if not 1.0 <= rate <= 10000.0:
+                raise InputError(f"{name} {rate}: must be between 1 and 10000 Hz")
+        if self.mocap_rate > self.imu_rate:
+            raise InputError("--mocap-rate must not exceed --imu-rate")
+
+
+@dataclass(frozen=True)
+class SimulatedSession:
+    """The simulated streams and the truth that generated them."""
+
+    imu: ImuSamples
+    mocap: MocapPoses
+    truth: dict[str, Any]
+    gyro_bias_true: Array  # (N, 3) per IMU sample
+    accel_bias_true: Array  # (N, 3) per IMU sample
+
+
+def _matrix_effect(rng: np.random.Generator, values: list[float] | None, default: float,
+                   lower: bool = False) -> Array:
+    if values is not None and len(values) == 9:
+        m = np.asarray(values, dtype=float).reshape(3, 3)
+    else:
+        scale = default if values is None else values[0]
+        m = rng.normal(0.0, scale, (3, 3))
+    if lower:
+        m = np.tril(m)
+    return m
+
+
+def _vector_effect(rng: np.random.Generator, values: list[float] | None, default: float) -> Array:
+    if values is not None and len(values) == 3:
+        return np.asarray(values, dtype=float)
+    mag = default if values is None else values[0]
+    d = rng.normal(size=3)
+    return mag * d / np.linalg.norm(d)
+
+
+def _random_rotation(rng: np.random.Generator) -> Array:
+    q = rng.normal(size=4)
+    return so3.quat_to_rotmat(q / np.linalg.norm(q))
+
+
+def simulate_flight(cfg: SimConfig) -> SimulatedSession:
+    """Simulate one mocap session of a drone flight with known calibration."""
+    cfg.validate()
+    rng = np.random.default_rng(cfg.seed)
+    noise = cfg.noise
+    effects = dict(cfg.effects)
+
+    # Calibration truth, drawn in a fixed order so the seed fixes everything.
+    traj = random_trajectory(rng, aggressiveness=cfg.aggressiveness)
+    R_MI = _random_rotation(rng)
+    p_MI = rng.uniform(-0.1, 0.1, 3)
+    p_MI *= max(1.0, 0.04 / np.linalg.norm(p_MI))
+    tilt_axis = np.array([*rng.normal(size=2), 0.0])
+    tilt = so3.exp(np.radians(rng.uniform(0.5, 3.0)) * tilt_axis / np.linalg.norm(tilt_axis))
+    g_dir = tilt @ np.array([0.0, 0.0, -1.0])
+    bg0 = rng.uniform(-0.03, 0.03, 3)
+    ba0 = rng.uniform(-0.15, 0.15, 3)
+
+    def eff(name: str) -> list[float] | None:
+        return effects[name]
+
+    t_d = 0.0
+    if "time_offset" in effects:
+        v = eff("time_offset")
+        t_d = DEFAULT_MAGNITUDE["time_offset"] if v is None else v[0]
+    g = cfg.gravity
+    if "gravity_magnitude" in effects:
+        v = eff("gravity_magnitude")
+        g = DEFAULT_MAGNITUDE["gravity_magnitude"] if v is None else v[0]
+        if not 5.0 < g < 15.0:
+            raise InputError(f"gravity_magnitude={g}: give |g| in m/s^2, e.g. 9.79")
+    M_g = np.eye(3)
+    if "gyro_scale_misalignment" in effects:
+        M_g = M_g + _matrix_effect(rng, eff("gyro_scale_misalignment"),
+                                   DEFAULT_MAGNITUDE["gyro_scale_misalignment"])
+    M_a = np.eye(3)
+    if "accel_scale_misalignment" in effects:
+        M_a = M_a + _matrix_effect(rng, eff("accel_scale_misalignment"),
+                                   DEFAULT_MAGNITUDE["accel_scale_misalignment"], lower=True)
+    G = np.zeros((3, 3))
+    if "gyro_g_sensitivity" in effects:
+        G = _matrix_effect(rng, eff("gyro_g_sensitivity"), DEFAULT_MAGNITUDE["gyro_g_sensitivity"])
+    dbg = np.zeros(3)
+    if "gyro_bias_drift" in effects:
+        dbg = _vector_effect(rng, eff("gyro_bias_drift"), DEFAULT_MAGNITUDE["gyro_bias_drift"])
+    dba = np.zeros(3)
+    if "accel_bias_drift" in effects:
+        dba = _vector_effect(rng, eff("accel_bias_drift"), DEFAULT_MAGNITUDE["accel_bias_drift"])
+
+    # IMU: stamps on the IMU clock, measured at mocap-clock time stamp + t_d.
+    n_imu = int(round(cfg.duration * cfg.imu_rate)) + 1
+    t_imu = np.arange(n_imu) / cfg.imu_rate
+    s = t_imu + t_d
+    R_WI = traj.rotation(s)
+    w_I = traj.angular_velocity_body(s)
+    f_I = np.einsum("nji,nj->ni", R_WI, traj.acceleration(s) - g * g_dir)
+    dt = 1.0 / cfg.imu_rate
+    rw_g = np.cumsum(rng.normal(0.0, noise.gyroscope_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
+    rw_a = np.cumsum(rng.normal(0.0, noise.accelerometer_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
+    rw_g -= rw_g[0]
+    rw_a -= rw_a[0]
+    t_mid = 0.5 * (t_imu[0] + t_imu[-1])
+    b_g = bg0 + rw_g + np.outer(t_imu - t_mid, dbg)
+    b_a = ba0 + rw_a + np.outer(t_imu - t_mid, dba)
+    n_g = rng.normal(0.0, noise.gyroscope_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
+    n_a = rng.normal(0.0, noise.accelerometer_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
+    gyro = w_I @ M_g.T + f_I @ G.T + b_g + n_g
+    accel = f_I @ M_a.T + b_a + n_a
+
+    # Mocap: marker pose T_WM = T_WI T_MI^-1 at mocap stamps, plus noise.
+    n_moc = int(round(cfg.duration * cfg.mocap_rate)) + 1
+    t_moc = np.arange(n_moc) / cfg.mocap_rate
+    R_WIm = traj.rotation(t_moc)
+    R_WM = R_WIm @ R_MI.T
+    p_WM = traj.position(t_moc) - R_WM @ p_MI
+    R_meas = R_WM @ so3.exp(rng.normal(0.0, noise.mocap_rotation_sigma, (n_moc, 3)))
+    p_meas = p_WM + rng.normal(0.0, noise.mocap_position_sigma, (n_moc, 3))
+
+    outlier_rows: list[int] = []
+    if "mocap_outliers" in effects:
+        v = eff("mocap_outliers")
+        count = int(DEFAULT_MAGNITUDE["mocap_outliers"] if v is None else v[0])
+        for start in np.sort(rng.choice(np.arange(10, n_moc - 10), size=count, replace=False)):
+            length = int(rng.integers(1, 5))
+            jump = rng.normal(size=3)
+            jump *= rng.uniform(0.03, 0.10) / np.linalg.norm(jump)
+            axis = rng.normal(size=3)
+            rot = so3.exp(np.radians(rng.uniform(5, 30)) * axis / np.linalg.norm(axis))
+            rows = np.arange(start, min(start + length, n_moc))
+            p_meas[rows] += jump
+            R_meas[rows] = R_meas[rows] @ rot
+            outlier_rows.extend(int(r) for r in rows)
+    keep = np.ones(n_moc, dtype=bool)
+    gaps: list[list[float]] = []
+    if "mocap_dropouts" in effects:
+        v = eff("mocap_dropouts")
+        count = int(DEFAULT_MAGNITUDE["mocap_dropouts"] if v is None else v[0])
+        for start in np.sort(rng.uniform(0.05, 0.95, count) * cfg.duration):
+            length = rng.uniform(0.05, 1.0)
+            keep &= ~((t_moc >= start) & (t_moc < start + length))
+            gaps.append([float(start), float(length)])
+
+    imu = ImuSamples(t_imu, gyro, accel, cfg.imu_time_origin_ns, "simulated imu")
+    mocap = MocapPoses(t_moc[keep], so3.rotmat_to_quat(R_meas[keep]), p_meas[keep],
+                       cfg.mocap_time_origin_ns, "simulated mocap")
+
+    truth: dict[str, Any] = {
+        "gyro_bias": b_g.mean(axis=0).tolist(),
+        "accel_bias": b_a.mean(axis=0).tolist(),
+        "T_marker_imu": {
+            "rotation_wxyz": so3.rotmat_to_quat(R_MI).tolist(),
+            "translation": p_MI.tolist(),
+        },
+        "gravity_in_mocap": g_dir.tolist(),
+        "time_offset": float(t_d),
+        "sigma": {
+            "gyro_bias": [0.0] * 3, "accel_bias": [0.0] * 3, "rotation": [0.0] * 3,
+            "translation": [0.0] * 3, "gravity_in_mocap": [0.0] * 2, "time_offset": 0.0,
+        },
+        "gravity_magnitude": float(g),
+        "model": ["base", *[e for e in effects if e in CANONICAL_EFFECTS]],
+        "effects": {},
+        "noise": noise.to_dict(),
+        "simulation": {
+            "seed": int(cfg.seed),
+            "duration": float(cfg.duration),
+            "imu_rate": float(cfg.imu_rate),
+            "mocap_rate": float(cfg.mocap_rate),
+            "bias_definition": "mean of the true bias over the IMU samples",
+            "gyro_bias_initial": b_g[0].tolist(),
+            "accel_bias_initial": b_a[0].tolist(),
+            "mocap_outlier_rows": outlier_rows,
+            "mocap_gaps_start_length_s": gaps,
+            "mocap_rows_removed": int((~keep).sum()),
+        },
+    }
+    eff_truth: dict[str, dict[str, Any]] = truth["effects"]
+    if "time_offset" in effects:
+        eff_truth["time_offset"] = {"time_offset": float(t_d)}
+    if "gravity_magnitude" in effects:
+        eff_truth["gravity_magnitude"] = {"gravity_magnitude": float(g)}
+    if "gyro_scale_misalignment" in effects:
+        eff_truth["gyro_scale_misalignment"] = {"gyro_matrix": M_g.tolist()}
+    if "accel_scale_misalignment" in effects:
+        eff_truth["accel_scale_misalignment"] = {"accel_matrix": M_a.tolist()}
+    if "gyro_g_sensitivity" in effects:
+        eff_truth["gyro_g_sensitivity"] = {"g_sensitivity": G.tolist()}
+    if "gyro_bias_drift" in effects:
+        eff_truth["gyro_bias_drift"] = {"gyro_bias_rate": dbg.tolist()}
+    if "accel_bias_drift" in effects:
+        eff_truth["accel_bias_drift"] = {"accel_bias_rate": dba.tolist()}
+    return SimulatedSession(imu, mocap, truth, b_g, b_a)

@@ -1,0 +1,1 @@
+"""Rerun recordings; the only layer that imports rerun (lazily)."""
