@@ -1,0 +1,399 @@
+"""IMU noise characterisation from a long static log by overlapping Allan deviation.
+
+Per axis, the overlapping Allan deviation (``allantools.oadev``, octave-spaced ``tau``) is fitted
+in the variance domain with the three-term model
+
+    sigma^2(tau) = N^2 / tau + B^2 (2 ln 2 / pi) + K^2 tau / 3,
+
+white noise ``N`` (slope -1/2), bias instability ``B`` (flat floor ``0.664 B``) and rate random
+walk ``K`` (slope +1/2), with non-negative coefficients (NNLS). Each point is weighted by the
+confidence of its Allan variance, ``sigma^2 sqrt(2 / edf)``, with the equivalent degrees of
+freedom of the noise type that dominates there (NIST SP 1065 formulas); the weights use the
+model, refitted a few times, because weighting by the measured values biases the fit low.
+
+``N`` equals the fitted -1/2 line read at ``tau = 1 s``, ``K`` the +1/2 line read at
+``tau = 3 s``. ``B`` is reported twice: the classic read-out ``min(adev) / 0.664`` (an upper
+bound when the other terms still contribute at the minimum) and the fitted term.
+
+The Kalibr ``imu.yaml`` keys carry the mean over the three axes (``aggregate="mean"``) or the
+largest (``"max"``, conservative).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import allantools
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import nnls
+
+from mocap_calib.core.types import ImuSamples
+from mocap_calib.errors import InputError, ObservabilityError
+
+Array = NDArray[np.float64]
+
+_C_B = 2.0 * np.log(2.0) / np.pi  # Allan variance of flicker noise per B^2
+
+#: Shortest log accepted at all (white noise needs minutes; the random walk hours).
+MIN_DURATION_S = 600.0
+
+#: Relative 1-sigma above which the random walk counts as not resolved.
+MAX_RW_REL_SIGMA = 0.3
+
+#: Motion detection thresholds for a static log.
+_MOVING_VAR_RATIO = 10.0  # block accel variance vs. the log's median block variance
+_MOVING_FRACTION = 0.01  # fraction of moving blocks tolerated
+_MAX_TILT_DEG = 5.0  # change of the gravity direction over the log
+_MAX_GYRO_DEV = 0.05  # rad/s, block-mean gyro deviation from the median
+_MAX_GYRO_MEAN = 0.1  # rad/s, a median rate larger than any usable gyro bias
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Noise parameters of one triad (per axis) and the curves they were fitted to.
+
+    Attributes:
+        sensor: ``"gyroscope"`` or ``"accelerometer"``.
+        noise_density: (3,) white noise ``N`` (rad/s/sqrt(Hz) or m/s^2/sqrt(Hz)).
+        random_walk: (3,) rate random walk ``K`` (rad/s^2/sqrt(Hz) or m/s^3/sqrt(Hz));
+            NaN where not resolved.
+        random_walk_fit: (3,) the fitted ``K`` even where not resolved (0: not seen).
+        bias_instability: (3,) ``min(adev) / 0.664`` (rad/s or m/s^2).
+        bias_instability_fit: (3,) the fitted flicker term ``B``.
+        noise_density_sigma: (3,) 1-sigma of ``N`` from the fit.
+        random_walk_sigma: (3,) 1-sigma of ``K`` from the fit.
+        random_walk_resolved: (3,) whether ``K`` is determined (relative sigma below 0.3).
+        tau_at_minimum: (3,) ``tau`` of the smallest Allan deviation, s.
+        tau: (m,) averaging times, s.
+        adev: (3, m) overlapping Allan deviation.
+        adev_sigma: (3, m) its 1-sigma from the equivalent degrees of freedom.
+        adev_fit: (3, m) the fitted model's deviation.
+        fit_chi2: (3,) reduced chi-square of the fit (about 1 when the model fits).
+    """
+
+    sensor: str
+    noise_density: Array
+    random_walk: Array
+    random_walk_fit: Array
+    bias_instability: Array
+    bias_instability_fit: Array
+    noise_density_sigma: Array
+    random_walk_sigma: Array
+    random_walk_resolved: NDArray[np.bool_]
+    tau_at_minimum: Array
+    tau: Array
+    adev: Array
+    adev_sigma: Array
+    adev_fit: Array
+    fit_chi2: Array
+
+    def aggregate(self, values: Array, how: str) -> float | None:
+        if not np.all(np.isfinite(values)):
+            return None
+        return float(np.max(values) if how == "max" else np.mean(values))
+
+
+@dataclass(frozen=True)
+class AllanResult:
+    """Noise model of an IMU from a static log.
+
+    Attributes:
+        gyroscope: gyro triad noise.
+        accelerometer: accel triad noise.
+        rate_hz: sample rate used.
+        duration_s: length of the log.
+        n_samples: number of samples.
+        aggregate: how the Kalibr keys combine the axes (``"mean"`` or ``"max"``).
+    """
+
+    gyroscope: SensorNoise
+    accelerometer: SensorNoise
+    rate_hz: float
+    duration_s: float
+    n_samples: int
+    aggregate: str = "mean"
+
+    def to_dict(self) -> dict[str, Any]:
+        """Kalibr ``imu.yaml`` keys, bias instability per axis, per-axis values, the Allan
+        curves and the fit quality (plain Python types, ready for YAML). A random walk that
+        the log does not resolve is ``null`` with its reason under ``unobservable``."""
+        out: dict[str, Any] = {}
+        unobservable: dict[str, str] = {}
+        for s in (self.gyroscope, self.accelerometer):
+            out[f"{s.sensor}_noise_density"] = s.aggregate(s.noise_density, self.aggregate)
+            out[f"{s.sensor}_random_walk"] = s.aggregate(s.random_walk, self.aggregate)
+            if out[f"{s.sensor}_random_walk"] is None:
+                unobservable[f"{s.sensor}_random_walk"] = (
+                    f"not resolved in a {self.duration_s / 3600:.2f} h log (the Allan "
+                    "deviation does not turn upward clearly); record a longer static log")
+        out["update_rate"] = float(self.rate_hz)
+        for s in (self.gyroscope, self.accelerometer):
+            out[f"{s.sensor}_bias_instability"] = s.bias_instability.tolist()
+        out["aggregate"] = self.aggregate
+        out["per_axis"] = {s.sensor: {
+            "noise_density": s.noise_density.tolist(),
+            "noise_density_sigma": s.noise_density_sigma.tolist(),
+            "random_walk": [None if not np.isfinite(v) else float(v) for v in s.random_walk],
+            "random_walk_sigma": s.random_walk_sigma.tolist(),
+            "random_walk_resolved": [bool(v) for v in s.random_walk_resolved],
+            "bias_instability": s.bias_instability.tolist(),
+            "bias_instability_fit": s.bias_instability_fit.tolist(),
+            "tau_at_minimum": s.tau_at_minimum.tolist(),
+        } for s in (self.gyroscope, self.accelerometer)}
+        out["allan"] = {s.sensor: {
+            "tau": s.tau.tolist(),
+            "adev": s.adev.tolist(),
+            "adev_sigma": s.adev_sigma.tolist(),
+            "adev_fit": s.adev_fit.tolist(),
+        } for s in (self.gyroscope, self.accelerometer)}
+        out["fit_quality"] = {s.sensor: {
+            "model": "sigma^2 = N^2/tau + B^2 2ln2/pi + K^2 tau/3",
+            "chi2": s.fit_chi2.tolist(),
+        } for s in (self.gyroscope, self.accelerometer)}
+        out["duration_s"] = float(self.duration_s)
+        out["n_samples"] = int(self.n_samples)
+        if unobservable:
+            out["unobservable"] = unobservable
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Checks
+# --------------------------------------------------------------------------------------------
+
+def _check_rate(imu: ImuSamples, rate_hz: float | None) -> float:
+    if len(imu) < 2:
+        raise InputError(f"{imu.source}: fewer than 2 samples")
+    dt = np.diff(imu.t)
+    if np.any(dt <= 0):
+        row = int(np.flatnonzero(dt <= 0)[0]) + 1
+        raise InputError(f"{imu.source}: timestamps are not strictly increasing at sample "
+                         f"{row}; sort the log by time and drop duplicate stamps")
+    med = float(np.median(dt))
+    rate = 1.0 / med
+    if not 1.0 <= rate <= 10000.0:
+        raise InputError(f"{imu.source}: sample rate {rate:.3g} Hz is outside 1-10000 Hz; "
+                         "check the timestamp unit (nanoseconds expected)")
+    if rate_hz is not None and abs(rate_hz - rate) > 0.05 * rate:
+        raise InputError(f"{imu.source}: rate_hz={rate_hz:g} but the timestamps give "
+                         f"{rate:.4g} Hz; pass the true rate or leave it out")
+    irregular = float(np.mean(np.abs(dt - med) > 0.1 * med))
+    if irregular > 0.01:
+        raise InputError(f"{imu.source}: {100 * irregular:.1f} % of the sample periods differ "
+                         f"from {1e3 * med:.3g} ms by more than 10 %; Allan deviation needs "
+                         "uniform sampling: fix dropped samples or resample the log")
+    return rate
+
+
+def _check_static(imu: ImuSamples, rate: float) -> None:
+    """Raise if the log shows motion: accel variance bursts, tilt changes or rotation."""
+    blk = max(10, int(round(rate)))  # 1 s blocks
+    nb = len(imu) // blk
+    if nb < 10:
+        return
+    acc = imu.accel[:nb * blk].reshape(nb, blk, 3)
+    gyr = imu.gyro[:nb * blk].reshape(nb, blk, 3)
+    var = np.linalg.norm(acc.var(axis=1), axis=1)
+    floor = float(np.median(var))
+    moving = var > _MOVING_VAR_RATIO * floor
+    fix = "record the IMU resting on a stable surface, or crop the moving part"
+    if moving.mean() > _MOVING_FRACTION:
+        first = float(imu.t[int(np.argmax(moving)) * blk])
+        raise ObservabilityError(
+            f"{imu.source}: the log is not static: {100 * moving.mean():.1f} % of 1 s windows "
+            f"(first at t={first:.0f} s) have accel variance >{_MOVING_VAR_RATIO:g}x the "
+            f"noise floor; {fix}")
+    am = acc.mean(axis=1)
+    dirs = am / np.linalg.norm(am, axis=1, keepdims=True)
+    ref = np.median(dirs, axis=0)
+    ref /= np.linalg.norm(ref)
+    tilt = float(np.degrees(np.max(np.arccos(np.clip(dirs @ ref, -1.0, 1.0)))))
+    if tilt > _MAX_TILT_DEG:
+        raise ObservabilityError(f"{imu.source}: the log is not static: the gravity direction "
+                                 f"changes by {tilt:.1f} deg; {fix}")
+    gm = gyr.mean(axis=1)
+    med = np.median(gm, axis=0)
+    if float(np.linalg.norm(med)) > _MAX_GYRO_MEAN:
+        raise ObservabilityError(f"{imu.source}: the log is not static: the mean gyro rate is "
+                                 f"{np.degrees(np.linalg.norm(med)):.1f} deg/s, more than a "
+                                 f"gyro bias; {fix}")
+    dev = np.linalg.norm(gm - med, axis=1) > _MAX_GYRO_DEV
+    if dev.mean() > _MOVING_FRACTION:
+        first = float(imu.t[int(np.argmax(dev)) * blk])
+        raise ObservabilityError(f"{imu.source}: the log is not static: the gyro shows "
+                                 f"rotation in {100 * dev.mean():.1f} % of 1 s windows (first "
+                                 f"at t={first:.0f} s); {fix}")
+
+
+# --------------------------------------------------------------------------------------------
+# Fit
+# --------------------------------------------------------------------------------------------
+
+def _edf(n: int, m: Array, alpha: Array) -> Array:
+    """Equivalent degrees of freedom of the overlapping Allan variance (NIST SP 1065)."""
+    out = np.empty(len(m))
+    for i, (mi, a) in enumerate(zip(m, alpha, strict=True)):
+        if a == -1 and mi < 2:
+            a = 0  # the flicker formula needs m >= 2
+        out[i] = allantools.edf_simple(n + 1, float(mi), int(a))
+    return np.maximum(out, 1.0)
+
+
+@dataclass(frozen=True)
+class _AxisFit:
+    coef: Array  # N^2, B^2, K^2
+    cov: Array  # (3, 3), zero rows/cols for coefficients at the bound
+    chi2: float
+    avar_sigma: Array
+
+
+def _fit_axis(tau: Array, avar: Array, m: Array, n: int) -> _AxisFit:
+    A = np.stack([1.0 / tau, np.full_like(tau, _C_B), tau / 3.0], axis=1)
+    ref = avar.copy()
+    coef = np.zeros(3)
+    sig = ref
+    for _ in range(4):
+        # Noise type that dominates each point, for its degrees of freedom.
+        terms = A * coef if np.any(coef > 0) else A * np.array([avar[0] * tau[0], 0.0, 0.0])
+        alpha = np.array([0, -1, -2])[np.argmax(terms, axis=1)]
+        edf = _edf(n, m, alpha)
+        sig = ref * np.sqrt(2.0 / edf)
+        coef, _ = nnls(A / sig[:, None], avar / sig)
+        model = A @ coef
+        ref = np.where(model > 0, model, avar)
+    active = coef > 0
+    Aw = A[:, active] / sig[:, None]
+    dof = len(tau) - int(active.sum())
+    chi2 = float(np.sum(((avar - A @ coef) / sig) ** 2)) / dof if dof > 0 else float("nan")
+    cov = np.zeros((3, 3))
+    if active.any():
+        sub = np.linalg.pinv(Aw.T @ Aw)
+        # Allan variances at neighbouring octaves are correlated: never trust the fit more
+        # than its scatter says.
+        sub *= max(1.0, chi2) if np.isfinite(chi2) else 1.0
+        cov[np.ix_(active, active)] = sub
+    return _AxisFit(coef, cov, chi2, sig)
+
+
+def _analyse(x: Array, rate: float, sensor: str, tau_min_s: float | None,
+             tau_max_fraction: float) -> SensorNoise:
+    n = len(x)
+    m_max = int(n * tau_max_fraction)
+    m_min = max(1, int(np.ceil((tau_min_s or 0.0) * rate)))
+    ms = 2 ** np.arange(0, int(np.log2(max(m_max, 1))) + 1)
+    ms = ms[(ms >= m_min) & (ms <= m_max)]
+    if len(ms) < 5:
+        raise ObservabilityError(f"only {len(ms)} averaging times between {m_min / rate:g} s "
+                                 f"and {m_max / rate:g} s; record a longer static log")
+    tau_req = ms / rate
+    N, K, Bf, sN, sK, bi, tmin, chi2 = (np.zeros(3) for _ in range(8))
+    adev_all, sig_all, fit_all = [], [], []
+    tau = tau_req
+    for ax in range(3):
+        t_out, adev, _, _ = allantools.oadev(x[:, ax], rate=rate, data_type="freq",
+                                             taus=tau_req)
+        tau = np.asarray(t_out, dtype=float)
+        adev = np.asarray(adev, dtype=float)
+        m = np.round(tau * rate)
+        fit = _fit_axis(tau, adev**2, m, n)
+        c, cov = fit.coef, fit.cov
+        N[ax], Bf[ax], K[ax] = np.sqrt(c)
+        sN[ax] = np.sqrt(cov[0, 0]) / (2 * N[ax]) if N[ax] > 0 else np.inf
+        sK[ax] = np.sqrt(cov[2, 2]) / (2 * K[ax]) if K[ax] > 0 else np.inf
+        i_min = int(np.argmin(adev))
+        bi[ax] = adev[i_min] / 0.664
+        tmin[ax] = tau[i_min]
+        chi2[ax] = fit.chi2
+        adev_all.append(adev)
+        # d(adev) = d(avar) / (2 adev).
+        sig_all.append(fit.avar_sigma / (2.0 * np.maximum(adev, 1e-300)))
+        fit_all.append(np.sqrt(np.stack([1.0 / tau, np.full_like(tau, _C_B), tau / 3.0], 1)
+                               @ c))
+    resolved = (K > 0) & (sK < MAX_RW_REL_SIGMA * K)
+    return SensorNoise(
+        sensor=sensor, noise_density=N, random_walk=np.where(resolved, K, np.nan),
+        random_walk_fit=K,        bias_instability=bi, bias_instability_fit=Bf, noise_density_sigma=sN,
+        random_walk_sigma=sK, random_walk_resolved=resolved, tau_at_minimum=tmin, tau=tau,
+        adev=np.array(adev_all), adev_sigma=np.array(sig_all), adev_fit=np.array(fit_all),
+        fit_chi2=chi2)
+
+
+def _hours_needed(s: SensorNoise, duration_s: float) -> float:
+    """Rough log length (h) at which the random walk would be resolved on every axis."""
+    need = 2.0 * duration_s
+    for ax in np.flatnonzero(~s.random_walk_resolved):
+        K = float(s.random_walk_fit[ax])
+        rel = float(s.random_walk_sigma[ax]) / K if K > 0 else np.inf
+        if np.isfinite(rel):
+            # Once the +1/2 slope shows, the relative precision improves as 1/sqrt(duration);
+            # aim at half the acceptance limit.
+            need = max(need, duration_s * (rel / (0.5 * MAX_RW_REL_SIGMA)) ** 2)
+        else:
+            # Not seen at all: K is below the value that would explain the last point alone,
+            # so the crossover with the white noise is at least tau_c; ~100 tau_c are needed.
+            K_ub = float(np.sqrt(3.0 * s.adev[ax, -1] ** 2 / s.tau[-1]))
+            tau_c = np.sqrt(3.0) * float(s.noise_density[ax]) / max(K_ub, 1e-300)
+            need = max(need, 100.0 * tau_c)
+    return need / 3600.0
+
+
+def characterise_noise(
+    imu: ImuSamples,
+    *,
+    rate_hz: float | None = None,
+    aggregate: Literal["mean", "max"] = "mean",
+    tau_min_s: float | None = None,
+    tau_max_fraction: float = 1.0 / 6.0,
+    require_random_walk: bool = True,
+    check_static: bool = True,
+) -> AllanResult:
+    """Allan-deviation noise model (white noise, random walk, bias instability) per axis.
+
+    Args:
+        imu: a long static log (hours for the random walk; the IMU must not move).
+        rate_hz: expected sample rate; checked against the timestamps when given.
+        aggregate: how the Kalibr keys combine the axes: ``"mean"`` or ``"max"``.
+        tau_min_s: shortest averaging time fitted (default: one sample). Raise it (e.g. to
+            ``4 / rate``) when the IMU's internal low-pass filter bends the curve down at the
+            shortest ``tau``.
+        tau_max_fraction: longest averaging time as a fraction of the log (the last points
+            have few degrees of freedom; they are weighted accordingly).
+        require_random_walk: raise when the log is too short to resolve the random walk;
+            otherwise report it as NaN (``null`` in ``to_dict``).
+        check_static: check that the log shows no motion.
+
+    Returns:
+        The noise parameters per axis, the Kalibr keys via ``to_dict()``, and the curves.
+
+    Raises:
+        InputError: bad timestamps or rate.
+        ObservabilityError: the log is too short, moves, or does not resolve the random walk.
+    """
+    if aggregate not in ("mean", "max"):
+        raise InputError(f"aggregate='{aggregate}': use 'mean' or 'max'")
+    if not 0.0 < tau_max_fraction <= 0.5:
+        raise InputError(f"tau_max_fraction={tau_max_fraction}: must be in (0, 0.5]")
+    rate = _check_rate(imu, rate_hz)
+    duration = imu.duration
+    if duration < MIN_DURATION_S:
+        raise ObservabilityError(
+            f"{imu.source}: static log is {duration / 60:.1f} min long; Allan analysis needs "
+            f"at least {MIN_DURATION_S / 60:.0f} min for the white noise and typically 2-4 h "
+            "for the random walk")
+    if check_static:
+        _check_static(imu, rate)
+    gyro = _analyse(imu.gyro, rate, "gyroscope", tau_min_s, tau_max_fraction)
+    accel = _analyse(imu.accel, rate, "accelerometer", tau_min_s, tau_max_fraction)
+    if require_random_walk:
+        for s in (gyro, accel):
+            if not np.all(s.random_walk_resolved):
+                axes = "".join("xyz"[i] for i in range(3) if not s.random_walk_resolved[i])
+                hours = _hours_needed(s, duration)
+                raise ObservabilityError(
+                    f"{imu.source}: the {s.sensor} random walk ({axes}) is not resolved in "
+                    f"this {duration / 3600:.2f} h log (the Allan deviation does not rise "
+                    f"clearly by tau={s.tau[-1]:.0f} s); record at least {hours:.1f} h "
+                    "static, or pass require_random_walk=False")
+    return AllanResult(gyro, accel, rate, duration, len(imu), aggregate)

@@ -1,0 +1,266 @@
+"""The calibration pipeline: coarse clock alignment, then three staged factor graphs.
+
+1. Coarse time offset by cross-correlating angular speed (any offset, any epochs).
+2. Attitude factors -> ``R_MI``, gyro bias.
+3. Velocity factors -> accel bias, ``p_MI``, gravity direction.
+4. Position factors (window likelihoods) -> every parameter jointly, with the fine time offset
+   and the model's effects; marginal covariances give the 1-sigma values.
+
+Each stage starts from the previous one's result; no user guess is needed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core import so3
+from mocap_calib.core.effects import EFFECTS, Model
+from mocap_calib.core.imu_model import Intrinsics, correct
+from mocap_calib.core.result import CalibrationResult, Diagnostics
+from mocap_calib.core.session import PreparedSession, local_derivative, prepare
+from mocap_calib.core.stage_attitude import run_attitude_stage
+from mocap_calib.core.stage_position import PositionInit, Prior, run_position_stage
+from mocap_calib.core.stage_velocity import run_velocity_stage
+from mocap_calib.core.timesync import coarse_time_offset
+from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.window_engine import make_windows
+from mocap_calib.errors import InputError, ObservabilityError
+
+Array = NDArray[np.float64]
+
+ProgressFn = Callable[[str], None]
+IterationFn = Callable[[str, int, dict[str, Any], float], None]
+
+
+@dataclass
+class CalibrationOptions:
+    """Everything a calibration can be told.
+
+    Attributes:
+        model: base model plus effects (default: ``base+time_offset``).
+        gravity: assumed ``|g|`` (m/s^2).
+        noise: IMU and mocap noise (default: EuRoC ADIS16448, Vicon).
+        attitude_spacing: keyframe spacing of the attitude factors (s).
+        velocity_spacing: keyframe spacing of the velocity factors (s).
+        window: length of the position-factor windows (s).
+        max_mocap_rate: the position stage decimates faster mocap streams to this rate (Hz).
+        time_offset: a known ``t_d`` (s); with ``time_offset`` in the model it is the start
+            value instead of the coarse search.
+        priors: earlier results entering as prior factors.
+        robust: down-weight mocap outliers.
+        start, end: calibrate only this part of the session (s from the IMU start).
+    """
+
+    model: Model = field(default_factory=lambda: Model(("time_offset",)))
+    gravity: float = 9.81
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    attitude_spacing: float = 0.5
+    velocity_spacing: float = 0.5
+    window: float = 5.0
+    max_mocap_rate: float = 120.0
+    time_offset: float | None = None
+    priors: list[Prior] = field(default_factory=list)
+    robust: bool = True
+    start: float | None = None
+    end: float | None = None
+    max_iterations: int = 30
+
+    def validate(self) -> None:
+        if not 5.0 < self.gravity < 15.0:
+            raise InputError(f"--gravity {self.gravity}: give |g| in m/s^2 (about 9.81)")
+        for name, v, lo, hi in (("--attitude-spacing", self.attitude_spacing, 0.02, 10.0),
+                                ("--velocity-spacing", self.velocity_spacing, 0.05, 10.0),
+                                ("--window", self.window, 0.5, 60.0)):
+            if not lo <= v <= hi:
+                raise InputError(f"{name} {v}: must be between {lo} and {hi} s")
+        nz = self.noise
+        for k, v in nz.to_dict().items():
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"noise model: {k} = {v} must be a positive number")
+
+
+def _crop(imu: ImuSamples, mocap: MocapPoses, opts: CalibrationOptions) -> tuple[ImuSamples, MocapPoses]:
+    if opts.start is None and opts.end is None:
+        return imu, mocap
+    lo = imu.t[0] + (opts.start or 0.0)
+    hi = imu.t[0] + opts.end if opts.end is not None else np.inf
+    if not hi > lo:
+        raise InputError("--end must be after --start")
+    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
+    imu_c = imu.select((imu.t >= lo) & (imu.t <= hi))
+    tm = mocap.t - shift  # mocap times on the IMU clock (before the fine offset)
+    moc_c = mocap.select((tm >= lo - 1.0) & (tm <= hi + 1.0))
+    return imu_c, moc_c
+
+
+def _corrector(model: Model, effects: dict[str, Array], t_mid: float, gyro_bias: Array,
+               accel_bias: Array, which: str):
+    """A ``(gyro, accel, u, b) -> (w, f)`` function with ``b`` the gyro or accel bias."""
+    def fn(g: Array, a: Array, u: Array, b: Array) -> tuple[Array, Array]:
+        bg, ba = (b, accel_bias) if which == "gyro" else (gyro_bias, b)
+        c = correct(model, Intrinsics(bg, ba, effects, t_mid), g, a, u, sensitivities=False)
+        return c.w, c.f
+    return fn
+
+
+def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | None = None,
+              progress: ProgressFn | None = None,
+              on_iteration: IterationFn | None = None) -> CalibrationResult:
+    """Calibrate the IMU against the mocap poses.
+
+    Args:
+        imu: raw IMU samples.
+        mocap: marker poses ``T_WM``.
+        options: see :class:`CalibrationOptions`.
+        progress: called with a one-line message as the stages advance.
+        on_iteration: called after every solver iteration (stage, iteration, values, cost).
+
+    Returns:
+        The calibration with 1-sigma values; ``diagnostics`` holds residual series.
+
+    Raises:
+        InputError: bad options or streams that do not overlap.
+        ObservabilityError: too little motion for what the model asks.
+    """
+    opts = options or CalibrationOptions()
+    opts.validate()
+    model = opts.model
+    say = progress or (lambda _m: None)
+    t0 = time.perf_counter()
+    imu, mocap = _crop(imu, mocap, opts)
+    s = prepare(imu, mocap)
+    notes: list[str] = []
+    if s.dropped_mocap_rows:
+        notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
+
+    # 1. Clock alignment.
+    session_info: dict[str, Any] = {
+        "imu_samples": len(imu), "mocap_samples": len(mocap),
+        "imu_rate_hz": round(s.imu_rate, 3), "mocap_rate_hz": round(s.mocap_rate, 3),
+        "duration_s": round(min(imu.duration, mocap.duration), 3),
+    }
+    coarse = None
+    if model.has("time_offset") and opts.time_offset is None:
+        say("aligning clocks (angular-speed cross-correlation)")
+        coarse = coarse_time_offset(imu, mocap)
+        t_d0 = coarse.time_offset
+        session_info["coarse_time_offset"] = t_d0
+        session_info["coarse_correlation"] = round(coarse.peak, 4)
+    else:
+        t_d0 = opts.time_offset or 0.0
+    delta0 = s.clock_shift + t_d0
+    overlap = min(s.u[-1] + delta0, s.tau[-1]) - max(s.u[0] + delta0, s.tau[0])
+    if overlap < 10.0:
+        fix = ("add time_offset to the model (--model base+time_offset) to search the offset"
+               if not model.has("time_offset") else "check that both files are from one session")
+        raise InputError(f"the IMU and mocap streams overlap for only {max(overlap, 0):.1f} s "
+                         f"with a time offset of {t_d0:.3f} s; {fix}")
+
+    effects0 = {e.name: e.zero() for e in model.units if e.sensor in ("gyro", "accel")}
+    for pr in opts.priors:
+        if pr.block in effects0:
+            effects0[pr.block] = np.asarray(pr.value, dtype=float)
+    t_mid = 0.5 * (s.u[0] + s.u[-1])
+
+    # 2. Attitude factors.
+    say("stage 1/3: attitude factors (gyro bias, R_MI)")
+    att = run_attitude_stage(
+        s, delta0, opts.noise, opts.attitude_spacing,
+        _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
+        on_iteration=None if on_iteration is None else
+        (lambda it, v, err: on_iteration("attitude", it, {}, err)))
+    # 3. Velocity factors.
+    say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
+    vel = run_velocity_stage(
+        s, delta0, opts.noise, opts.velocity_spacing, att.R_MI,
+        _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
+        on_iteration=None if on_iteration is None else
+        (lambda it, v, err: on_iteration("velocity", it, {}, err)))
+
+    # 4. Position factors.
+    say("stage 3/3: position factors (all parameters jointly)")
+    v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
+    windows = make_windows(s, delta0, opts.window, opts.max_mocap_rate, v_imu)
+    if windows.count < 2:
+        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; the "
+                                 "session is too short or its mocap has too many gaps")
+    init = PositionInit(att.R_MI, vel.p_MI, vel.gravity_dir, opts.gravity, delta0,
+                        att.gyro_bias, vel.accel_bias, effects0)
+    pos = run_position_stage(s, model, opts.noise, windows, init, opts.priors, opts.robust,
+                             opts.max_iterations, on_iteration=on_iteration, progress=say)
+
+    # Honest sigmas: when the residuals exceed the noise model, scale up (never down).
+    scale = float(np.sqrt(max(1.0, pos.chi2_per_dof)))
+    if scale > 1.05:
+        notes.append(f"residuals exceed the noise model (chi2/dof = {pos.chi2_per_dof:.2f}); "
+                     f"sigmas are scaled by {scale:.2f}")
+
+    def sig(name: str) -> Array | None:
+        return None if name not in pos.cov else scale * np.sqrt(np.maximum(np.diag(pos.cov[name]), 0))
+
+    unob = dict(pos.unobservable)
+
+    def val(name: str, v: Array) -> Array | None:
+        return None if name in unob else v
+
+    effects: dict[str, dict[str, Any]] = {}
+    for name in model.effects:
+        eff = EFFECTS[name]
+        if name == "time_offset":
+            continue
+        if name == "gravity_magnitude":
+            v, sg = pos.g_mag, sig("gravity_magnitude")
+            effects[name] = {eff.param: None if name in unob else float(v),
+                             "sigma": None if sg is None else float(sg[0])}
+            continue
+        theta = pos.effects[name]
+        sg = sig(name)
+        effects[name] = {eff.param: None if name in unob else eff.report_value(theta),
+                         "sigma": None if sg is None else eff.report_sigma(sg)}
+    t_d = pos.delta - s.clock_shift
+    sig_td = sig("time_offset")
+    solver = {"total_seconds": round(time.perf_counter() - t0, 3), "sigma_scale": round(scale, 4),
+              "position_chi2_per_dof": round(pos.chi2_per_dof, 4), **pos.solver}
+    if not model.has("time_offset"):
+        notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
+    diag = Diagnostics(
+        residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
+        iterations=pos.history,
+        extras={"windows": pos.windows, "knots": pos.knots, "weights": pos.weights,
+                "clock_shift": s.clock_shift, "session": s, "delta": pos.delta,
+                "effects_theta": pos.effects, "t_mid": t_mid,
+                "stage1": {"R_MI": att.R_MI, "gyro_bias": att.gyro_bias},
+                "stage2": {"p_MI": vel.p_MI, "accel_bias": vel.accel_bias,
+                           "gravity_dir": vel.gravity_dir, "gravity_norm_free": vel.gravity_norm_free}})
+    return CalibrationResult(
+        gyro_bias=val("gyro_bias", pos.gyro_bias_mean),
+        accel_bias=val("accel_bias", pos.accel_bias_mean),
+        rotation_wxyz=val("rotation", so3.rotmat_to_quat(pos.R_MI)),
+        translation=val("translation", pos.p_MI),
+        gravity_in_mocap=val("gravity", pos.g_dir),
+        time_offset=None if "time_offset" in unob else float(t_d),
+        sigma_gyro_bias=sig("gyro_bias"), sigma_accel_bias=sig("accel_bias"),
+        sigma_rotation=sig("rotation"), sigma_translation=sig("translation"),
+        sigma_gravity=sig("gravity"),
+        sigma_time_offset=None if sig_td is None else float(sig_td[0]),
+        gravity_magnitude=float(pos.g_mag), model=str(model), effects=effects,
+        unobservable=unob, stages=[att.stats, vel.stats, pos.stats], solver=solver,
+        noise=opts.noise, notes=notes, session=session_info, diagnostics=diag)
+
+
+def _imu_velocity(s: PreparedSession, delta: float, R_MI: Array, p_MI: Array,
+                  gyro_bias: Array) -> Array:
+    """IMU velocity at every mocap sample (local fit + lever arm): start guesses of windows."""
+    half = max(2, int(round(0.05 * s.mocap_rate)))
+    _, vM, valid = local_derivative(s.tau, s.p_WM, half, s.gap)
+    u = np.clip(s.tau - delta, s.u[0], s.u[-1])
+    w = np.stack([np.interp(u, s.u, s.gyro[:, i]) for i in range(3)], axis=1) - gyro_bias
+    v = vM + np.einsum("nij,nj->ni", s.R_WM @ so3.hat(w @ R_MI.T), np.broadcast_to(p_MI, w.shape))
+    v[~valid] = 0.0
+    return v

@@ -1,0 +1,171 @@
+"""GTSAM plumbing: batched Python factors, key helpers, the LM run and marginals.
+
+A GTSAM ``CustomFactor`` calls back into Python once per factor, and the calibration has
+thousands of factors of the same kind. :class:`BatchFactors` makes each of them a real
+``CustomFactor`` in the graph (so GTSAM's LM, robust noise models and marginals work as usual)
+but evaluates them all in one vectorised numpy call: the first factor called at a new
+linearisation point computes the whole batch, the others read their slice from the cache.
+A factor's slice stays valid while the values of the shared keys and of its own keys are
+unchanged, which is checked on every call.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+def value_vector(values: gtsam.Values, key: int, kind: str) -> Array:
+    """The numbers of one variable (for cache fingerprints and reports)."""
+    if kind == "rot3":
+        return values.atRot3(key).matrix().ravel()
+    if kind == "point3":
+        return np.asarray(values.atPoint3(key), dtype=float)
+    if kind == "unit3":
+        return values.atUnit3(key).point3()
+    return np.asarray(values.atVector(key), dtype=float)
+
+
+@dataclass
+class BatchOutput:
+    """What a batch evaluation returns.
+
+    Attributes:
+        errors: per factor, the unwhitened error vector.
+        jacobians: per factor, one matrix per key of that factor (in the factor's key order).
+    """
+
+    errors: list[Array]
+    jacobians: list[list[Array]]
+
+
+@dataclass
+class BatchFactors:
+    """A set of CustomFactors evaluated together.
+
+    Args:
+        evaluate: ``values -> BatchOutput`` for all factors at once.
+        factor_keys: the keys of each factor (shared keys first, then its own).
+        key_kinds: kind of every key involved (``rot3``, ``point3``, ``unit3``, ``vector``).
+        shared: keys whose values every factor depends on.
+        noise: one noise model per factor, or one for all.
+    """
+
+    evaluate: Callable[[gtsam.Values], BatchOutput]
+    factor_keys: list[list[int]]
+    key_kinds: dict[int, str]
+    shared: list[int]
+    noise: Sequence[gtsam.noiseModel.Base] | gtsam.noiseModel.Base
+    evaluations: int = 0
+    seconds: float = 0.0
+    _cache: BatchOutput | None = field(default=None, repr=False)
+    _shared_fp: bytes = b""
+    _own_fp: list[bytes] = field(default_factory=list, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def _fingerprint(self, values: gtsam.Values, keys: Sequence[int]) -> bytes:
+        return b"".join(value_vector(values, k, self.key_kinds[k]).tobytes() for k in keys)
+
+    def _own(self, i: int) -> list[int]:
+        return [k for k in self.factor_keys[i] if k not in self.shared]
+
+    def output(self, values: gtsam.Values, i: int) -> tuple[Array, list[Array]]:
+        """Error and Jacobians of factor ``i`` at ``values`` (evaluating the batch if needed)."""
+        with self._lock:
+            shared_fp = self._fingerprint(values, self.shared)
+            own_fp = self._fingerprint(values, self._own(i))
+            if (self._cache is None or shared_fp != self._shared_fp
+                    or own_fp != self._own_fp[i]):
+                t0 = time.perf_counter()
+                self._cache = self.evaluate(values)
+                self.seconds += time.perf_counter() - t0
+                self.evaluations += 1
+                self._shared_fp = shared_fp
+                self._own_fp = [self._fingerprint(values, self._own(j))
+                                for j in range(len(self.factor_keys))]
+            return self._cache.errors[i], self._cache.jacobians[i]
+
+    def factors(self) -> list[gtsam.CustomFactor]:
+        """The CustomFactors, to add to a graph."""
+        out = []
+        for i, keys in enumerate(self.factor_keys):
+            nm = self.noise if isinstance(self.noise, gtsam.noiseModel.Base) else self.noise[i]
+
+            def fn(this: gtsam.CustomFactor, v: gtsam.Values, H: list | None, i: int = i) -> Array:
+                err, jac = self.output(v, i)
+                if H is not None:
+                    for j, J in enumerate(jac):
+                        H[j] = J
+                return err
+
+            out.append(gtsam.CustomFactor(nm, list(keys), fn))
+        return out
+
+
+@dataclass
+class SolveReport:
+    """Figures of one LM run."""
+
+    iterations: int
+    initial_error: float
+    final_error: float
+    seconds: float
+    history: list[dict[str, object]] = field(default_factory=list)
+
+
+def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
+           on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
+           relative_tol: float = 1e-7) -> tuple[gtsam.Values, SolveReport]:
+    """Levenberg-Marquardt with an optional per-iteration hook (values and error)."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(relative_tol)
+    params.setAbsoluteErrorTol(1e-12)
+    params.setVerbosityLM("SILENT")
+    t0 = time.perf_counter()
+    initial_error = graph.error(initial)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    if on_iteration is not None:
+        on_iteration(0, initial, initial_error)
+    it = 0
+    err = initial_error
+    while it < max_iterations:
+        prev = err
+        opt.iterate()
+        it += 1
+        err = opt.error()
+        if on_iteration is not None:
+            on_iteration(it, opt.values(), err)
+        if prev - err < relative_tol * max(prev, 1e-300) or err < 1e-12:
+            break
+        if opt.lambda_() > 1e10:
+            break
+    report = SolveReport(it, float(initial_error), float(err), time.perf_counter() - t0)
+    return opt.values(), report
+
+
+def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                         keys: Sequence[int]) -> dict[int, Array]:
+    """Marginal covariance of each key (in its tangent space)."""
+    marg = gtsam.Marginals(graph, values)
+    return {k: np.asarray(marg.marginalCovariance(k)) for k in keys}
+
+
+def joint_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                     keys: Sequence[int]) -> Array:
+    """Joint marginal covariance of several keys, in the given order."""
+    marg = gtsam.Marginals(graph, values)
+    kv = gtsam.KeyVector()
+    for k in keys:
+        kv.append(k)
+    jm = marg.jointMarginalCovariance(kv)
+    blocks = [[np.asarray(jm.at(a, b)) for b in keys] for a in keys]
+    return np.block(blocks)

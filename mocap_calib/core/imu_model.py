@@ -1,0 +1,148 @@
+"""Apply the measurement model backwards: raw IMU samples -> true rate ``w`` and specific force ``f``.
+
+The model (``docs/conventions.md`` plus the effects in :mod:`mocap_calib.core.effects`) is
+
+    a_m = (I + E_a) f + b_a + r_a (u - t_mid)
+    w_m = (I + E_g) w + G f + b_g + r_g (u - t_mid)
+
+where ``u`` is the sample's IMU-clock time and every term but the biases comes from an effect
+unit. :func:`correct` inverts it and returns, for the parameters of every active effect and the
+biases, the sensitivities ``dw/dtheta`` and ``df/dtheta`` that the factors chain into their
+Jacobians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.effects import EFFECTS, Model
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Values of the IMU-side effect parameters (keyed by effect name) and the biases."""
+
+    gyro_bias: Array
+    accel_bias: Array
+    effects: dict[str, Array]
+    t_mid: float = 0.0
+
+    def theta(self, name: str) -> Array:
+        return self.effects.get(name, EFFECTS[name].zero())
+
+
+@dataclass(frozen=True)
+class Corrected:
+    """True-signal estimates and their sensitivities at a set of samples.
+
+    Attributes:
+        w: (..., 3) angular rate.
+        f: (..., 3) specific force.
+        dw: dict effect-or-bias name -> (..., 3, k) ``dw/dtheta``.
+        df: dict name -> (..., 3, k) ``df/dtheta``.
+        dw_du: (..., 3) time derivative of ``w`` (if raw derivatives were given).
+        df_du: (..., 3) time derivative of ``f``.
+    """
+
+    w: Array
+    f: Array
+    dw: dict[str, Array]
+    df: dict[str, Array]
+    dw_du: Array | None = None
+    df_du: Array | None = None
+
+
+def _matrix_sum(model: Model, params: Intrinsics, sensor: str, acts_on: str) -> Array:
+    m = np.zeros((3, 3))
+    for eff in model.units:
+        if eff.sensor == sensor and eff.acts_on == acts_on:
+            m = m + eff.matrix(params.theta(eff.name))
+    return m
+
+
+def correct(model: Model, params: Intrinsics, gyro_m: Array, accel_m: Array, u: Array,
+            gyro_dot: Array | None = None, accel_dot: Array | None = None,
+            sensitivities: bool = True) -> Corrected:
+    """Invert the measurement model sample by sample.
+
+    Args:
+        model: active effects.
+        params: biases and effect parameters.
+        gyro_m: (..., 3) measured rate (rad/s).
+        accel_m: (..., 3) measured specific force (m/s^2).
+        u: (...) IMU-clock times (s) of the samples (for the drift terms).
+        gyro_dot, accel_dot: (..., 3) time derivatives of the raw signals, to get those of the
+            corrected ones (needed for the time-offset Jacobian).
+        sensitivities: also return ``dw``/``df``.
+
+    Returns:
+        The corrected signals and their sensitivities to every parameter block, including
+        ``gyro_bias`` and ``accel_bias``.
+    """
+    Ea = _matrix_sum(model, params, "accel", "f")
+    Eg = _matrix_sum(model, params, "gyro", "w")
+    G = _matrix_sum(model, params, "gyro", "f")
+    Ma_inv = np.linalg.inv(np.eye(3) + Ea)
+    Mg_inv = np.linalg.inv(np.eye(3) + Eg)
+    du = (u - params.t_mid)[..., None]
+
+    ra = np.zeros(3)
+    rg = np.zeros(3)
+    for eff in model.units:
+        if eff.acts_on == "time":
+            if eff.sensor == "accel":
+                ra = ra + params.theta(eff.name)
+            else:
+                rg = rg + params.theta(eff.name)
+
+    f = (accel_m - params.accel_bias - du * ra) @ Ma_inv.T
+    w = (gyro_m - params.gyro_bias - du * rg - f @ G.T) @ Mg_inv.T
+    dw_du = df_du = None
+    if gyro_dot is not None and accel_dot is not None:
+        df_du = (accel_dot - ra) @ Ma_inv.T
+        dw_du = (gyro_dot - rg - df_du @ G.T) @ Mg_inv.T
+    if not sensitivities:
+        return Corrected(w, f, {}, {}, dw_du, df_du)
+
+    shape = f.shape[:-1]
+    df: dict[str, Array] = {}
+    dw: dict[str, Array] = {}
+    # Accel-side blocks first: gyro depends on f through G.
+    df["accel_bias"] = np.broadcast_to(-Ma_inv, shape + (3, 3))
+    for eff in model.units:
+        if eff.sensor != "accel":
+            continue
+        if eff.acts_on == "f":
+            # d/dtheta_k of (I + E_a) f = const  ->  df = -Ma^-1 B_k f
+            df[eff.name] = -np.einsum("ij,kjl,...l->...ik", Ma_inv, eff.basis, f)
+        elif eff.acts_on == "time":
+            df[eff.name] = -Ma_inv * du[..., None]
+    for name, d in df.items():
+        dw[name] = -np.einsum("ij,jk,...kl->...il", Mg_inv, G, d)
+    dw["gyro_bias"] = np.broadcast_to(-Mg_inv, shape + (3, 3))
+    for eff in model.units:
+        if eff.sensor != "gyro":
+            continue
+        if eff.acts_on == "w":
+            dw[eff.name] = -np.einsum("ij,kjl,...l->...ik", Mg_inv, eff.basis, w)
+        elif eff.acts_on == "f":
+            dw[eff.name] = -np.einsum("ij,kjl,...l->...ik", Mg_inv, eff.basis, f)
+        elif eff.acts_on == "time":
+            dw[eff.name] = -Mg_inv * du[..., None]
+    zeros = {n: np.zeros(shape + (3, d.shape[-1])) for n, d in dw.items() if n not in df}
+    df.update(zeros)
+    return Corrected(w, f, dw, df, dw_du, df_du)
+
+
+def imu_blocks(model: Model) -> list[tuple[str, int]]:
+    """Parameter blocks that enter through the IMU signals, in a fixed order."""
+    blocks = [("gyro_bias", 3), ("accel_bias", 3)]
+    for eff in model.units:
+        if eff.sensor in ("gyro", "accel"):
+            blocks.append((eff.name, eff.dim))
+    return blocks

@@ -1,0 +1,197 @@
+"""Typed results: the calibration (``docs/conventions.md`` keys), stage figures, residual series.
+
+:meth:`CalibrationResult.to_dict` / :meth:`CalibrationResult.from_dict` give the versioned
+plain-data form that ``io`` writes as YAML; a round trip restores the same object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.types import NoiseModel
+
+Array = NDArray[np.float64]
+
+RESULT_VERSION = 1
+
+
+def _list(a: Array | None) -> list[float] | None:
+    return None if a is None else [float(x) for x in np.asarray(a).ravel()]
+
+
+def _arr(x: Any) -> Array | None:
+    return None if x is None else np.asarray(x, dtype=float)
+
+
+@dataclass
+class StageStats:
+    """Figures of one stage.
+
+    Attributes:
+        name: ``attitude``, ``velocity`` or ``position``.
+        unit: unit of the residuals (per axis).
+        rms_before, rms_after: residual RMS per axis before / after the stage's solve.
+        rms_rotation_deg: for the position stage, the attitude part of the residuals.
+        n_factors: number of factors (intervals or windows).
+        n_residuals: number of residual vectors (intervals or mocap samples).
+        outliers: residuals down-weighted by the robust kernel (weight < 0.5).
+        iterations: LM iterations; seconds: wall time of the stage.
+        chi2_per_dof: whitened cost per degree of freedom at the solution (1 = noise as modelled).
+    """
+
+    name: str
+    unit: str
+    rms_before: list[float]
+    rms_after: list[float]
+    n_factors: int
+    n_residuals: int
+    outliers: int
+    iterations: int
+    seconds: float
+    chi2_per_dof: float
+    rms_rotation_deg: list[float] | None = None
+    batch_evaluations: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {k: v for k, v in self.__dict__.items() if v is not None}
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> StageStats:
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+
+
+@dataclass
+class ResidualSeries:
+    """Residuals of one stage over time, for inspection (not written to YAML).
+
+    Attributes:
+        t: (n,) mocap-clock times (s since the mocap origin).
+        before, after: (n, 3) residuals before / after the solve, in ``unit``.
+        weight: (n,) robust weights at the solution (1 = inlier).
+        unit: unit of the residuals.
+        rotation_before, rotation_after: (n, 3) attitude residuals (deg) of the position stage.
+    """
+
+    t: Array
+    before: Array
+    after: Array
+    weight: Array
+    unit: str
+    rotation_before: Array | None = None
+    rotation_after: Array | None = None
+
+
+@dataclass
+class Diagnostics:
+    """What the core exposes for inspection (viz, diagnose): never serialised to YAML."""
+
+    residuals: dict[str, ResidualSeries] = field(default_factory=dict)
+    iterations: list[dict[str, Any]] = field(default_factory=list)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class CalibrationResult:
+    """A calibration, with 1-sigma uncertainties and the figures behind it.
+
+    ``None`` marks a parameter the session could not determine (see ``unobservable``).
+    """
+
+    gyro_bias: Array | None
+    accel_bias: Array | None
+    rotation_wxyz: Array | None  # R_MI
+    translation: Array | None  # p_MI (m)
+    gravity_in_mocap: Array | None  # unit vector along g_W
+    time_offset: float | None
+    sigma_gyro_bias: Array | None = None
+    sigma_accel_bias: Array | None = None
+    sigma_rotation: Array | None = None
+    sigma_translation: Array | None = None
+    sigma_gravity: Array | None = None
+    sigma_time_offset: float | None = None
+    gravity_magnitude: float = 9.81
+    model: str = "base+time_offset"
+    effects: dict[str, dict[str, Any]] = field(default_factory=dict)
+    unobservable: dict[str, str] = field(default_factory=dict)
+    stages: list[StageStats] = field(default_factory=list)
+    solver: dict[str, Any] = field(default_factory=dict)
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    notes: list[str] = field(default_factory=list)
+    session: dict[str, Any] = field(default_factory=dict)
+    version: int = RESULT_VERSION
+    diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def R_marker_imu(self) -> Array | None:
+        from mocap_calib.core import so3
+
+        return None if self.rotation_wxyz is None else so3.quat_to_rotmat(self.rotation_wxyz)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data with the keys of ``docs/conventions.md`` first."""
+        return {
+            "gyro_bias": _list(self.gyro_bias),
+            "accel_bias": _list(self.accel_bias),
+            "T_marker_imu": {
+                "rotation_wxyz": _list(self.rotation_wxyz),
+                "translation": _list(self.translation),
+            },
+            "gravity_in_mocap": _list(self.gravity_in_mocap),
+            "time_offset": None if self.time_offset is None else float(self.time_offset),
+            "sigma": {
+                "gyro_bias": _list(self.sigma_gyro_bias),
+                "accel_bias": _list(self.sigma_accel_bias),
+                "rotation": _list(self.sigma_rotation),
+                "translation": _list(self.sigma_translation),
+                "gravity_in_mocap": _list(self.sigma_gravity),
+                "time_offset": (None if self.sigma_time_offset is None
+                                else float(self.sigma_time_offset)),
+            },
+            "gravity_magnitude": float(self.gravity_magnitude),
+            "model": self.model,
+            "effects": self.effects,
+            "unobservable": dict(self.unobservable),
+            "stages": [s.to_dict() for s in self.stages],
+            "solver": self.solver,
+            "noise": self.noise.to_dict(),
+            "session": self.session,
+            "notes": list(self.notes),
+            "version": self.version,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
+        """Inverse of :meth:`to_dict`; raises ``KeyError``/``ValueError`` on a malformed dict."""
+        T = d.get("T_marker_imu") or {}
+        sig = d.get("sigma") or {}
+        to = d.get("time_offset")
+        sto = sig.get("time_offset")
+        return cls(
+            gyro_bias=_arr(d.get("gyro_bias")),
+            accel_bias=_arr(d.get("accel_bias")),
+            rotation_wxyz=_arr(T.get("rotation_wxyz")),
+            translation=_arr(T.get("translation")),
+            gravity_in_mocap=_arr(d.get("gravity_in_mocap")),
+            time_offset=None if to is None else float(to),
+            sigma_gyro_bias=_arr(sig.get("gyro_bias")),
+            sigma_accel_bias=_arr(sig.get("accel_bias")),
+            sigma_rotation=_arr(sig.get("rotation")),
+            sigma_translation=_arr(sig.get("translation")),
+            sigma_gravity=_arr(sig.get("gravity_in_mocap")),
+            sigma_time_offset=None if sto is None else float(sto),
+            gravity_magnitude=float(d.get("gravity_magnitude", 9.81)),
+            model=str(d.get("model", "base")),
+            effects=dict(d.get("effects") or {}),
+            unobservable=dict(d.get("unobservable") or {}),
+            stages=[StageStats.from_dict(s) for s in d.get("stages") or []],
+            solver=dict(d.get("solver") or {}),
+            noise=NoiseModel.from_dict(d.get("noise") or {}),
+            notes=list(d.get("notes") or []),
+            session=dict(d.get("session") or {}),
+            version=int(d.get("version", RESULT_VERSION)),
+        )

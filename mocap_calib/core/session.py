@@ -1,0 +1,134 @@
+"""A session ready for calibration: both streams on their own relative clocks, checked.
+
+Internally the IMU clock time ``u`` (seconds since the IMU origin) and the mocap clock time
+``tau`` (seconds since the mocap origin) are related by ``tau = u + delta`` where
+``delta = clock_shift + t_d`` and ``clock_shift = (origin_imu - origin_mocap) * 1e-9`` is exact
+integer arithmetic. Working with ``delta`` keeps every float small even when the two clocks are
+from different epochs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core import so3
+from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.errors import InputError, ObservabilityError
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PreparedSession:
+    """Arrays the stages work on.
+
+    Attributes:
+        u: (N,) IMU times (s since the IMU origin).
+        gyro, accel: (N, 3) raw IMU samples.
+        tau: (M,) mocap times (s since the mocap origin).
+        R_WM: (M, 3, 3) marker attitudes; p_WM: (M, 3) marker positions.
+        clock_shift: ``(origin_imu - origin_mocap) * 1e-9``.
+        gap: a mocap interval longer than this (s) is a gap.
+        dropped_mocap_rows: rows removed on reading (occlusions).
+    """
+
+    u: Array
+    gyro: Array
+    accel: Array
+    tau: Array
+    R_WM: Array
+    p_WM: Array
+    clock_shift: float
+    gap: float
+    dropped_mocap_rows: int = 0
+
+    @property
+    def imu_rate(self) -> float:
+        return float(1.0 / np.median(np.diff(self.u)))
+
+    @property
+    def mocap_rate(self) -> float:
+        return float(1.0 / np.median(np.diff(self.tau)))
+
+    def imu_covers(self, tau0: Array, tau1: Array, delta: float, margin: int = 3) -> NDArray[np.bool_]:
+        """Whether the IMU samples cover mocap-time spans ``[tau0, tau1]`` (with a margin)."""
+        lo = self.u[margin] + delta
+        hi = self.u[-1 - margin] + delta
+        return (tau0 >= lo) & (tau1 <= hi)
+
+    def segments_without_gaps(self, idx0: NDArray[np.int64], idx1: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Whether mocap index ranges ``[idx0, idx1]`` contain no gap."""
+        gaps = np.concatenate([[0], np.cumsum(np.diff(self.tau) > self.gap)])
+        return gaps[idx1] == gaps[idx0]
+
+
+def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0) -> PreparedSession:
+    """Check that the two streams can support a calibration and put them on relative clocks.
+
+    Raises:
+        InputError: too few samples, rates the method cannot use.
+        ObservabilityError: session too short or static.
+    """
+    if len(imu) < 100:
+        raise InputError(f"{imu.source}: only {len(imu)} IMU samples; a calibration needs at "
+                         "least a few thousand (tens of seconds of motion)")
+    if len(mocap) < 20:
+        raise InputError(f"{mocap.source}: only {len(mocap)} mocap poses; a calibration needs "
+                         "at least a few thousand (tens of seconds of motion)")
+    dt_m = np.diff(mocap.t)
+    dt_i = np.diff(imu.t)
+    if np.any(dt_m <= 0) or np.any(dt_i <= 0):
+        raise InputError("timestamps must increase strictly; sort the files and remove duplicates")
+    median_m = float(np.median(dt_m))
+    duration = min(imu.duration, mocap.duration)
+    if duration < min_duration:
+        raise ObservabilityError(
+            f"the session is only {duration:.1f} s long; record at least {min_duration:.0f} s "
+            "(better 60-120 s) of motion that rotates the body about all axes")
+    gyro_speed = np.linalg.norm(imu.gyro - np.median(imu.gyro, axis=0), axis=1)
+    p_range = np.ptp(mocap.position, axis=0)
+    R = mocap.rotation
+    angles = np.linalg.norm(so3.log(np.einsum("ji,njk->nik", R[0], R)), axis=1)
+    if np.percentile(gyro_speed, 90) < 0.1 or (np.max(angles) < np.radians(10)
+                                               and np.max(p_range) < 0.05):
+        raise ObservabilityError(
+            "the session is (nearly) static: the body rotates less than 10 deg or the gyro "
+            "barely moves; calibration needs motion that rotates the body about all axes")
+    return PreparedSession(
+        u=imu.t, gyro=imu.gyro, accel=imu.accel, tau=mocap.t, R_WM=R,
+        p_WM=mocap.position,
+        clock_shift=(imu.time_origin_ns - mocap.time_origin_ns) * 1e-9,
+        gap=max(3.0 * median_m, 0.02),
+        dropped_mocap_rows=mocap.dropped_rows,
+    )
+
+
+def local_derivative(t: Array, y: Array, half: int, gap: float) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Smoothed value and first derivative of ``y(t)`` by a local quadratic fit.
+
+    Args:
+        t: (M,) times; y: (M, d) values.
+        half: samples on each side of the fit window.
+        gap: a spacing above this marks the fit invalid (windows do not span gaps).
+
+    Returns:
+        value (M, d), derivative (M, d), valid (M,).
+    """
+    M = len(t)
+    idx = np.arange(M)[:, None] + np.arange(-half, half + 1)
+    valid = (idx[:, 0] >= 0) & (idx[:, -1] < M)
+    idx = np.clip(idx, 0, M - 1)
+    dt = t[idx] - t[:, None]
+    big = np.diff(t) > gap
+    cum = np.concatenate([[0], np.cumsum(big)])
+    valid &= cum[idx[:, -1]] == cum[idx[:, 0]]
+    # Normal equations of y = a + b dt + c dt^2, per sample.
+    V = np.stack([np.ones_like(dt), dt, dt * dt], axis=-1)
+    VtV = np.einsum("mki,mkj->mij", V, V)
+    VtV[~valid] = np.eye(3)
+    Vty = np.einsum("mki,mkd->mid", V, y[idx])
+    coef = np.linalg.solve(VtV, Vty)
+    return coef[:, 0], coef[:, 1], valid

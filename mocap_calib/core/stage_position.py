@@ -1,0 +1,393 @@
+"""Stage 3, position factors: refine every parameter jointly on a GTSAM factor graph.
+
+Variables: ``R_MI`` (Rot3), ``p_MI`` (Point3), the gravity direction (Unit3), the clock offset
+and ``|g|`` when the model estimates them, one vector per IMU-side effect, and one bias knot
+(gyro + accel, Vector6) at the start of every window. Factors: one window factor per window
+(:mod:`mocap_calib.core.window_engine`, evaluated together), a random-walk between-factor for
+consecutive knots, weak range priors that keep the system well posed (a parameter whose
+uncertainty they dominate is reported as unobservable), and user priors. Mocap outliers are
+handled per sample by a redescending kernel on the whitened innovation (iteratively
+re-weighted; weights are frozen during each LM run so LM sees one fixed cost).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core import so3
+from mocap_calib.core.effects import EFFECTS, Model
+from mocap_calib.core.graph import BatchFactors, BatchOutput, run_lm
+from mocap_calib.core.result import ResidualSeries, StageStats
+from mocap_calib.core.session import PreparedSession
+from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.window_engine import (
+    PositionProblem,
+    Theta,
+    Windows,
+    compress,
+)
+
+Array = NDArray[np.float64]
+
+KEY_R = gtsam.symbol("r", 0)
+KEY_P = gtsam.symbol("p", 0)
+KEY_G = gtsam.symbol("g", 0)
+KEY_T = gtsam.symbol("t", 0)
+KEY_GM = gtsam.symbol("m", 0)
+
+
+def key_effect(i: int) -> int:
+    return gtsam.symbol("e", i)
+
+
+def key_knot(w: int) -> int:
+    return gtsam.symbol("b", w)
+
+
+#: Weak priors (1 sigma) that only regularise: a parameter whose posterior sigma is not well
+#: below its prior sigma was not determined by the data.
+RANGE_SIGMA: dict[str, float] = {
+    "rotation": 0.5,  # rad
+    "translation": 0.5,  # m
+    "gravity": 0.3,  # rad
+    "time_offset": 0.05,  # s
+    "gravity_magnitude": 0.5,  # m/s^2
+    "gyro_scale_misalignment": 0.05,
+    "accel_scale_misalignment": 0.05,
+    "gyro_g_sensitivity": 0.01,  # rad/s per m/s^2
+    "gyro_bias_drift": 1e-3,  # rad/s^2
+    "accel_bias_drift": 0.05,  # m/s^3
+    "gyro_bias": 0.5,  # rad/s (first knot)
+    "accel_bias": 2.0,  # m/s^2 (first knot)
+}
+#: Posterior/prior sigma ratio above which a parameter counts as not determined by the data.
+UNOBSERVABLE_RATIO = 0.3
+
+
+@dataclass
+class Prior:
+    """A prior on one parameter block from an earlier calibration.
+
+    Attributes:
+        block: ``rotation``, ``translation``, ``gravity``, ``time_offset``, ``gyro_bias``,
+            ``accel_bias`` or an effect name.
+        value: the block's value in its natural form (rotation as 3x3, gravity as unit vector,
+            time offset as the IMU/mocap ``t_d``, effects as their parameter vector).
+        sigma: 1-sigma per tangent component.
+    """
+
+    block: str
+    value: Any
+    sigma: Array
+
+
+@dataclass
+class PositionInit:
+    """Starting point of stage 3 (from stages 1-2 or from priors)."""
+
+    R_MI: Array
+    p_MI: Array
+    g_dir: Array
+    g_mag: float
+    delta: float
+    gyro_bias: Array
+    accel_bias: Array
+    effects: dict[str, Array] = field(default_factory=dict)
+
+
+@dataclass
+class PositionResult:
+    """Stage 3 estimates with covariances in GTSAM tangent spaces."""
+
+    R_MI: Array
+    p_MI: Array
+    g_dir: Array
+    g_mag: float
+    delta: float
+    effects: dict[str, Array]
+    gyro_bias_mean: Array
+    accel_bias_mean: Array
+    knots: Array
+    cov: dict[str, Array]
+    unobservable: dict[str, str]
+    stats: StageStats
+    series: ResidualSeries
+    chi2_per_dof: float
+    windows: Windows
+    weights: Array
+    solver: dict[str, Any]
+    history: list[dict[str, Any]]
+
+
+def _theta(values: gtsam.Values, model: Model, W: int, fixed: PositionInit, t_mid: float) -> Theta:
+    u3 = values.atUnit3(KEY_G)
+    effects = {}
+    for i, eff in enumerate(model.units):
+        if eff.sensor in ("gyro", "accel"):
+            effects[eff.name] = np.asarray(values.atVector(key_effect(i)), dtype=float)
+    knots = np.stack([np.asarray(values.atVector(key_knot(w))) for w in range(W)])
+    return Theta(
+        R_MI=values.atRot3(KEY_R).matrix(),
+        p_MI=np.asarray(values.atPoint3(KEY_P), dtype=float),
+        g_dir=u3.point3(),
+        g_basis=u3.basis(),
+        g_mag=float(values.atVector(KEY_GM)[0]) if model.has("gravity_magnitude") else fixed.g_mag,
+        delta=float(values.atVector(KEY_T)[0]) if model.has("time_offset") else fixed.delta,
+        effects=effects,
+        knots=knots,
+        t_mid=t_mid,
+    )
+
+
+def _block_keys(model: Model) -> dict[str, int]:
+    keys = {"rotation": KEY_R, "translation": KEY_P, "gravity": KEY_G}
+    if model.has("time_offset"):
+        keys["time_offset"] = KEY_T
+    if model.has("gravity_magnitude"):
+        keys["gravity_magnitude"] = KEY_GM
+    for i, eff in enumerate(model.units):
+        if eff.sensor in ("gyro", "accel"):
+            keys[eff.name] = key_effect(i)
+    return keys
+
+
+def _prior_factor(block: str, key: int, value: Any, sigma: Array) -> gtsam.NonlinearFactor:
+    nm = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float))
+    if block == "rotation":
+        return gtsam.PriorFactorRot3(key, gtsam.Rot3(np.asarray(value)), nm)
+    if block == "translation":
+        return gtsam.PriorFactorPoint3(key, np.asarray(value, dtype=float), nm)
+    if block == "gravity":
+        return gtsam.PriorFactorUnit3(key, gtsam.Unit3(np.asarray(value, dtype=float)), nm)
+    return gtsam.PriorFactorVector(key, np.atleast_1d(np.asarray(value, dtype=float)), nm)
+
+
+def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
+                       init: PositionInit, priors: list[Prior] | None = None,
+                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 4,
+                       on_iteration: Callable[[str, int, dict[str, Any], float], None] | None = None,
+                       progress: Callable[[str], None] | None = None) -> PositionResult:
+    """Refine all parameters on the window factors.
+
+    Args:
+        s: prepared session; model: active effects; noise: noise densities.
+        windows: from :func:`~mocap_calib.core.window_engine.make_windows`.
+        init: starting values.
+        priors: user priors (earlier calibrations), added as prior factors.
+        robust: down-weight mocap outliers.
+        on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
+        progress: called with a short message at every IRLS round.
+    """
+    t_start = time.perf_counter()
+    W = windows.count
+    t_mid = 0.5 * (s.u[0] + s.u[-1])
+    pp = PositionProblem(s, model, noise, windows)
+    layout = pp.layout
+    block_keys = _block_keys(model)
+    key_kinds = {KEY_R: "rot3", KEY_P: "point3", KEY_G: "unit3", KEY_T: "vector",
+                 KEY_GM: "vector"}
+    for name, k in block_keys.items():
+        key_kinds.setdefault(k, "vector")
+    shared = list(block_keys.values())
+    for w in range(W):
+        key_kinds[key_knot(w)] = "vector"
+    factor_keys = [shared + [key_knot(w)] for w in range(W)]
+    col_keys = [(block_keys[n] if n != "knot" else None, layout.slice(n)) for n, _ in layout.blocks]
+
+    def evaluate(values: gtsam.Values) -> BatchOutput:
+        th = _theta(values, model, W, init, t_mid)
+        e, H = compress(pp.evaluate(th).gram)
+        jac = []
+        for w in range(W):
+            jac.append([H[w][:, sl] for _, sl in col_keys])
+        return BatchOutput(list(e), jac)
+
+    batch = BatchFactors(evaluate, factor_keys, key_kinds, shared,
+                         gtsam.noiseModel.Unit.Create(layout.dim + 1))
+    graph = gtsam.NonlinearFactorGraph()
+    for f in batch.factors():
+        graph.add(f)
+    # Bias random walk between consecutive knots.
+    for w in range(W - 1):
+        dt = float(windows.start[w + 1] - windows.start[w])
+        sig = np.r_[np.full(3, noise.gyroscope_random_walk), np.full(3, noise.accelerometer_random_walk)]
+        graph.add(gtsam.BetweenFactorVector(key_knot(w), key_knot(w + 1), np.zeros(6),
+                                            gtsam.noiseModel.Diagonal.Sigmas(sig * np.sqrt(dt))))
+
+    values = gtsam.Values()
+    values.insert(KEY_R, gtsam.Rot3(init.R_MI))
+    values.insert(KEY_P, gtsam.Point3(*init.p_MI))
+    values.insert(KEY_G, gtsam.Unit3(init.g_dir))
+    if model.has("time_offset"):
+        values.insert(KEY_T, np.array([init.delta]))
+    if model.has("gravity_magnitude"):
+        values.insert(KEY_GM, np.array([init.g_mag]))
+    for i, eff in enumerate(model.units):
+        if eff.sensor in ("gyro", "accel"):
+            values.insert(key_effect(i), init.effects.get(eff.name, eff.zero()))
+    for w in range(W):
+        values.insert(key_knot(w), np.r_[init.gyro_bias, init.accel_bias])
+
+    # Weak range priors (see RANGE_SIGMA) around the starting point.
+    range_priors = {
+        "rotation": (KEY_R, init.R_MI),
+        "translation": (KEY_P, init.p_MI),
+        "gravity": (KEY_G, init.g_dir),
+    }
+    if model.has("time_offset"):
+        range_priors["time_offset"] = (KEY_T, init.delta)
+    if model.has("gravity_magnitude"):
+        range_priors["gravity_magnitude"] = (KEY_GM, init.g_mag)
+    for i, eff in enumerate(model.units):
+        if eff.sensor in ("gyro", "accel"):
+            range_priors[eff.name] = (key_effect(i), init.effects.get(eff.name, eff.zero()))
+    for block, (key, val) in range_priors.items():
+        dim = {"rotation": 3, "translation": 3, "gravity": 2}.get(block)
+        if dim is None:
+            dim = 1 if block in ("time_offset", "gravity_magnitude") else EFFECTS[block].dim
+        graph.add(_prior_factor(block, key, val, np.full(dim, RANGE_SIGMA[block])))
+    graph.add(_prior_factor("knot", key_knot(0), np.r_[init.gyro_bias, init.accel_bias],
+                            np.r_[np.full(3, RANGE_SIGMA["gyro_bias"]),
+                                  np.full(3, RANGE_SIGMA["accel_bias"])]))
+    for pr in priors or []:
+        key = block_keys.get(pr.block)
+        if pr.block in ("gyro_bias", "accel_bias"):
+            # A prior on the session-mean bias acts on the middle knot (random walk between).
+            kw = key_knot(W // 2)
+            lo = 0 if pr.block == "gyro_bias" else 3
+            sig = np.full(6, 1e6)
+            sig[lo:lo + 3] = pr.sigma
+            val = np.zeros(6)
+            val[lo:lo + 3] = pr.value
+            graph.add(gtsam.PriorFactorVector(kw, val, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+            continue
+        if key is None:
+            continue  # a prior on a parameter this model does not have
+        graph.add(_prior_factor(pr.block, key, pr.value, pr.sigma))
+
+    history: list[dict[str, Any]] = []
+
+    def hook(it: int, v: gtsam.Values, err: float) -> None:
+        th = _theta(v, model, W, init, t_mid)
+        rec = {"iteration": len(history), "cost": float(err), "R_MI": th.R_MI.tolist(),
+               "p_MI": th.p_MI.tolist(), "g_dir": th.g_dir.tolist(), "delta": th.delta,
+               "gyro_bias": th.knots[:, 0:3].mean(axis=0).tolist(),
+               "accel_bias": th.knots[:, 3:6].mean(axis=0).tolist()}
+        history.append(rec)
+        if on_iteration is not None:
+            on_iteration("position", rec["iteration"], rec, float(err))
+
+    # Before: residuals at the starting point.
+    out0 = pp.evaluate(_theta(values, model, W, init, t_mid))
+    if robust:
+        pp.update_weights(out0.d_raw)
+    iterations = 0
+    rounds = irls_rounds if robust else 1
+    sol = values
+    for rnd in range(rounds):
+        if progress is not None:
+            progress(f"position factors: solve {rnd + 1}/{rounds} ({W} windows)")
+        sol, rep = run_lm(graph, sol, max_iterations, hook)
+        batch._cache = None  # weights change below: force re-evaluation
+        iterations += rep.iterations
+        if not robust:
+            break
+        out = pp.evaluate(_theta(sol, model, W, init, t_mid))
+        if pp.update_weights(out.d_raw) < 0.05:
+            break
+    batch._cache = None
+    marg = gtsam.Marginals(graph, sol)
+    th = _theta(sol, model, W, init, t_mid)
+    out = pp.evaluate(th)
+
+    cov: dict[str, Array] = {}
+    for name, key in block_keys.items():
+        cov[name] = np.asarray(marg.marginalCovariance(key))
+
+    # Session-mean bias: each window's mean bias interpolated towards the next knot.
+    starts = windows.start
+    ends = windows.end
+    lengths = ends - starts
+    coef = np.zeros((W, W))
+    for w in range(W):
+        if w + 1 < W:
+            a = 0.5 * lengths[w] / max(starts[w + 1] - starts[w], 1e-9)
+            coef[w, w] = 1.0 - a
+            coef[w, w + 1] = a
+        else:
+            coef[w, w] = 1.0
+    weights_w = lengths / lengths.sum()
+    c_mean = weights_w @ coef  # (W,)
+    kv = gtsam.KeyVector()
+    for w in range(W):
+        kv.append(key_knot(w))
+    jm = marg.jointMarginalCovariance(kv)
+    knot_cov = np.block([[np.asarray(jm.at(key_knot(a), key_knot(b))) for b in range(W)]
+                         for a in range(W)])
+    Cm = np.kron(c_mean[None, :], np.eye(6))  # (6, 6W)
+    bias_mean = Cm @ th.knots.reshape(-1)
+    # Random-walk wander inside each window around the interpolation (Brownian bridge).
+    bridge = (weights_w**2 * lengths).sum() / 12.0
+    rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2), np.full(3, noise.accelerometer_random_walk**2)]
+    bias_cov = Cm @ knot_cov @ Cm.T + np.diag(rw2 * bridge)
+    cov["gyro_bias"] = bias_cov[0:3, 0:3]
+    cov["accel_bias"] = bias_cov[3:6, 3:6]
+
+    unobservable: dict[str, str] = {}
+    for name, C in cov.items():
+        prior_sig = RANGE_SIGMA.get(name)
+        if prior_sig is None:
+            continue
+        sig = np.sqrt(np.maximum(np.diag(C), 0.0))
+        bad = sig > UNOBSERVABLE_RATIO * prior_sig
+        if np.any(bad):
+            axes = ", ".join(str(i) for i in np.flatnonzero(bad))
+            unobservable[name] = (f"not determined by the motion (component {axes}: sigma "
+                                  f"{sig[bad].max():.3g} vs prior range {prior_sig:.3g}); "
+                                  "excite it more or give a prior")
+
+    mask = windows.mask
+    w_final = pp.weights
+    n_res = int(mask.sum())
+    dof = 6 * n_res - 9 * W - layout.dim
+    chi2 = float(out.chi2.sum()) / max(dof, 1)
+
+    def rms(x: Array) -> list[float]:
+        return np.sqrt(np.mean(x[mask] ** 2, axis=0)).tolist()
+
+    inl = mask & (w_final > 0.5)
+
+    def rms_in(x: Array) -> list[float]:
+        return np.sqrt(np.mean(x[inl] ** 2, axis=0)).tolist()
+
+    stats = StageStats(
+        name="position", unit="m",
+        rms_before=rms(out0.innovation[..., 3:6]), rms_after=rms_in(out.innovation[..., 3:6]),
+        n_factors=W, n_residuals=n_res, outliers=int(np.sum(mask & (w_final < 0.5))),
+        iterations=iterations, seconds=time.perf_counter() - t_start, chi2_per_dof=chi2,
+        rms_rotation_deg=np.degrees(rms_in(out.innovation[..., 0:3])).tolist(),
+        batch_evaluations=batch.evaluations)
+    series = ResidualSeries(
+        t=windows.tau[mask], before=out0.innovation[..., 3:6][mask],
+        after=out.innovation[..., 3:6][mask], weight=w_final[mask], unit="m",
+        rotation_before=np.degrees(out0.innovation[..., 0:3][mask]),
+        rotation_after=np.degrees(out.innovation[..., 0:3][mask]))
+    solver = {"position_batch_seconds": batch.seconds, "position_evaluations": batch.evaluations,
+              "windows": W, "window_steps": windows.steps}
+    return PositionResult(
+        R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
+        effects=th.effects, gyro_bias_mean=bias_mean[0:3], accel_bias_mean=bias_mean[3:6],
+        knots=th.knots, cov=cov, unobservable=unobservable, stats=stats, series=series,
+        chi2_per_dof=chi2, windows=windows, weights=w_final, solver=solver, history=history)
+
+
+def rotation_error_deg(R_a: Array, R_b: Array) -> float:
+    """Angle between two rotations (deg)."""
+    return float(np.degrees(np.linalg.norm(so3.log(R_a.T @ R_b))))

@@ -1,0 +1,430 @@
+"""Position factors: whole windows of mocap poses against the IMU-propagated trajectory.
+
+A window is a gap-free stretch of mocap samples (a few seconds). From the window's first mocap
+pose the IMU, corrected by the current model, is integrated forward (RK4 between samples, see
+:mod:`mocap_calib.core.preint`) and compared with every mocap pose in the window:
+
+    r_k = [ Log(R_bar_k^T R_WM,k R_MI) ;  p_WM,k + R_WM,k p_MI - p_bar_k ]
+
+The start velocity and pose of each window are nuisance (diffuse) and the IMU noise, the bias
+random walk within the window and the mocap noise are all in the noise model: a Kalman filter
+over the window's error state (attitude, position, velocity, gyro and accel bias deviations)
+turns the correlated residuals into white innovations, and the same filter applied to the
+residual Jacobian gives the whitened Jacobian. This is the exact Gaussian likelihood of the
+window, computed in time linear in its length. Each window's whitened system is compressed to
+its Gram matrix's Cholesky factor, so the factor GTSAM sees has ``p + 1`` rows.
+
+All windows advance in lock-step (arrays of shape windows x steps), so the Python loop runs
+over the steps of one window, not over the session.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats as sps
+
+from mocap_calib.core import so3
+from mocap_calib.core.effects import EFFECTS, Model
+from mocap_calib.core.imu_model import Intrinsics, correct
+from mocap_calib.core.preint import hermite, integrate_steps, node_times
+from mocap_calib.core.session import PreparedSession
+from mocap_calib.core.types import NoiseModel
+
+Array = NDArray[np.float64]
+
+#: Robust kernel threshold on a sample's whitened 6-D innovation norm (chi, 6 dof, 99.9%).
+ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
+#: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
+DIFFUSE = (1.0, 1.0, 0.5)
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Padded window arrays (W windows, up to m steps each)."""
+
+    idx: NDArray[np.int64]  # (W, m+1) mocap sample index
+    mask: NDArray[np.bool_]  # (W, m+1) real sample
+    tau: Array  # (W, m+1)
+    R_WM: Array  # (W, m+1, 3, 3)
+    p_WM: Array  # (W, m+1, 3)
+    v0: Array  # (W, 3) IMU velocity guess at the window start (diffuse prior's mean)
+
+    @property
+    def count(self) -> int:
+        return self.idx.shape[0]
+
+    @property
+    def steps(self) -> int:
+        return self.idx.shape[1] - 1
+
+    @property
+    def start(self) -> Array:
+        return self.tau[:, 0]
+
+    @property
+    def end(self) -> Array:
+        last = self.mask.sum(axis=1) - 1
+        return self.tau[np.arange(self.count), last]
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.mask.sum())
+
+
+def make_windows(s: PreparedSession, delta: float, length: float, max_rate: float,
+                 v_imu: Array, min_samples: int = 20, margin: float = 0.1) -> Windows:
+    """Cut the mocap stream into gap-free windows of at most ``length`` seconds.
+
+    Args:
+        s: prepared session.
+        delta: current mocap-minus-IMU time (windows stay ``margin`` inside the IMU span).
+        length: window length (s).
+        max_rate: mocap samples above this rate are decimated (consecutive mocap noise is rarely
+            independent beyond ~100-200 Hz, and the cost is linear in the samples).
+        v_imu: (M, 3) IMU velocity guess at every mocap sample (for window starts).
+    """
+    step = max(1, int(round(s.mocap_rate / max_rate)))
+    sel = np.arange(0, len(s.tau), step)
+    tau = s.tau[sel]
+    inside = (tau - delta > s.u[0] + margin) & (tau - delta < s.u[-1] - margin)
+    gap = max(s.gap, 3.0 * step / s.mocap_rate)
+    breaks = np.flatnonzero((np.diff(tau) > gap) | (inside[1:] != inside[:-1])) + 1
+    segments = [seg for seg in np.split(np.arange(len(sel)), breaks) if inside[seg[0]]]
+    windows: list[NDArray[np.int64]] = []
+    for seg in segments:
+        dur = tau[seg[-1]] - tau[seg[0]]
+        n = max(1, int(np.ceil(dur / length)))
+        for part in np.array_split(seg, n):
+            if len(part) >= min_samples:
+                windows.append(sel[part])
+    if not windows:
+        return Windows(np.zeros((0, 2), np.int64), np.zeros((0, 2), bool), np.zeros((0, 2)),
+                       np.zeros((0, 2, 3, 3)), np.zeros((0, 2, 3)), np.zeros((0, 3)))
+    m1 = max(len(w) for w in windows)
+    W = len(windows)
+    idx = np.zeros((W, m1), np.int64)
+    mask = np.zeros((W, m1), bool)
+    for i, w in enumerate(windows):
+        idx[i, : len(w)] = w
+        idx[i, len(w):] = w[-1]
+        mask[i, : len(w)] = True
+    return Windows(idx, mask, s.tau[idx], s.R_WM[idx], s.p_WM[idx], v_imu[idx[:, 0]])
+
+
+@dataclass
+class Theta:
+    """Current values of the position stage's parameters."""
+
+    R_MI: Array
+    p_MI: Array
+    g_dir: Array
+    g_basis: Array  # (3, 2) tangent basis of the gravity direction (GTSAM Unit3's)
+    g_mag: float
+    delta: float
+    effects: dict[str, Array]
+    knots: Array  # (W, 6): gyro bias, accel bias at each window start
+    t_mid: float = 0.0
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Column layout of a window's Jacobian: global blocks, then the window's bias knot."""
+
+    blocks: tuple[tuple[str, int], ...]
+
+    @property
+    def dim(self) -> int:
+        return sum(d for _, d in self.blocks)
+
+    def slice(self, name: str) -> slice:
+        o = 0
+        for n, d in self.blocks:
+            if n == name:
+                return slice(o, o + d)
+            o += d
+        raise KeyError(name)
+
+    def has(self, name: str) -> bool:
+        return any(n == name for n, _ in self.blocks)
+
+
+def layout_for(model: Model) -> Layout:
+    blocks: list[tuple[str, int]] = [("rotation", 3), ("translation", 3), ("gravity", 2)]
+    if model.has("time_offset"):
+        blocks.append(("time_offset", 1))
+    if model.has("gravity_magnitude"):
+        blocks.append(("gravity_magnitude", 1))
+    for eff in model.units:
+        if eff.sensor in ("gyro", "accel"):
+            blocks.append((eff.name, eff.dim))
+    blocks.append(("knot", 6))
+    return Layout(tuple(blocks))
+
+
+@dataclass
+class EvalOut:
+    """One evaluation of all windows.
+
+    Attributes:
+        gram: (W, p+1, p+1) Gram matrix of the whitened ``[J | r]`` per window (r last).
+        innovation: (W, m+1, 6) one-step prediction errors (rad, m) at each sample.
+        d_raw: (W, m+1) whitened innovation norm with unit robust weights.
+        chi2: (W,) whitened cost per window (with the robust weights used).
+        raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
+    """
+
+    gram: Array
+    innovation: Array
+    d_raw: Array
+    chi2: Array
+    raw_r: Array | None = None
+    raw_J: Array | None = None
+    whitened: Array | None = None
+    extras: dict[str, Array] = field(default_factory=dict)
+
+
+class PositionProblem:
+    """Evaluates the window factors for all windows at once.
+
+    Args:
+        s: prepared session.
+        model: active effects.
+        noise: noise densities.
+        windows: from :func:`make_windows`.
+        n_sub: RK4 sub-steps between mocap samples.
+        chunk_steps: windows are processed in chunks of about this many samples (memory).
+    """
+
+    def __init__(self, s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
+                 n_sub: int = 2, chunk_steps: int = 40_000) -> None:
+        self.s = s
+        self.model = model
+        self.noise = noise
+        self.win = windows
+        self.n_sub = n_sub
+        self.layout = layout_for(model)
+        per = max(1, chunk_steps // max(1, windows.steps))
+        self.chunks = [np.arange(i, min(i + per, windows.count))
+                       for i in range(0, windows.count, per)]
+        self.weights = np.ones(windows.idx.shape)
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
+        outs = [self._evaluate_chunk(th, c, store) for c in self.chunks]
+        cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
+                   else None) for f in ("gram", "innovation", "d_raw", "chi2", "raw_r", "raw_J",
+                                        "whitened")}
+        return EvalOut(**cat)
+
+    def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool) -> EvalOut:
+        s, win, L = self.s, self.win, self.layout
+        nz = self.noise
+        W = len(c)
+        m = win.steps
+        p = L.dim
+        tau = win.tau[c]
+        mask = win.mask[c]
+        R_WM = win.R_WM[c]
+        p_WM = win.p_WM[c]
+        h = np.diff(tau, axis=1)  # padded steps have h = 0
+
+        # --- IMU signals at the nodes, corrected with each window's knot biases.
+        nodes = node_times(tau, self.n_sub)  # (W, m, 2n+1)
+        u_nodes = nodes - th.delta
+        ip = hermite(s.u, u_nodes)
+        gyro_n, accel_n = ip(s.gyro), ip(s.accel)
+        intr = Intrinsics(th.knots[c, None, None, 0:3], th.knots[c, None, None, 3:6], th.effects,
+                          th.t_mid)
+        corr = correct(self.model, intr, gyro_n, accel_n, u_nodes, sensitivities=False)
+        inc = integrate_steps(corr.w, corr.f, h, self.n_sub)
+
+        # Sensitivities at step midpoints.
+        mid = self.n_sub
+        ipm = hermite(s.u, u_nodes[:, :, mid])
+        intr_m = Intrinsics(th.knots[c, None, 0:3], th.knots[c, None, 3:6], th.effects, th.t_mid)
+        cm = correct(self.model, intr_m, ipm(s.gyro), ipm(s.accel), u_nodes[:, :, mid])
+        dw = np.zeros((W, m, 3, p))
+        df = np.zeros((W, m, 3, p))
+        for name, dim in L.blocks:
+            sl = L.slice(name)
+            if name == "knot":
+                dw[:, :, :, sl.start:sl.start + 3] = cm.dw["gyro_bias"]
+                dw[:, :, :, sl.start + 3:sl.stop] = cm.dw["accel_bias"]
+                df[:, :, :, sl.start:sl.start + 3] = cm.df["gyro_bias"]
+                df[:, :, :, sl.start + 3:sl.stop] = cm.df["accel_bias"]
+            elif name == "time_offset":
+                # Signals are read at u = tau - delta: d/d delta = -d/du, averaged over the step
+                # as (end - start) / h so that it telescopes exactly (a midpoint derivative of a
+                # noisy signal would add up its noise).
+                hinv = np.where(h > 0, 1.0 / np.where(h > 0, h, 1.0), 0.0)[..., None, None]
+                dw[:, :, :, sl] = -(corr.w[:, :, -1] - corr.w[:, :, 0])[..., None] * hinv
+                df[:, :, :, sl] = -(corr.f[:, :, -1] - corr.f[:, :, 0])[..., None] * hinv
+            elif name in cm.dw:
+                dw[:, :, :, sl] = cm.dw[name]
+                df[:, :, :, sl] = cm.df[name]
+
+        # --- Nominal trajectory (sequential composition of the step increments).
+        g_W = th.g_mag * th.g_dir
+        Rbar = np.empty((W, m + 1, 3, 3))
+        pbar = np.empty((W, m + 1, 3))
+        vbar = np.empty((W, m + 1, 3))
+        Rbar[:, 0] = R_WM[:, 0] @ th.R_MI
+        pbar[:, 0] = p_WM[:, 0] + R_WM[:, 0] @ th.p_MI
+        vbar[:, 0] = win.v0[c]  # fixed guess: the start velocity is a diffuse nuisance
+        for k in range(m):
+            hk = h[:, k, None]
+            Rk = Rbar[:, k]
+            pbar[:, k + 1] = (pbar[:, k] + vbar[:, k] * hk + 0.5 * g_W * hk**2
+                              + np.einsum("wij,wj->wi", Rk, inc.dp[:, k]))
+            vbar[:, k + 1] = vbar[:, k] + g_W * hk + np.einsum("wij,wj->wi", Rk, inc.dv[:, k])
+            Rbar[:, k + 1] = Rk @ inc.dR[:, k]
+
+        # --- Residuals at every sample and the parts of their Jacobians not through S.
+        R_meas = R_WM @ th.R_MI
+        p_meas = p_WM + np.einsum("wkij,j->wki", R_WM, th.p_MI)
+        E = np.einsum("wkji,wkjl->wkil", Rbar, R_meas)
+        r_rot = so3.log(E)
+        r = np.concatenate([r_rot, p_meas - pbar], axis=-1)  # (W, m+1, 6)
+        Jinv = so3.right_jacobian_inv(r_rot)
+        Pm_rot = Jinv @ np.swapaxes(E, -1, -2)  # d r_rot / d (nominal attitude perturbation)
+        Dir = np.zeros((W, m + 1, 6, p))
+        Dir[..., 0:3, L.slice("rotation")] = Jinv
+        Dir[..., 3:6, L.slice("translation")] = R_WM
+
+        # --- Error-state transition per step (world-frame blocks need Rbar_k).
+        Rk = Rbar[:, :-1]
+        F = np.zeros((W, m, 15, 15))
+        eye3 = np.eye(3)
+        F[..., 0:3, 0:3] = np.swapaxes(inc.dR, -1, -2)
+        F[..., 0:3, 9:12] = -np.swapaxes(inc.dR, -1, -2) @ inc.A
+        F[..., 3:6, 0:3] = -Rk @ so3.hat(inc.dp)
+        F[..., 3:6, 3:6] = eye3
+        F[..., 3:6, 6:9] = eye3 * h[..., None, None]
+        F[..., 3:6, 9:12] = Rk @ inc.D
+        F[..., 3:6, 12:15] = -Rk @ inc.C
+        F[..., 6:9, 0:3] = -Rk @ so3.hat(inc.dv)
+        F[..., 6:9, 6:9] = eye3
+        F[..., 6:9, 9:12] = Rk @ inc.B
+        F[..., 6:9, 12:15] = -Rk @ inc.A
+        F[..., 9:15, 9:15] = np.eye(6)
+        # Parameter inputs: a parameter acts like a bias of -dw/dtheta, -df/dtheta.
+        Gam = -(F[..., 0:9, 9:12] @ dw + F[..., 0:9, 12:15] @ df)
+        gs = L.slice("gravity")
+        dg = th.g_mag * th.g_basis
+        Gam[..., 3:6, gs] += 0.5 * (h**2)[..., None, None] * dg
+        Gam[..., 6:9, gs] += h[..., None, None] * dg
+        if L.has("gravity_magnitude"):
+            gm = L.slice("gravity_magnitude")
+            Gam[..., 3:6, gm] += 0.5 * (h**2)[..., None, None] * th.g_dir[:, None]
+            Gam[..., 6:9, gm] += h[..., None, None] * th.g_dir[:, None]
+
+        # Process noise per step (isotropic densities, so frame rotations drop out).
+        sg2 = nz.gyroscope_noise_density**2
+        sa2 = nz.accelerometer_noise_density**2
+        q_diag = np.zeros((W, m, 15))
+        q_diag[..., 0:3] = (sg2 * h)[..., None]
+        q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
+        q_diag[..., 6:9] = (sa2 * h)[..., None]
+        q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
+        q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
+        q_pv = sa2 * h**2 / 2.0
+
+        # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
+        sr2 = nz.mocap_rotation_sigma**2
+        lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
+        Rn = np.zeros((W, m + 1, 6, 6))
+        Rn[..., 0:3, 0:3] = sr2 * eye3
+        Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
+        Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
+        Rn[..., 3:6, 3:6] = nz.mocap_position_sigma**2 * eye3 + sr2 * lev @ np.swapaxes(lev, -1, -2)
+        wts = self.weights[c]
+
+        # --- Sequential pass: sensitivities S, Kalman whitening, Gram accumulation.
+        S = np.zeros((W, 9, p))
+        S[:, 0:3, L.slice("rotation")] = eye3
+        S[:, 3:6, L.slice("translation")] = R_WM[:, 0]
+        P = np.zeros((W, 15, 15))
+        P[:, 0:3, 0:3] = DIFFUSE[0] ** 2 * eye3
+        P[:, 3:6, 3:6] = DIFFUSE[1] ** 2 * eye3
+        P[:, 6:9, 6:9] = DIFFUSE[2] ** 2 * eye3
+        X = np.zeros((W, 15, p + 1))
+        gram = np.zeros((W, p + 1, p + 1))
+        innov = np.zeros((W, m + 1, 6))
+        d_raw = np.zeros((W, m + 1))
+        chi2 = np.zeros(W)
+        raw_J = np.zeros((W, m + 1, 6, p)) if store else None
+        whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
+        Jk = np.zeros((W, 6, p))
+        diag15 = np.arange(15)
+        for k in range(m + 1):
+            if k > 0:
+                Fk = F[:, k - 1]
+                S = Fk[:, 0:9, 0:9] @ S + Gam[:, k - 1]
+                X = Fk @ X
+                P = Fk @ P @ np.swapaxes(Fk, 1, 2)
+                P[:, diag15, diag15] += q_diag[:, k - 1]
+                P[:, 3:6, 6:9] += q_pv[:, k - 1, None, None] * eye3
+                P[:, 6:9, 3:6] += q_pv[:, k - 1, None, None] * eye3
+            Jk[:, 0:3, :] = Dir[:, k, 0:3, :] - Pm_rot[:, k] @ S[:, 0:3, :]
+            Jk[:, 3:6, :] = Dir[:, k, 3:6, :] - S[:, 3:6, :]
+            ok = mask[:, k]
+            N = np.concatenate([Jk, r[:, k, :, None]], axis=2) - X[:, 0:6, :]
+            Rk_n = Rn[:, k] / wts[:, k, None, None]
+            Sraw = P[:, 0:6, 0:6] + Rn[:, k]
+            Sinn = P[:, 0:6, 0:6] + Rk_n
+            Lc = np.linalg.cholesky(Sinn)
+            Nw = np.linalg.solve(Lc, N)
+            Nw[~ok] = 0.0
+            gram += np.swapaxes(Nw, 1, 2) @ Nw
+            chi2 += np.sum(Nw[:, :, -1] ** 2, axis=1)
+            innov[:, k] = N[:, :, -1]
+            Lr = np.linalg.cholesky(Sraw)
+            d_raw[:, k] = np.linalg.norm(np.linalg.solve(Lr, N[:, :, -1:])[:, :, 0], axis=1)
+            if store:
+                raw_J[:, k] = Jk
+                whitened[:, k] = Nw
+            K = np.swapaxes(np.linalg.solve(Sinn, P[:, 0:6, :]), 1, 2)  # (W, 15, 6)
+            K[~ok] = 0.0
+            X = X + K @ N
+            P = P - K @ P[:, 0:6, :]
+            P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        d_raw[~mask] = 0.0
+        innov[~mask] = 0.0
+        return EvalOut(gram, innov, d_raw, chi2, r if store else None, raw_J, whitened)
+
+    # ------------------------------------------------------------------ robust weights
+    def update_weights(self, d_raw: Array, c: float = ROBUST_C) -> float:
+        """Redescending weights from the unweighted innovation norms; returns the max change."""
+        w = np.where(d_raw <= c, 1.0, (c / np.maximum(d_raw, 1e-12)) ** 2)
+        w = np.maximum(w, 1e-6)
+        w[~self.win.mask] = 1.0
+        change = float(np.max(np.abs(w - self.weights))) if w.size else 0.0
+        self.weights = w
+        return change
+
+
+def compress(gram: Array) -> tuple[Array, Array]:
+    """From a window's Gram matrix of ``[J | r]`` to an equivalent ``p + 1`` row factor.
+
+    Returns ``(e, H)`` with ``|e + H delta|^2 == |r + J delta|^2`` for every ``delta``.
+    """
+    p = gram.shape[-1] - 1
+    scale = np.sqrt(np.maximum(np.diagonal(gram, axis1=-2, axis2=-1), 1e-300))
+    scale[..., :p] = np.where(scale[..., :p] > 1e-150, scale[..., :p], 1.0)
+    gs = gram / scale[..., :, None] / scale[..., None, :]
+    gs = gs + 1e-13 * np.eye(p + 1)
+    Lc = np.linalg.cholesky(gs)
+    U = np.swapaxes(Lc, -1, -2) * scale[..., None, :]
+    return U[..., :, p], U[..., :, :p]
+
+
+def theta_effect_blocks(model: Model) -> list[tuple[str, int]]:
+    """IMU-side effect blocks of a model (name, dim), in layout order."""
+    return [(e.name, e.dim) for e in model.units if e.sensor in ("gyro", "accel")]
+
+
+__all__ = ["EFFECTS", "PositionProblem", "Theta", "Windows", "compress", "layout_for",
+           "make_windows"]
