@@ -27,7 +27,7 @@ from mocap_calib.core.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.stage_attitude import run_attitude_stage
 from mocap_calib.core.stage_position import PositionInit, Prior, run_position_stage
 from mocap_calib.core.stage_velocity import run_velocity_stage
-from mocap_calib.core.timesync import coarse_time_offset
+from mocap_calib.core.timesync import coarse_offset_arrays
 from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.window_engine import make_windows
 from mocap_calib.errors import InputError, ObservabilityError
@@ -134,21 +134,25 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
     imu, mocap = _crop(imu, mocap, opts)
-    s = prepare(imu, mocap)
+    s = prepare(imu, mocap, noise=opts.noise)
     notes: list[str] = []
     if s.dropped_mocap_rows:
         notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
+    if s.spikes_removed:
+        notes.append(f"{s.spikes_removed} mocap samples with implausible jumps (marker swaps) "
+                     "were removed")
 
     # 1. Clock alignment.
     session_info: dict[str, Any] = {
         "imu_samples": len(imu), "mocap_samples": len(mocap),
         "imu_rate_hz": round(s.imu_rate, 3), "mocap_rate_hz": round(s.mocap_rate, 3),
         "duration_s": round(min(imu.duration, mocap.duration), 3),
+        "mocap_spikes_removed": s.spikes_removed,
     }
     coarse = None
     if model.has("time_offset") and opts.time_offset is None:
         say("aligning clocks (angular-speed cross-correlation)")
-        coarse = coarse_time_offset(imu, mocap)
+        coarse = coarse_offset_arrays(s.u, s.gyro, s.tau, s.R_WM, s.clock_shift)
         t_d0 = coarse.time_offset
         session_info["coarse_time_offset"] = t_d0
         session_info["coarse_correlation"] = round(coarse.peak, 4)

@@ -93,6 +93,11 @@ class BatchFactors:
                                 for j in range(len(self.factor_keys))]
             return self._cache.errors[i], self._cache.jacobians[i]
 
+    def invalidate(self) -> None:
+        """Forget the cached evaluation (the factors changed without the values changing)."""
+        with self._lock:
+            self._cache = None
+
     def factors(self) -> list[gtsam.CustomFactor]:
         """The CustomFactors, to add to a graph."""
         out = []

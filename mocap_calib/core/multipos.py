@@ -818,10 +818,11 @@ def calibrate_multipos(
 
     det = _make_detector(imu, rate, init_static_s, window_s, min_interval_s)
 
-    # Threshold scan: one accel fit per k.
+    # Threshold scan: one accel fit per k, on interval sets that can determine it.
     scan: list[dict[str, Any]] = []
-    fits: list[tuple[float, IntArray, _AccelFit]] = []
-    most = 0
+    fits: list[tuple[float, IntArray, _AccelFit, int]] = []
+    most, most_distinct = 0, 0
+    spread_error: ObservabilityError | None = None
     for k in threshold_multiples:
         iv = det.intervals(float(k))
         most = max(most, len(iv))
@@ -830,38 +831,46 @@ def calibrate_multipos(
         if len(iv) < min_orientations:
             continue
         means, sig = _interval_stats(imu.accel, iv)
+        dirs = means / np.linalg.norm(means, axis=1, keepdims=True)
+        n_distinct = _distinct(dirs)
+        most_distinct = max(most_distinct, n_distinct)
+        if n_distinct < min_orientations:
+            continue
+        try:
+            _check_spread(dirs, len(iv))
+        except ObservabilityError as e:
+            spread_error = e
+            continue
         fit = _fit_accel(means, sig, gravity, prior)
         if fit.ok:
             entry["chi2"] = fit.chi2 if fit.dof > 0 else None
-            fits.append((float(k), iv, fit))
+            fits.append((float(k), iv, fit, n_distinct))
     if not fits:
         if most < min_orientations:
             raise ObservabilityError(
                 f"found {most} static orientations, need at least {min_orientations} distinct "
                 f"ones (Tedaldi recommends 36-50); hold the IMU still for 2-4 s in more "
                 f"orientations")
+        if most_distinct < min_orientations:
+            raise ObservabilityError(
+                f"found {most} static intervals but only {most_distinct} distinct orientations "
+                f"(gravity directions >{DISTINCT_DEG:.0f} deg apart), need at least "
+                f"{min_orientations} (Tedaldi recommends 36-50); hold the IMU still for 2-4 s "
+                f"in more, different orientations")
+        if spread_error is not None:
+            raise spread_error
         raise ConvergenceError("multipos: the accelerometer fit failed for every static "
                                "threshold; check that the accel is in m/s^2 and |g| is right")
     ranked = [f for f in fits if f[2].dof > 0]
     if ranked:
         best = min(ranked, key=lambda f: f[2].chi2)[2]
         tol = best.chi2 * (1.0 + 2.0 * np.sqrt(2.0 / best.dof))
-        k_best, iv, afit = max((f for f in ranked if f[2].chi2 <= tol),
-                               key=lambda f: (len(f[1]), -f[2].chi2))
+        k_best, iv, afit, n_distinct = max((f for f in ranked if f[2].chi2 <= tol),
+                                           key=lambda f: (len(f[1]), -f[2].chi2))
     else:
         # Exactly determined (as many intervals as parameters): nothing to rank by.
-        k_best, iv, afit = fits[0]
-
+        k_best, iv, afit, n_distinct = fits[0]
     means, _ = _interval_stats(imu.accel, iv)
-    dirs = means / np.linalg.norm(means, axis=1, keepdims=True)
-    n_distinct = _distinct(dirs)
-    if n_distinct < min_orientations:
-        raise ObservabilityError(
-            f"found {len(iv)} static intervals but only {n_distinct} distinct orientations "
-            f"(gravity directions >{DISTINCT_DEG:.0f} deg apart), need at least "
-            f"{min_orientations} (Tedaldi recommends 36-50); hold the IMU still for 2-4 s in "
-            f"more, different orientations")
-    _check_spread(dirs, len(iv))
 
     # Gyro bias: mean over the initial static period (w = 0 there), combined with a prior.
     bg, bg_sd, density = _gyro_bias(imu.gyro[det.init_mask], rate)

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import so3
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]
@@ -44,6 +44,7 @@ class PreparedSession:
     clock_shift: float
     gap: float
     dropped_mocap_rows: int = 0
+    spikes_removed: int = 0
 
     @property
     def imu_rate(self) -> float:
@@ -65,8 +66,12 @@ class PreparedSession:
         return gaps[idx1] == gaps[idx0]
 
 
-def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0) -> PreparedSession:
+def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
+            noise: NoiseModel | None = None) -> PreparedSession:
     """Check that the two streams can support a calibration and put them on relative clocks.
+
+    Gross mocap outliers (see :func:`screen_mocap_spikes`) are removed here; their count is in
+    ``spikes_removed``.
 
     Raises:
         InputError: too few samples, rates the method cannot use.
@@ -97,13 +102,53 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0) -> P
         raise ObservabilityError(
             "the session is (nearly) static: the body rotates less than 10 deg or the gyro "
             "barely moves; calibration needs motion that rotates the body about all axes")
+    gap = max(3.0 * median_m, 0.02)
+    nz = noise or NoiseModel()
+    bad = screen_mocap_spikes(mocap.t, R, mocap.position, nz.mocap_position_sigma,
+                              nz.mocap_rotation_sigma, gap)
+    keep = ~bad
     return PreparedSession(
-        u=imu.t, gyro=imu.gyro, accel=imu.accel, tau=mocap.t, R_WM=R,
-        p_WM=mocap.position,
+        u=imu.t, gyro=imu.gyro, accel=imu.accel, tau=mocap.t[keep], R_WM=R[keep],
+        p_WM=mocap.position[keep],
         clock_shift=(imu.time_origin_ns - mocap.time_origin_ns) * 1e-9,
-        gap=max(3.0 * median_m, 0.02),
+        gap=gap,
         dropped_mocap_rows=mocap.dropped_rows,
+        spikes_removed=int(bad.sum()),
     )
+
+
+def screen_mocap_spikes(tau: Array, R: Array, p: Array, sigma_p: float, sigma_r: float,
+                        gap: float) -> NDArray[np.bool_]:
+    """Flag gross mocap outliers (marker swaps, jumps) by their implausible accelerations.
+
+    A jump of a few centimetres or degrees between 10 ms samples implies hundreds of m/s^2 or
+    rad/s^2, far above both real motion and what the mocap noise produces. Spikes closer than
+    six samples are one event: every sample between them is flagged.
+
+    Returns:
+        (M,) True for samples to drop.
+    """
+    M = len(tau)
+    bad = np.zeros(M, bool)
+    if M < 5:
+        return bad
+    dt = np.diff(tau)
+    v = np.diff(p, axis=0) / dt[:, None]
+    w = so3.log(np.einsum("nji,njk->nik", R[:-1], R[1:])) / dt[:, None]
+    hdt = 0.5 * (dt[1:] + dt[:-1])
+    acc = np.linalg.norm(np.diff(v, axis=0), axis=1) / hdt
+    alpha = np.linalg.norm(np.diff(w, axis=0), axis=1) / hdt
+    ok = (dt[1:] < gap) & (dt[:-1] < gap)
+    dtm = float(np.median(dt))
+    thr_p = max(150.0, 10.0 * np.sqrt(6.0) * sigma_p / dtm**2)
+    thr_r = max(300.0, 10.0 * np.sqrt(6.0) * sigma_r / dtm**2)
+    spikes = np.flatnonzero(ok & ((acc > thr_p) | (alpha > thr_r))) + 1
+    if len(spikes) == 0:
+        return bad
+    groups = np.split(spikes, np.flatnonzero(np.diff(spikes) > 6) + 1)
+    for g in groups:
+        bad[g[0]:g[-1] + 1] = True
+    return bad
 
 
 def local_derivative(t: Array, y: Array, half: int, gap: float) -> tuple[Array, Array, NDArray[np.bool_]]:

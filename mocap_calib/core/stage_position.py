@@ -201,12 +201,14 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     factor_keys = [shared + [key_knot(w)] for w in range(W)]
     col_keys = [(block_keys[n] if n != "knot" else None, layout.slice(n)) for n, _ in layout.blocks]
 
+    evals: list[Any] = []  # every evaluation's output, latest last
+
     def evaluate(values: gtsam.Values) -> BatchOutput:
-        th = _theta(values, model, W, init, t_mid)
-        e, H = compress(pp.evaluate(th).gram)
-        jac = []
-        for w in range(W):
-            jac.append([H[w][:, sl] for _, sl in col_keys])
+        out = pp.evaluate(_theta(values, model, W, init, t_mid))
+        evals.append(out)
+        del evals[:-2]
+        e, H = compress(out.gram)
+        jac = [[H[w][:, sl] for _, sl in col_keys] for w in range(W)]
         return BatchOutput(list(e), jac)
 
     batch = BatchFactors(evaluate, factor_keys, key_kinds, shared,
@@ -273,6 +275,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         graph.add(_prior_factor(pr.block, key, pr.value, pr.sigma))
 
     history: list[dict[str, Any]] = []
+    first_eval: list[Any] = []
 
     def hook(it: int, v: gtsam.Values, err: float) -> None:
         th = _theta(v, model, W, init, t_mid)
@@ -281,31 +284,36 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
                "gyro_bias": th.knots[:, 0:3].mean(axis=0).tolist(),
                "accel_bias": th.knots[:, 3:6].mean(axis=0).tolist()}
         history.append(rec)
+        if not first_eval and evals:
+            first_eval.append(evals[-1])
         if on_iteration is not None:
             on_iteration("position", rec["iteration"], rec, float(err))
 
-    # Before: residuals at the starting point.
-    out0 = pp.evaluate(_theta(values, model, W, init, t_mid))
-    if robust:
-        pp.update_weights(out0.d_raw)
+    # IRLS: LM on a fixed weighted cost, then new weights from the unweighted innovations.
+    # The first evaluation (at the start values, unit weights) gives the "before" figures.
     iterations = 0
     rounds = irls_rounds if robust else 1
     sol = values
+    out0 = None
     for rnd in range(rounds):
         if progress is not None:
-            progress(f"position factors: solve {rnd + 1}/{rounds} ({W} windows)")
+            progress(f"position factors: solve {rnd + 1} ({W} windows)")
         sol, rep = run_lm(graph, sol, max_iterations, hook)
-        batch._cache = None  # weights change below: force re-evaluation
+        if out0 is None:
+            out0 = first_eval[0] if first_eval else None
         iterations += rep.iterations
-        if not robust:
+        batch.output(sol, 0)  # make sure the latest evaluation is at the solution
+        if not robust or rnd == rounds - 1:
             break
-        out = pp.evaluate(_theta(sol, model, W, init, t_mid))
-        if pp.update_weights(out.d_raw) < 0.05:
+        w_before = pp.weights.copy()
+        change = pp.update_weights(evals[-1].d_raw)
+        if change < 0.25:
+            pp.weights = w_before  # keep the weights the solution was computed with
             break
-    batch._cache = None
-    marg = gtsam.Marginals(graph, sol)
+        batch.invalidate()
+    out = evals[-1]
     th = _theta(sol, model, W, init, t_mid)
-    out = pp.evaluate(th)
+    marg = gtsam.Marginals(graph, sol)
 
     cov: dict[str, Array] = {}
     for name, key in block_keys.items():

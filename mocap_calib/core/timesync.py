@@ -39,13 +39,12 @@ class CoarseOffset:
     resolution: float
 
 
-def mocap_angular_speed(mocap: MocapPoses) -> tuple[Array, Array]:
+def mocap_angular_speed(t: Array, R: Array) -> tuple[Array, Array]:
     """Angular speed (rad/s) between consecutive mocap samples, at interval midpoints."""
-    R = mocap.rotation
     dR = np.einsum("nji,njk->nik", R[:-1], R[1:])
-    dt = np.diff(mocap.t)
+    dt = np.diff(t)
     speed = np.linalg.norm(so3.log(dR), axis=1) / dt
-    return 0.5 * (mocap.t[1:] + mocap.t[:-1]), speed
+    return 0.5 * (t[1:] + t[:-1]), speed
 
 
 def _resample(t: Array, y: Array, dt: float, gap: float) -> tuple[float, Array]:
@@ -65,22 +64,31 @@ def coarse_time_offset(imu: ImuSamples, mocap: MocapPoses, rate_hz: float = 200.
 
     Args:
         imu: IMU samples (its clock).
-        mocap: mocap poses (its clock).
+        mocap: mocap poses (its clock), gross outliers already removed.
         rate_hz: grid rate of the correlation (the result is refined to a fraction of it).
 
     Raises:
         ObservabilityError: no clear correlation peak (too little rotation, or unrelated streams).
     """
-    dt = 1.0 / rate_hz
-    # Absolute times relative to the IMU origin; integer ns difference keeps precision.
     shift = (mocap.time_origin_ns - imu.time_origin_ns) * 1e-9
-    t_m, s_m = mocap_angular_speed(mocap)
-    # Smooth the mocap speed a little: finite differences of noisy attitudes are noisy.
-    s_m = signal.savgol_filter(s_m, 5, 2) if len(s_m) > 7 else s_m
-    s_i = np.linalg.norm(imu.gyro, axis=1)
+    return coarse_offset_arrays(imu.t, imu.gyro, mocap.t, mocap.rotation, -shift, rate_hz)
+
+
+def coarse_offset_arrays(u: Array, gyro: Array, tau: Array, R_WM: Array, clock_shift: float,
+                         rate_hz: float = 200.0) -> CoarseOffset:
+    """:func:`coarse_time_offset` on arrays: IMU times ``u`` and mocap times ``tau`` relative to
+    their own origins, ``clock_shift = (origin_imu - origin_mocap) * 1e-9``."""
+    dt = 1.0 / rate_hz
+    shift = -clock_shift
+    t_m, s_m = mocap_angular_speed(tau, R_WM)
+    # A median filter removes single-sample spikes (a marker swap missed by the screen); a
+    # short Savitzky-Golay filter then smooths the noise of differentiated attitudes.
+    if len(s_m) > 7:
+        s_m = signal.savgol_filter(signal.medfilt(s_m, 5), 5, 2)
+    s_i = np.linalg.norm(gyro, axis=1)
     gap_m = 5.0 * np.median(np.diff(t_m))
-    gap_i = 5.0 * np.median(np.diff(imu.t))
-    start_i, x = _resample(imu.t, s_i, dt, gap_i)
+    gap_i = 5.0 * np.median(np.diff(u))
+    start_i, x = _resample(u, s_i, dt, gap_i)
     start_m, y = _resample(t_m, s_m, dt, gap_m)
     if np.std(x) < 0.05 or np.std(y) < 0.05:
         raise ObservabilityError(

@@ -199,17 +199,27 @@ class PositionProblem:
     """
 
     def __init__(self, s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
-                 n_sub: int = 2, chunk_steps: int = 40_000) -> None:
+                 n_sub: int | None = None, chunk_steps: int = 40_000) -> None:
         self.s = s
         self.model = model
         self.noise = noise
         self.win = windows
+        if n_sub is None:
+            # Nodes about every IMU sample: one RK4 step spans two IMU samples.
+            n_sub = max(1, int(round(s.imu_rate / (2.0 * self._step_rate(windows)))))
         self.n_sub = n_sub
         self.layout = layout_for(model)
         per = max(1, chunk_steps // max(1, windows.steps))
         self.chunks = [np.arange(i, min(i + per, windows.count))
                        for i in range(0, windows.count, per)]
         self.weights = np.ones(windows.idx.shape)
+        self._buffers: dict[str, Array] = {}
+
+    @staticmethod
+    def _step_rate(windows: Windows) -> float:
+        dt = np.diff(windows.tau, axis=1)[np.diff(windows.mask.astype(int), axis=1) == 0]
+        dt = dt[dt > 0]
+        return float(1.0 / np.median(dt)) if dt.size else 100.0
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
@@ -238,7 +248,10 @@ class PositionProblem:
         gyro_n, accel_n = ip(s.gyro), ip(s.accel)
         intr = Intrinsics(th.knots[c, None, None, 0:3], th.knots[c, None, None, 3:6], th.effects,
                           th.t_mid)
-        corr = correct(self.model, intr, gyro_n, accel_n, u_nodes, sensitivities=False)
+        need_dot = L.has("time_offset")
+        corr = correct(self.model, intr, gyro_n, accel_n, u_nodes, sensitivities=False,
+                       gyro_dot=ip.derivative(s.gyro) if need_dot else None,
+                       accel_dot=ip.derivative(s.accel) if need_dot else None)
         inc = integrate_steps(corr.w, corr.f, h, self.n_sub)
 
         # Sensitivities at step midpoints.
@@ -246,8 +259,8 @@ class PositionProblem:
         ipm = hermite(s.u, u_nodes[:, :, mid])
         intr_m = Intrinsics(th.knots[c, None, 0:3], th.knots[c, None, 3:6], th.effects, th.t_mid)
         cm = correct(self.model, intr_m, ipm(s.gyro), ipm(s.accel), u_nodes[:, :, mid])
-        dw = np.zeros((W, m, 3, p))
-        df = np.zeros((W, m, 3, p))
+        dwf = self._buffer("dwf", (W, m, 6, p))  # d(w, f)/dtheta at each step
+        dw, df = dwf[:, :, 0:3, :], dwf[:, :, 3:6, :]
         for name, dim in L.blocks:
             sl = L.slice(name)
             if name == "knot":
@@ -257,11 +270,11 @@ class PositionProblem:
                 df[:, :, :, sl.start + 3:sl.stop] = cm.df["accel_bias"]
             elif name == "time_offset":
                 # Signals are read at u = tau - delta: d/d delta = -d/du, averaged over the step
-                # as (end - start) / h so that it telescopes exactly (a midpoint derivative of a
-                # noisy signal would add up its noise).
-                hinv = np.where(h > 0, 1.0 / np.where(h > 0, h, 1.0), 0.0)[..., None, None]
-                dw[:, :, :, sl] = -(corr.w[:, :, -1] - corr.w[:, :, 0])[..., None] * hinv
-                df[:, :, :, sl] = -(corr.f[:, :, -1] - corr.f[:, :, 0])[..., None] * hinv
+                # with the integrator's own (composite Simpson) node weights, so the Jacobian is
+                # that of the discretised residual, noise included.
+                simpson = _simpson_weights(self.n_sub)
+                dw[:, :, :, sl] = -np.einsum("j,wmjc->wmc", simpson, corr.dw_du)[..., None]
+                df[:, :, :, sl] = -np.einsum("j,wmjc->wmc", simpson, corr.df_du)[..., None]
             elif name in cm.dw:
                 dw[:, :, :, sl] = cm.dw[name]
                 df[:, :, :, sl] = cm.df[name]
@@ -290,41 +303,36 @@ class PositionProblem:
         r = np.concatenate([r_rot, p_meas - pbar], axis=-1)  # (W, m+1, 6)
         Jinv = so3.right_jacobian_inv(r_rot)
         Pm_rot = Jinv @ np.swapaxes(E, -1, -2)  # d r_rot / d (nominal attitude perturbation)
-        Dir = np.zeros((W, m + 1, 6, p))
-        Dir[..., 0:3, L.slice("rotation")] = Jinv
-        Dir[..., 3:6, L.slice("translation")] = R_WM
 
-        # --- Error-state transition per step (world-frame blocks need Rbar_k).
+        # --- Error-state transition per step (world-frame blocks need Rbar_k). The big
+        # arrays are reused between evaluations: their zero blocks never change.
         Rk = Rbar[:, :-1]
-        F = np.zeros((W, m, 15, 15))
-        eye3 = np.eye(3)
-        F[..., 0:3, 0:3] = np.swapaxes(inc.dR, -1, -2)
-        F[..., 0:3, 9:12] = -np.swapaxes(inc.dR, -1, -2) @ inc.A
+        F = self._buffer("F", (W, m, 15, 15), identity_blocks=True)
+        dRt = np.swapaxes(inc.dR, -1, -2)
+        F[..., 0:3, 0:3] = dRt
+        F[..., 0:3, 9:12] = -dRt @ inc.A
         F[..., 3:6, 0:3] = -Rk @ so3.hat(inc.dp)
-        F[..., 3:6, 3:6] = eye3
-        F[..., 3:6, 6:9] = eye3 * h[..., None, None]
+        F[..., 3:6, 6:9] = np.eye(3) * h[..., None, None]
         F[..., 3:6, 9:12] = Rk @ inc.D
         F[..., 3:6, 12:15] = -Rk @ inc.C
         F[..., 6:9, 0:3] = -Rk @ so3.hat(inc.dv)
-        F[..., 6:9, 6:9] = eye3
         F[..., 6:9, 9:12] = Rk @ inc.B
         F[..., 6:9, 12:15] = -Rk @ inc.A
-        F[..., 9:15, 9:15] = np.eye(6)
-        # Parameter inputs: a parameter acts like a bias of -dw/dtheta, -df/dtheta.
-        Gam = -(F[..., 0:9, 9:12] @ dw + F[..., 0:9, 12:15] @ df)
-        gs = L.slice("gravity")
-        dg = th.g_mag * th.g_basis
-        Gam[..., 3:6, gs] += 0.5 * (h**2)[..., None, None] * dg
-        Gam[..., 6:9, gs] += h[..., None, None] * dg
+        # Parameter inputs: a parameter acts like a bias of -dw/dtheta, -df/dtheta; gravity
+        # enters the velocity and position directly.
+        gcols = list(range(L.slice("gravity").start, L.slice("gravity").stop))
+        dg = th.g_mag * th.g_basis  # (3, 2)
         if L.has("gravity_magnitude"):
-            gm = L.slice("gravity_magnitude")
-            Gam[..., 3:6, gm] += 0.5 * (h**2)[..., None, None] * th.g_dir[:, None]
-            Gam[..., 6:9, gm] += h[..., None, None] * th.g_dir[:, None]
+            gcols.append(L.slice("gravity_magnitude").start)
+            dg = np.concatenate([dg, th.g_dir[:, None]], axis=1)
+        g_in = np.empty((W, m, 6, len(gcols)))
+        g_in[..., 0:3, :] = 0.5 * (h**2)[..., None, None] * dg
+        g_in[..., 3:6, :] = h[..., None, None] * dg
 
         # Process noise per step (isotropic densities, so frame rotations drop out).
         sg2 = nz.gyroscope_noise_density**2
         sa2 = nz.accelerometer_noise_density**2
-        q_diag = np.zeros((W, m, 15))
+        q_diag = np.empty((W, m, 15))
         q_diag[..., 0:3] = (sg2 * h)[..., None]
         q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
         q_diag[..., 6:9] = (sa2 * h)[..., None]
@@ -335,21 +343,23 @@ class PositionProblem:
         # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
         sr2 = nz.mocap_rotation_sigma**2
         lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
-        Rn = np.zeros((W, m + 1, 6, 6))
-        Rn[..., 0:3, 0:3] = sr2 * eye3
+        Rn = np.empty((W, m + 1, 6, 6))
+        Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
         Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
         Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
-        Rn[..., 3:6, 3:6] = nz.mocap_position_sigma**2 * eye3 + sr2 * lev @ np.swapaxes(lev, -1, -2)
+        Rn[..., 3:6, 3:6] = nz.mocap_position_sigma**2 * np.eye(3) + sr2 * lev @ np.swapaxes(lev, -1, -2)
         wts = self.weights[c]
+        weighted = wts < 1.0
 
         # --- Sequential pass: sensitivities S, Kalman whitening, Gram accumulation.
+        rs, ts = L.slice("rotation"), L.slice("translation")
         S = np.zeros((W, 9, p))
-        S[:, 0:3, L.slice("rotation")] = eye3
-        S[:, 3:6, L.slice("translation")] = R_WM[:, 0]
+        S[:, 0:3, rs] = np.eye(3)
+        S[:, 3:6, ts] = R_WM[:, 0]
         P = np.zeros((W, 15, 15))
-        P[:, 0:3, 0:3] = DIFFUSE[0] ** 2 * eye3
-        P[:, 3:6, 3:6] = DIFFUSE[1] ** 2 * eye3
-        P[:, 6:9, 6:9] = DIFFUSE[2] ** 2 * eye3
+        P[:, 0:3, 0:3] = DIFFUSE[0] ** 2 * np.eye(3)
+        P[:, 3:6, 3:6] = DIFFUSE[1] ** 2 * np.eye(3)
+        P[:, 6:9, 6:9] = DIFFUSE[2] ** 2 * np.eye(3)
         X = np.zeros((W, 15, p + 1))
         gram = np.zeros((W, p + 1, p + 1))
         innov = np.zeros((W, m + 1, 6))
@@ -357,43 +367,65 @@ class PositionProblem:
         chi2 = np.zeros(W)
         raw_J = np.zeros((W, m + 1, 6, p)) if store else None
         whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
-        Jk = np.zeros((W, 6, p))
-        diag15 = np.arange(15)
+        N = np.zeros((W, 6, p + 1))
+        i15 = np.arange(15)
+        i3 = np.arange(3)
         for k in range(m + 1):
             if k > 0:
                 Fk = F[:, k - 1]
-                S = Fk[:, 0:9, 0:9] @ S + Gam[:, k - 1]
+                S = Fk[:, 0:9, 0:9] @ S - Fk[:, 0:9, 9:15] @ dwf[:, k - 1]
+                S[:, 3:9, gcols] += g_in[:, k - 1]
                 X = Fk @ X
                 P = Fk @ P @ np.swapaxes(Fk, 1, 2)
-                P[:, diag15, diag15] += q_diag[:, k - 1]
-                P[:, 3:6, 6:9] += q_pv[:, k - 1, None, None] * eye3
-                P[:, 6:9, 3:6] += q_pv[:, k - 1, None, None] * eye3
-            Jk[:, 0:3, :] = Dir[:, k, 0:3, :] - Pm_rot[:, k] @ S[:, 0:3, :]
-            Jk[:, 3:6, :] = Dir[:, k, 3:6, :] - S[:, 3:6, :]
+                P[:, i15, i15] += q_diag[:, k - 1]
+                P[:, 3 + i3, 6 + i3] += q_pv[:, k - 1, None]
+                P[:, 6 + i3, 3 + i3] += q_pv[:, k - 1, None]
+            # Residual Jacobian: direct part minus the nominal's sensitivity.
+            N[:, 0:3, :p] = -(Pm_rot[:, k] @ S[:, 0:3, :])
+            N[:, 0:3, rs] += Jinv[:, k]
+            N[:, 3:6, :p] = -S[:, 3:6, :]
+            N[:, 3:6, ts] += R_WM[:, k]
+            N[:, :, p] = r[:, k]
+            if store:
+                raw_J[:, k] = N[:, :, :p]
+            N -= X[:, 0:6, :]
             ok = mask[:, k]
-            N = np.concatenate([Jk, r[:, k, :, None]], axis=2) - X[:, 0:6, :]
-            Rk_n = Rn[:, k] / wts[:, k, None, None]
-            Sraw = P[:, 0:6, 0:6] + Rn[:, k]
-            Sinn = P[:, 0:6, 0:6] + Rk_n
-            Lc = np.linalg.cholesky(Sinn)
-            Nw = np.linalg.solve(Lc, N)
+            Sinn = P[:, 0:6, 0:6] + Rn[:, k] / wts[:, k, None, None]
+            Li = np.linalg.inv(np.linalg.cholesky(Sinn))
+            Nw = Li @ N
             Nw[~ok] = 0.0
             gram += np.swapaxes(Nw, 1, 2) @ Nw
-            chi2 += np.sum(Nw[:, :, -1] ** 2, axis=1)
-            innov[:, k] = N[:, :, -1]
-            Lr = np.linalg.cholesky(Sraw)
-            d_raw[:, k] = np.linalg.norm(np.linalg.solve(Lr, N[:, :, -1:])[:, :, 0], axis=1)
+            chi2 += np.sum(Nw[:, :, p] ** 2, axis=1)
+            innov[:, k] = N[:, :, p]
+            d_raw[:, k] = np.linalg.norm(Nw[:, :, p], axis=1)
+            wk = weighted[:, k]
+            if np.any(wk):
+                # The robust weight's own test needs the innovation against the unweighted noise.
+                Sraw = P[wk, 0:6, 0:6] + Rn[wk, k]
+                d_raw[wk, k] = np.linalg.norm(
+                    np.linalg.solve(np.linalg.cholesky(Sraw), N[wk, :, p:]), axis=(1, 2))
             if store:
-                raw_J[:, k] = Jk
                 whitened[:, k] = Nw
-            K = np.swapaxes(np.linalg.solve(Sinn, P[:, 0:6, :]), 1, 2)  # (W, 15, 6)
+            K = P[:, :, 0:6] @ (np.swapaxes(Li, 1, 2) @ Li)  # (W, 15, 6)
             K[~ok] = 0.0
-            X = X + K @ N
-            P = P - K @ P[:, 0:6, :]
+            X += K @ N
+            P -= K @ P[:, 0:6, :]
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
         d_raw[~mask] = 0.0
         innov[~mask] = 0.0
         return EvalOut(gram, innov, d_raw, chi2, r if store else None, raw_J, whitened)
+
+    def _buffer(self, name: str, shape: tuple[int, ...], identity_blocks: bool = False) -> Array:
+        """A reusable array: blocks not written by the caller keep their initial values."""
+        buf = self._buffers.get(name)
+        if buf is None or buf.shape != shape:
+            buf = np.zeros(shape)
+            if identity_blocks:
+                for a, b in ((3, 3), (6, 6)):
+                    buf[..., a:a + 3, b:b + 3] = np.eye(3)
+                buf[..., 9:15, 9:15] = np.eye(6)
+            self._buffers[name] = buf
+        return buf
 
     # ------------------------------------------------------------------ robust weights
     def update_weights(self, d_raw: Array, c: float = ROBUST_C) -> float:
@@ -404,6 +436,14 @@ class PositionProblem:
         change = float(np.max(np.abs(w - self.weights))) if w.size else 0.0
         self.weights = w
         return change
+
+
+def _simpson_weights(n_sub: int) -> Array:
+    """Composite Simpson weights of the ``2 n_sub + 1`` nodes of a step (sum to 1)."""
+    w = np.zeros(2 * n_sub + 1)
+    for i in range(n_sub):
+        w[2 * i: 2 * i + 3] += np.array([1.0, 4.0, 1.0])
+    return w / w.sum()
 
 
 def compress(gram: Array) -> tuple[Array, Array]:

@@ -1,0 +1,381 @@
+"""Validation shared by every reader: one-line :class:`~mocap_calib.errors.InputError` messages.
+
+Each message names the file, the 1-based line to blame (when one line is) and the fix. The
+checks are vectorised (files can hold millions of rows); only when a check fails is the file
+scanned again, in Python, to turn the offending data row into its line number (:class:`Lines`).
+
+Readers call :func:`validate_imu` / :func:`validate_mocap` with arrays already converted to SI
+units; :func:`check_overlap` is separate because only the calibrator knows whether a clock
+offset will be searched.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.errors import InputError, input_error
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Nanoseconds per unit of a time column.
+TIME_UNITS: dict[str, int] = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+GYRO_UNITS: tuple[str, ...] = ("rad/s", "deg/s")
+ACCEL_UNITS: tuple[str, ...] = ("m/s^2", "g")
+POSITION_UNITS: tuple[str, ...] = ("m", "mm")
+QUAT_ORDERS: tuple[str, ...] = ("wxyz", "xyzw")
+
+MIN_IMU_ROWS = 100
+MIN_MOCAP_ROWS = 20
+#: |q| may differ from 1 by this much before it is an error (it is then normalised).
+QUAT_NORM_TOL = 1e-3
+#: Below this |q| - 1 is rounding in the file: leave the numbers alone so they round-trip.
+_QUAT_EXACT_TOL = 1e-12
+#: An IMU step this many times the median step is a gap the preintegration cannot bridge.
+IMU_GAP_FACTOR = 5.0
+#: Plausible sample rates (Hz) of either stream, to catch a wrong time unit.
+MIN_RATE_HZ = 1.0
+MAX_RATE_HZ = 1e5
+#: Above this 99th percentile of |w| (rad/s) the gyro is almost surely in deg/s.
+GYRO_P99_MAX = 25.0
+#: If even the quietest 5 % of samples turn faster than this (rad/s), it is deg/s.
+GYRO_P5_MAX = 3.0
+#: Positions spanning more than this (m) in one axis are almost surely millimetres.
+POSITION_RANGE_MAX = 100.0
+
+
+class Lines:
+    """Maps 0-based data-row indices of a parsed table to 1-based lines of its file.
+
+    The file is scanned only when an error needs a line number, so reading stays fast; a data
+    line is any line after the first ``skip`` lines that is not blank and not a comment, the
+    same rule the CSV parser applies.
+
+    Args:
+        source: Name of the file (or stream) for messages.
+        path: The file, or None for in-memory data (messages then name no line).
+        skip: Raw lines before the first data row (header, leading comments).
+        comment: Comment prefix of skipped lines, or None.
+    """
+
+    def __init__(self, source: str, path: Path | None = None, skip: int = 0,
+                 comment: str | None = "#") -> None:
+        self.source = source
+        self.path = path
+        self.skip = skip
+        self.comment = comment
+
+    def line(self, row: int | None) -> int | None:
+        """1-based line of data row ``row`` (None if unknown)."""
+        if row is None or self.path is None:
+            return None
+        seen = -1
+        with open(self.path, encoding="utf-8", errors="replace") as f:
+            for number, text in enumerate(f, start=1):
+                if number <= self.skip:
+                    continue
+                s = text.strip()
+                if not s or (self.comment is not None and s.startswith(self.comment)):
+                    continue
+                seen += 1
+                if seen == row:
+                    return number
+        return None
+
+    def error(self, what: str, fix: str, row: int | None = None) -> InputError:
+        """An :class:`InputError` naming this file and the line of data row ``row``."""
+        return input_error(what, fix, self.source, self.line(row))
+
+
+def check_unit(value: str, allowed: tuple[str, ...] | dict[str, int], option: str) -> str:
+    """Return ``value`` if it is one of ``allowed``, else raise naming the CLI option."""
+    if value not in allowed:
+        choices = ", ".join(allowed)
+        raise input_error(f"unknown {option} {value!r}", f"use one of: {choices}")
+    return value
+
+
+def _first(mask: NDArray[np.bool_]) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def require_rows(n: int, minimum: int, kind: str, lines: Lines, dropped: int = 0) -> None:
+    """Raise if a stream has fewer than ``minimum`` usable rows.
+
+    Args:
+        n: Usable rows.
+        minimum: Rows needed.
+        kind: ``"IMU"`` or ``"mocap"``.
+        lines: Where the rows came from.
+        dropped: Rows already dropped as occlusions (for the message).
+    """
+    if n == 0:
+        raise lines.error(f"no {kind} data rows (the file is empty or holds only a header)",
+                          "pass the file that holds the recording")
+    if n < minimum:
+        extra = f" ({dropped} NaN rows dropped as occlusions)" if dropped else ""
+        raise lines.error(f"only {n} usable {kind} rows{extra}; at least {minimum} are needed",
+                          "record or export a longer session")
+
+
+def check_increasing(ns: IntArray, kind: str, lines: Lines,
+                     rows: IntArray | None = None) -> None:
+    """Raise at the first timestamp that is not later than the one before it.
+
+    Args:
+        ns: Integer nanosecond stamps in file order.
+        kind: ``"IMU"`` or ``"mocap"``.
+        lines: Where the rows came from.
+        rows: Data-row index of each stamp (None: ``0..N-1``).
+    """
+    if len(ns) < 2:
+        return
+    d = np.diff(ns)
+    bad = d <= 0
+    if not bad.any():
+        return
+    i = _first(bad) + 1
+    row = int(rows[i]) if rows is not None else i
+    if d[i - 1] == 0:
+        raise lines.error(f"{kind} timestamp repeats the previous row's",
+                          "remove duplicate rows (keep one row per timestamp)", row)
+    raise lines.error(f"{kind} timestamp is earlier than the previous row's (not sorted)",
+                      "sort the file by time", row)
+
+
+def check_finite_imu(gyro: Array, accel: Array, lines: Lines) -> None:
+    """Raise at the first IMU row holding NaN, inf or a missing value."""
+    bad = ~(np.isfinite(gyro).all(axis=1) & np.isfinite(accel).all(axis=1))
+    if bad.any():
+        raise lines.error("IMU row has a NaN, infinite or missing value",
+                          "fix or delete that row (IMU samples cannot be skipped: "
+                          "re-export the IMU stream without gaps)", _first(bad))
+
+
+def split_occlusions(quat: Array, position: Array, lines: Lines) -> NDArray[np.bool_]:
+    """Mask of mocap rows to keep: rows with NaN (occlusions) are dropped, inf is an error.
+
+    Returns:
+        (N,) True where the pose is complete.
+
+    Raises:
+        InputError: on an infinite value, or when every row is NaN.
+    """
+    both = np.concatenate([quat, position], axis=1)
+    inf = np.isinf(both).any(axis=1)
+    if inf.any():
+        raise lines.error("mocap row has an infinite value",
+                          "fix that row, or write occluded poses as NaN", _first(inf))
+    keep = ~np.isnan(both).any(axis=1)
+    if len(keep) and not keep.any():
+        raise lines.error("every mocap row is NaN (the marker body was never tracked)",
+                          "check the rigid-body columns, or export a take where it is tracked")
+    return keep
+
+
+def normalise_quaternions(quat: Array, lines: Lines, rows: IntArray | None = None) -> Array:
+    """Return unit quaternions, normalising those within :data:`QUAT_NORM_TOL` of unit norm.
+
+    Rows whose norm is 1 up to rounding are returned bit-for-bit, so files round-trip.
+
+    Raises:
+        InputError: at the first quaternion whose norm is off by more than the tolerance.
+    """
+    norm = np.linalg.norm(quat, axis=1)
+    off = np.abs(norm - 1.0)
+    bad = off > QUAT_NORM_TOL
+    if bad.any():
+        i = _first(bad)
+        row = int(rows[i]) if rows is not None else i
+        raise lines.error(
+            f"quaternion norm is {norm[i]:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g})",
+            "check that the quaternion columns are the right ones, or normalise them "
+            "(write occluded poses as NaN, not zeros)", row)
+    fix = off > _QUAT_EXACT_TOL
+    if fix.any():
+        quat = quat.copy()
+        quat[fix] /= norm[fix, None]
+    return quat
+
+
+def check_time_unit(ns: IntArray, unit: str, kind: str, lines: Lines) -> None:
+    """Raise if the median sample spacing implies an implausible rate for the declared unit.
+
+    Args:
+        ns: Sorted integer nanosecond stamps (after the unit conversion).
+        unit: Declared time unit of the column (a key of :data:`TIME_UNITS`).
+        kind: ``"IMU"`` or ``"mocap"``.
+        lines: Where the rows came from.
+    """
+    if len(ns) < 2:
+        return
+    step_ns = float(np.median(np.diff(ns)))
+    if step_ns <= 0:
+        return
+    rate = 1e9 / step_ns
+    if MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+        return
+    raw_step = step_ns / TIME_UNITS[unit]  # spacing in the file's own numbers
+    fits = [(u, 1e9 / (raw_step * f)) for u, f in TIME_UNITS.items() if u != unit]
+    fits = [(u, r) for u, r in fits if MIN_RATE_HZ <= r <= MAX_RATE_HZ]
+    what = (f"{kind} samples are {step_ns * 1e-9:.3g} s apart ({rate:.3g} Hz) if the "
+            f"timestamps are in {unit}, which is implausible")
+    if fits:
+        # Several units can fit (they are 1000x apart); prefer the most typical rate.
+        best, best_rate = min(fits, key=lambda ur: abs(np.log10(ur[1]) - 2.5))
+        fix = f"the timestamps look like {best} ({best_rate:.3g} Hz); pass --time-unit {best}"
+    else:
+        fix = "check the time column and --time-unit (s, ms, us or ns)"
+    raise lines.error(what, fix)
+
+
+def check_imu_gaps(ns: IntArray, lines: Lines) -> None:
+    """Raise at the first IMU sample that follows a gap longer than 5x the median step."""
+    if len(ns) < 3:
+        return
+    d = np.diff(ns)
+    med = float(np.median(d))
+    bad = d > IMU_GAP_FACTOR * med
+    if bad.any():
+        i = _first(bad)
+        raise lines.error(
+            f"IMU gap of {d[i] * 1e-9:.4g} s before this row ({d[i] / med:.0f}x the median "
+            f"step {med * 1e-9:.3g} s)",
+            "the calibration cannot bridge IMU gaps: calibrate the parts before and after it "
+            "separately (--start/--end) or re-record", i + 1)
+
+
+def check_imu_units(gyro: Array, accel: Array, gyro_unit: str, accel_unit: str,
+                    lines: Lines) -> None:
+    """Raise when gyro or accel magnitudes suggest a unit other than the declared one.
+
+    Args:
+        gyro: (N, 3) rates converted to rad/s with ``gyro_unit``.
+        accel: (N, 3) specific force converted to m/s^2 with ``accel_unit``.
+        gyro_unit: Declared gyro unit.
+        accel_unit: Declared accel unit.
+        lines: Where the rows came from.
+    """
+    a = float(np.median(np.linalg.norm(accel, axis=1)))
+    if accel_unit == "m/s^2" and 0.5 <= a <= 2.0:
+        raise lines.error(f"median accelerometer magnitude is {a:.3g} m/s^2",
+                          "the accelerometer looks like it is in g; pass --accel-unit g")
+    if accel_unit == "g" and 50.0 <= a <= 200.0:
+        raise lines.error(f"median accelerometer magnitude is {a:.3g} m/s^2 after converting "
+                          "from g", "the accelerometer looks like it is already in m/s^2; "
+                          "pass --accel-unit m/s^2")
+    if gyro_unit == "rad/s":
+        w = np.linalg.norm(gyro, axis=1)
+        p5, p99 = (float(v) for v in np.percentile(w, [5.0, 99.0]))
+        if p99 > GYRO_P99_MAX or p5 > GYRO_P5_MAX:
+            raise lines.error(
+                f"gyro magnitudes are implausible in rad/s (99th percentile {p99:.3g}, "
+                f"5th percentile {p5:.3g})",
+                "the gyro looks like it is in deg/s; pass --gyro-unit deg/s")
+
+
+def check_position_unit(position: Array, position_unit: str, lines: Lines) -> None:
+    """Raise when positions (converted to metres) span more than a mocap room could."""
+    if position_unit != "m" or len(position) == 0:
+        return
+    span = float(np.max(np.ptp(position, axis=0)))
+    if span > POSITION_RANGE_MAX:
+        raise lines.error(f"positions span {span:.4g} m, more than a mocap volume",
+                          "the positions look like millimetres; pass --position-unit mm")
+
+
+def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
+                 time_unit: str = "ns", gyro_unit: str = "rad/s",
+                 accel_unit: str = "m/s^2") -> ImuSamples:
+    """Check a parsed IMU table and build :class:`ImuSamples` from it.
+
+    Args:
+        ns: (N,) integer nanosecond stamps, file order.
+        gyro: (N, 3) rad/s.
+        accel: (N, 3) m/s^2.
+        lines: Where the rows came from (also the samples' ``source``).
+        time_unit: Unit the file's time column was declared in (for hints).
+        gyro_unit: Declared gyro unit (for hints).
+        accel_unit: Declared accel unit (for hints).
+
+    Returns:
+        The samples, times relative to the first stamp.
+    """
+    if len(ns) == 0:
+        require_rows(0, MIN_IMU_ROWS, "IMU", lines)
+    check_finite_imu(gyro, accel, lines)
+    check_increasing(ns, "IMU", lines)
+    require_rows(len(ns), MIN_IMU_ROWS, "IMU", lines)
+    check_time_unit(ns, time_unit, "IMU", lines)
+    check_imu_gaps(ns, lines)
+    check_imu_units(gyro, accel, gyro_unit, accel_unit, lines)
+    origin = int(ns[0])
+    return ImuSamples((ns - origin) / 1e9, gyro, accel, origin, lines.source)
+
+
+def validate_mocap(ns: IntArray, quat_wxyz: Array, position: Array, lines: Lines, *,
+                   time_unit: str = "ns", position_unit: str = "m") -> MocapPoses:
+    """Check a parsed mocap table, drop NaN rows (occlusions) and build :class:`MocapPoses`.
+
+    Args:
+        ns: (N,) integer nanosecond stamps, file order.
+        quat_wxyz: (N, 4) quaternions ``R_WM``, [w, x, y, z].
+        position: (N, 3) metres.
+        lines: Where the rows came from (also the poses' ``source``).
+        time_unit: Unit the file's time column was declared in (for hints).
+        position_unit: Declared position unit (for hints).
+
+    Returns:
+        The complete poses, ``dropped_rows`` counting the NaN rows removed.
+    """
+    if len(ns) == 0:
+        require_rows(0, MIN_MOCAP_ROWS, "mocap", lines)
+    keep = split_occlusions(quat_wxyz, position, lines)
+    check_increasing(ns, "mocap", lines)
+    rows = np.flatnonzero(keep)
+    ns, quat_wxyz, position = ns[keep], quat_wxyz[keep], position[keep]
+    quat_wxyz = normalise_quaternions(quat_wxyz, lines, rows)
+    require_rows(len(ns), MIN_MOCAP_ROWS, "mocap", lines, dropped=len(keep) - len(rows))
+    check_time_unit(ns, time_unit, "mocap", lines)
+    check_position_unit(position, position_unit, lines)
+    origin = int(ns[0])
+    return MocapPoses((ns - origin) / 1e9, quat_wxyz, position, origin, lines.source,
+                      dropped_rows=int(len(keep) - len(rows)))
+
+
+def check_overlap(imu: ImuSamples, mocap: MocapPoses, allow_offset: bool,
+                  min_overlap_s: float = 1.0) -> float:
+    """Check that the two streams cover a common stretch of absolute time.
+
+    Absolute time is ``time_origin_ns + t`` on each stream's clock. Without a time-offset
+    model the clocks must agree, so the spans must overlap; with one (``allow_offset``) the
+    calibrator searches the offset and no overlap is required.
+
+    Args:
+        imu: The IMU samples.
+        mocap: The mocap poses.
+        allow_offset: The model estimates ``time_offset``.
+        min_overlap_s: Overlap needed (s) when ``allow_offset`` is False.
+
+    Returns:
+        The overlap in seconds (negative: the gap between the spans).
+
+    Raises:
+        InputError: when the overlap is shorter than ``min_overlap_s`` and no offset is searched.
+    """
+    a = imu.stamps_ns()
+    b = mocap.stamps_ns()
+    if len(a) == 0 or len(b) == 0:
+        return 0.0
+    overlap = (min(int(a[-1]), int(b[-1])) - max(int(a[0]), int(b[0]))) * 1e-9
+    if overlap >= min_overlap_s or allow_offset:
+        return overlap
+    what = (f"the IMU ({imu.source}, {a[0] * 1e-9:.3f}..{a[-1] * 1e-9:.3f} s) and mocap "
+            f"({mocap.source}, {b[0] * 1e-9:.3f}..{b[-1] * 1e-9:.3f} s) time spans "
+            + ("do not overlap" if overlap <= 0 else f"overlap by only {overlap:.3g} s"))
+    raise input_error(what, "add --model base+time_offset (which searches the clock offset) "
+                      "or fix the clocks so both streams share one time base")

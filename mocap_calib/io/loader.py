@@ -1,0 +1,231 @@
+"""One entry point for the CLI: find the formats of the input files and read both streams.
+
+Format sniffing, per path:
+
+- a folder -> EuRoC ``mav0`` (the folder itself or its parent);
+- a file whose header is EuRoC's ``imu0`` header -> EuRoC IMU;
+- a file whose header is EuRoC's pose header (vicon0 or ground truth) -> EuRoC poses;
+- a whitespace-separated file with 8 numeric columns -> TUM trajectory (unless ``columns``
+  is given: then it is read as a generic CSV);
+- anything else -> generic CSV, which needs ``columns`` (see :mod:`mocap_calib.io.generic`).
+
+The same file given as IMU and mocap (BROAD) is read once, with both streams. Unit options
+left as None take the format's own units (EuRoC: ns, rad/s, m/s^2, m; TUM: s, m, xyzw;
+generic: s, rad/s, m/s^2, wxyz, m); given ones override them for every file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.errors import input_error
+from mocap_calib.io.euroc import (
+    POSE_FOLDERS,
+    find_mav0,
+    header_kind,
+    pose_folder,
+    read_euroc_imu,
+    read_euroc_poses,
+    read_mav0,
+)
+from mocap_calib.io.generic import WHITESPACE, read_generic, sniff_layout
+from mocap_calib.io.tum import read_tum
+
+#: Human-readable names of the formats :func:`sniff_format` returns.
+FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
+                "euroc_poses": "EuRoC pose CSV", "tum": "TUM trajectory",
+                "generic": "generic CSV"}
+
+_NEEDS_COLUMNS = ("say which columns hold what with --columns, e.g. "
+                  "--columns 't=0,gyro=1:4,accel=4:7,quat=7:11,pos=11:14' or --columns broad")
+
+
+def sniff_format(path: Path | str) -> str:
+    """The format of an input path: a key of :data:`FORMAT_NAMES`.
+
+    Raises:
+        InputError: if the path does not exist or the file is empty.
+    """
+    path = Path(path)
+    if path.is_dir():
+        return "mav0"
+    layout = sniff_layout(path)
+    kind = header_kind(layout.names)
+    if kind == "imu":
+        return "euroc_imu"
+    if kind == "poses":
+        return "euroc_poses"
+    if layout.sep == WHITESPACE and layout.n_fields == 8:
+        return "tum"
+    return "generic"
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.samefile(b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def _describe(kind: str, n: int, rate: float, duration: float, fmt: str, path: Path) -> str:
+    noun = "samples" if kind == "IMU" else "poses"
+    return (f"{kind}: {n} {noun} at {rate:.1f} Hz over {duration:.1f} s "
+            f"({FORMAT_NAMES[fmt]} {path})")
+
+
+def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
+                pose_source: str = "auto", columns: str | None = None,
+                time_unit: str | None = None, gyro_unit: str | None = None,
+                accel_unit: str | None = None, quat_order: str | None = None,
+                position_unit: str | None = None,
+                ) -> tuple[ImuSamples, MocapPoses, list[str]]:
+    """Read the IMU and mocap streams from whatever the user passed.
+
+    Args:
+        imu: ``--imu`` file (or a mav0 folder), or None.
+        mocap: ``--mocap`` file (or a mav0 folder), or None; may be the same file as ``imu``.
+        mav0: ``--mav0`` folder (the mav0 folder or its parent), or None.
+        pose_source: For mav0 folders: ``auto``, ``vicon0`` or ``groundtruth``.
+        columns: ``--columns`` string for generic CSVs (see :mod:`mocap_calib.io.generic`).
+        time_unit: s, ms, us or ns; None for the format's own.
+        gyro_unit: rad/s or deg/s; None for the format's own.
+        accel_unit: m/s^2 or g; None for the format's own.
+        quat_order: wxyz or xyzw; None for the format's own.
+        position_unit: m or mm; None for the format's own.
+
+    Returns:
+        (IMU samples, mocap poses, one-line notes for the user).
+
+    Raises:
+        InputError: on missing or conflicting options and on any bad file.
+    """
+    units: dict[str, str] = {k: v for k, v in (
+        ("time_unit", time_unit), ("gyro_unit", gyro_unit), ("accel_unit", accel_unit),
+        ("quat_order", quat_order), ("position_unit", position_unit)) if v is not None}
+    reader = _Reader(columns, pose_source, units)
+    if mav0 is not None:
+        if imu is not None or mocap is not None:
+            raise input_error("--mav0 and --imu/--mocap both given",
+                              "pass either --mav0 FOLDER or --imu FILE --mocap FILE")
+        return reader.mav0(Path(mav0))
+    if imu is None or mocap is None:
+        missing = "--imu" if imu is None else "--mocap"
+        raise input_error(f"no {missing} given",
+                          "pass both --imu and --mocap (the same file if it holds both "
+                          "streams), or --mav0 FOLDER")
+    imu, mocap = Path(imu), Path(mocap)
+    same = _same_file(imu, mocap) if imu.exists() and mocap.exists() else imu == mocap
+    if same:
+        return reader.combined(imu)
+    samples = reader.imu(imu)
+    poses = reader.mocap(mocap)
+    return samples, poses, reader.notes
+
+
+class _Reader:
+    """Reads streams with the user's options, collecting notes."""
+
+    def __init__(self, columns: str | None, pose_source: str, units: dict[str, str]) -> None:
+        self.columns = columns
+        self.pose_source = pose_source
+        self.units = units
+        self.notes: list[str] = []
+
+    def _kw(self, *names: str) -> dict[str, Any]:
+        return {n: self.units[n] for n in names if n in self.units}
+
+    def _note_imu(self, imu: ImuSamples, fmt: str, path: Path) -> ImuSamples:
+        self.notes.append(_describe("IMU", len(imu), imu.rate_hz, imu.duration, fmt, path))
+        return imu
+
+    def _note_mocap(self, mocap: MocapPoses, fmt: str, path: Path) -> MocapPoses:
+        self.notes.append(_describe("mocap", len(mocap), mocap.rate_hz, mocap.duration, fmt,
+                                    path))
+        if mocap.dropped_rows:
+            self.notes.append(f"dropped {mocap.dropped_rows} mocap rows with NaN (occlusions)")
+        return mocap
+
+    def _ignore_columns(self, path: Path, fmt: str) -> None:
+        if self.columns is not None:
+            self.notes.append(f"ignored --columns for {path}: it is an {FORMAT_NAMES[fmt]}")
+
+    def _generic(self, path: Path, streams: list[str]
+                 ) -> tuple[ImuSamples | None, MocapPoses | None]:
+        if self.columns is None:
+            raise input_error("format not recognised (not EuRoC or TUM)", _NEEDS_COLUMNS,
+                              str(path))
+        return read_generic(path, self.columns, streams=streams,
+                            **self._kw("time_unit", "gyro_unit", "accel_unit", "quat_order",
+                                       "position_unit"))
+
+    def _pose_note(self, name: str, folder: Path) -> None:
+        self.notes.append(f"poses from {folder}")
+        if name == "groundtruth":
+            self.notes.append("ground-truth poses are of the IMU (body) frame, not of the "
+                              "marker body")
+
+    def mav0(self, path: Path) -> tuple[ImuSamples, MocapPoses, list[str]]:
+        self._ignore_columns(path, "mav0")
+        m = read_mav0(path, self.pose_source, **self._kw(
+            "time_unit", "gyro_unit", "accel_unit", "quat_order", "position_unit"))
+        folder = m.root / POSE_FOLDERS[m.pose_source]
+        self._note_imu(m.imu, "mav0", m.root / "imu0" / "data.csv")
+        self._pose_note(m.pose_source, folder)
+        self._note_mocap(m.mocap, "mav0", folder / "data.csv")
+        return m.imu, m.mocap, self.notes
+
+    def combined(self, path: Path) -> tuple[ImuSamples, MocapPoses, list[str]]:
+        fmt = sniff_format(path)
+        if fmt == "mav0":
+            return self.mav0(path)
+        if fmt == "euroc_imu" or fmt == "euroc_poses" or (fmt == "tum" and self.columns is None):
+            held = "IMU samples" if fmt == "euroc_imu" else "poses"
+            raise input_error(f"the same file is given as --imu and --mocap but it holds only "
+                              f"{held} ({FORMAT_NAMES[fmt]})",
+                              "pass the other stream's file too", str(path))
+        imu, mocap = self._generic(path, ["imu", "mocap"])
+        assert imu is not None and mocap is not None
+        self._note_imu(imu, "generic", path)
+        self._note_mocap(mocap, "generic", path)
+        return imu, mocap, self.notes
+
+    def imu(self, path: Path) -> ImuSamples:
+        fmt = sniff_format(path)
+        if fmt == "mav0":
+            file = find_mav0(path) / "imu0" / "data.csv"
+            self._ignore_columns(path, fmt)
+            return self._note_imu(read_euroc_imu(file, **self._kw(
+                "time_unit", "gyro_unit", "accel_unit")), fmt, file)
+        if fmt == "euroc_imu":
+            self._ignore_columns(path, fmt)
+            return self._note_imu(read_euroc_imu(path, **self._kw(
+                "time_unit", "gyro_unit", "accel_unit")), fmt, path)
+        if fmt == "euroc_poses" or (fmt == "tum" and self.columns is None):
+            raise input_error(f"--imu is given a pose file ({FORMAT_NAMES[fmt]})",
+                              "pass it with --mocap and the IMU file with --imu", str(path))
+        imu, _ = self._generic(path, ["imu"])
+        assert imu is not None
+        return self._note_imu(imu, "generic", path)
+
+    def mocap(self, path: Path) -> MocapPoses:
+        fmt = sniff_format(path)
+        kw = self._kw("time_unit", "quat_order", "position_unit")
+        if fmt == "mav0":
+            self._ignore_columns(path, fmt)
+            name, folder = pose_folder(find_mav0(path), self.pose_source)
+            self._pose_note(name, folder)
+            return self._note_mocap(read_euroc_poses(folder / "data.csv", **kw), fmt,
+                                    folder / "data.csv")
+        if fmt == "euroc_poses":
+            self._ignore_columns(path, fmt)
+            return self._note_mocap(read_euroc_poses(path, **kw), fmt, path)
+        if fmt == "tum" and self.columns is None:
+            return self._note_mocap(read_tum(path, **kw), fmt, path)
+        if fmt == "euroc_imu":
+            raise input_error("--mocap is given an IMU file (EuRoC IMU CSV)",
+                              "pass it with --imu and the pose file with --mocap", str(path))
+        _, mocap = self._generic(path, ["mocap"])
+        assert mocap is not None
+        return self._note_mocap(mocap, "generic", path)
