@@ -339,7 +339,8 @@ def _analyse(x: Array, rate: float, sensor: str, tau_min_s: float | None,
     resolved = (K > 0) & (sK < MAX_RW_REL_SIGMA * K)
     return SensorNoise(
         sensor=sensor, noise_density=N, random_walk=np.where(resolved, K, np.nan),
-        random_walk_fit=K,        bias_instability=bi, bias_instability_raw=bi_raw, bias_instability_fit=Bf, noise_density_sigma=sN,
+        random_walk_fit=K, bias_instability=bi, bias_instability_raw=bi_raw,
+        bias_instability_fit=Bf, noise_density_sigma=sN,
         random_walk_sigma=sK, random_walk_resolved=resolved, tau_at_minimum=tmin, tau=tau,
         adev=np.array(adev_all), adev_sigma=np.array(sig_all), adev_fit=np.array(fit_all),
         fit_chi2=chi2)

@@ -148,6 +148,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         "imu_rate_hz": round(s.imu_rate, 3), "mocap_rate_hz": round(s.mocap_rate, 3),
         "duration_s": round(min(imu.duration, mocap.duration), 3),
         "mocap_spikes_removed": s.spikes_removed,
+        "imu_start_ns": int(imu.time_origin_ns + round(float(imu.t[0]) * 1e9)),
     }
     coarse = None
     if model.has("time_offset") and opts.time_offset is None:

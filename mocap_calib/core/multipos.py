@@ -235,6 +235,8 @@ def _make_detector(imu: ImuSamples, rate: float, init_static_s: float, window_s:
     var_init = imu.accel[init_mask].var(axis=0, ddof=1)
     init_mag = float(np.sum(var_init**2))
     _check_initial_static(imu, init_mask, mag, init_mag, init_static_s, rate)
+    # Floor for quantised, nearly noise-free data: a zero threshold would find nothing static.
+    init_mag = max(init_mag, 1e-16)
     min_len = max(win // 2, int(round(min_interval_s * rate)))
     return _Detector(mag, init_mask, init_mag, min_len)
 
@@ -248,7 +250,7 @@ def _check_initial_static(imu: ImuSamples, init_mask: NDArray[np.bool_], mag: Ar
            "(or pass a shorter init_static_s)")
     # Over a static period the windowed variance is the whole period's variance (noise); a
     # motion or a tilt inside it makes the whole-period variance much larger.
-    if init_mag > 25.0 * float(np.median(inner)) or init_mag == 0.0:
+    if init_mag > 25.0 * float(np.median(inner)):
         raise ObservabilityError(f"no initial static period: the accelerometer varies within "
                                  f"the first {init_static_s:.0f} s; {fix}")
     # A rotation that keeps the gravity direction (about the vertical) shows only on the gyro.

@@ -272,7 +272,10 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
             continue
         if key is None:
             continue  # a prior on a parameter this model does not have
-        graph.add(_prior_factor(pr.block, key, pr.value, pr.sigma))
+        value = pr.value
+        if pr.block == "time_offset":
+            value = np.atleast_1d(np.asarray(value, dtype=float)) + s.clock_shift  # t_d -> delta
+        graph.add(_prior_factor(pr.block, key, value, pr.sigma))
 
     history: list[dict[str, Any]] = []
     first_eval: list[Any] = []

@@ -1,0 +1,116 @@
+"""``mocap-calib calibrate``: IMU biases, IMU-to-marker pose, gravity tilt, clock offset."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from mocap_calib.cli.common import (
+    ACCEL_UNIT,
+    COLUMNS,
+    GYRO_UNIT,
+    IMU,
+    MAV0,
+    MOCAP,
+    POSE_SOURCE,
+    POSITION_UNIT,
+    QUAT_ORDER,
+    TIME_UNIT,
+    Progress,
+)
+from mocap_calib.cli.main import app
+
+
+@app.command(
+    help="Calibrate the IMU against mocap poses: gyro/accel bias, T_MI (IMU-to-marker), the "
+    "mocap world's tilt against gravity and the clock offset, each with 1-sigma.",
+    epilog="Examples: mocap-calib calibrate sim_out --out calib.yaml | mocap-calib calibrate "
+    "--imu imu0/data.csv --mocap vicon0/data.csv --out calib.yaml --rrd calib.rrd",
+)
+def calibrate(
+    mav0: MAV0 = None,
+    imu: IMU = None,
+    mocap: MOCAP = None,
+    out: Annotated[Path, typer.Option(help="Result YAML to write.")] = Path("calib.yaml"),
+    rrd: Annotated[Path | None, typer.Option(
+        help="Also write a rerun recording of residuals and trajectories.",
+        show_default=False)] = None,
+    model: Annotated[str, typer.Option(
+        help="Measurement model: base plus effects joined by '+', e.g. "
+        "base+time_offset+gyro_scale_misalignment. Effects: time_offset, "
+        "gyro_scale_misalignment, accel_scale_misalignment, gyro_g_sensitivity, "
+        "gyro_bias_drift, accel_bias_drift, gravity_magnitude.")] = "base+time_offset",
+    gravity: Annotated[float, typer.Option(help="Assumed |g| in m/s^2.")] = 9.81,
+    noise: Annotated[Path | None, typer.Option(
+        help="Noise model YAML (Kalibr imu.yaml keys, e.g. from 'mocap-calib allan'). Default: "
+        "the mav0's imu0/sensor.yaml, else EuRoC ADIS16448 values.", show_default=False)] = None,
+    gyro_noise: Annotated[float | None, typer.Option(
+        help="Gyro noise density, rad/s/sqrt(Hz).", show_default=False)] = None,
+    gyro_walk: Annotated[float | None, typer.Option(
+        help="Gyro bias random walk, rad/s^2/sqrt(Hz).", show_default=False)] = None,
+    accel_noise: Annotated[float | None, typer.Option(
+        help="Accel noise density, m/s^2/sqrt(Hz).", show_default=False)] = None,
+    accel_walk: Annotated[float | None, typer.Option(
+        help="Accel bias random walk, m/s^3/sqrt(Hz).", show_default=False)] = None,
+    mocap_noise_mm: Annotated[float | None, typer.Option(
+        help="Mocap position noise per axis, mm (default 0.5).", show_default=False)] = None,
+    mocap_noise_deg: Annotated[float | None, typer.Option(
+        help="Mocap attitude noise per axis, deg (default 0.05).", show_default=False)] = None,
+    keyframe_spacing: Annotated[float, typer.Option(
+        help="Keyframe spacing of the attitude and velocity factors, s.")] = 0.5,
+    window: Annotated[float, typer.Option(help="Length of the position-factor windows, s.")] = 5.0,
+    time_offset: Annotated[float | None, typer.Option(
+        help="Known clock offset t_d in s (IMU stamp t happened at mocap time t + t_d); with "
+        "time_offset in the model it only replaces the coarse search.", show_default=False)] = None,
+    prior: Annotated[list[Path] | None, typer.Option(
+        help="Earlier result YAML as a prior (repeatable; two or more give a trend).",
+        show_default=False)] = None,
+    start: Annotated[float | None, typer.Option(
+        help="Use the session from this many seconds after the IMU start.",
+        show_default=False)] = None,
+    end: Annotated[float | None, typer.Option(
+        help="Use the session up to this many seconds after the IMU start.",
+        show_default=False)] = None,
+    no_robust: Annotated[bool, typer.Option(
+        "--no-robust", help="Do not down-weight mocap outliers.")] = False,
+    pose_source: POSE_SOURCE = "auto",
+    columns: COLUMNS = None,
+    time_unit: TIME_UNIT = None,
+    gyro_unit: GYRO_UNIT = None,
+    accel_unit: ACCEL_UNIT = None,
+    quat_order: QUAT_ORDER = None,
+    position_unit: POSITION_UNIT = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
+) -> None:
+    from mocap_calib.cli.report import summary_table
+    from mocap_calib.core.calibrate import CalibrationOptions
+    from mocap_calib.core.effects import Model
+    from mocap_calib.io.yaml_io import save_result
+    from mocap_calib.workflows import InputSpec, run_calibration
+
+    spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
+                     quat_order, position_unit)
+    opts = CalibrationOptions(
+        model=Model.parse(model), gravity=gravity, attitude_spacing=keyframe_spacing,
+        velocity_spacing=keyframe_spacing, window=window, time_offset=time_offset,
+        robust=not no_robust, start=start, end=end)
+    overrides = {
+        "gyroscope_noise_density": gyro_noise, "gyroscope_random_walk": gyro_walk,
+        "accelerometer_noise_density": accel_noise, "accelerometer_random_walk": accel_walk,
+        "mocap_position_sigma": None if mocap_noise_mm is None else mocap_noise_mm * 1e-3,
+        "mocap_rotation_sigma": None if mocap_noise_deg is None else float(np.radians(mocap_noise_deg)),
+    }
+    progress = Progress(quiet)
+    result, session = run_calibration(spec, opts, noise, overrides, prior or [], progress)
+    save_result(out, result)
+    typer.echo(summary_table(result))
+    typer.echo(f"\nwrote {out}")
+    if rrd is not None:
+        from mocap_calib.viz.recording import write_calibration_recording
+
+        progress("writing rerun recording")
+        path = write_calibration_recording(rrd, result, session.imu, session.mocap)
+        typer.echo(f"wrote {path}  (open with: mocap-calib view {path})")

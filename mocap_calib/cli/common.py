@@ -1,0 +1,44 @@
+"""Options shared by the commands that read a session, and terminal output helpers."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+MAV0 = Annotated[Path | None, typer.Argument(
+    help="EuRoC/ASL mav0 folder (or its parent) holding imu0/ and vicon0/ "
+    "(or state_groundtruth_estimate0/).", show_default=False)]
+IMU = Annotated[Path | None, typer.Option(
+    "--imu", help="IMU CSV (EuRoC imu0/data.csv layout, or generic with --columns).",
+    show_default=False)]
+MOCAP = Annotated[Path | None, typer.Option(
+    "--mocap", help="Mocap poses T_WM (EuRoC vicon0/data.csv layout, TUM, or generic with "
+    "--columns). May be the same file as --imu.", show_default=False)]
+POSE_SOURCE = Annotated[str, typer.Option(
+    help="With a mav0 folder: vicon0, groundtruth, or auto (vicon0 if present).")]
+COLUMNS = Annotated[str | None, typer.Option(
+    help="Column map of a generic CSV, e.g. 't=0,gyro=1:4,accel=4:7,quat=10:14,pos=14:17' "
+    "or a preset name ('broad').", show_default=False)]
+TIME_UNIT = Annotated[str | None, typer.Option(
+    help="Timestamp unit: s, ms, us or ns (default: the format's own).", show_default=False)]
+GYRO_UNIT = Annotated[str | None, typer.Option(help="rad/s or deg/s.", show_default=False)]
+ACCEL_UNIT = Annotated[str | None, typer.Option(help="m/s^2 or g.", show_default=False)]
+QUAT_ORDER = Annotated[str | None, typer.Option(help="wxyz or xyzw.", show_default=False)]
+POSITION_UNIT = Annotated[str | None, typer.Option(help="m or mm.", show_default=False)]
+
+
+class Progress:
+    """One line per step on stderr, with the elapsed time (quiet: nothing)."""
+
+    def __init__(self, quiet: bool = False) -> None:
+        self.quiet = quiet
+        self.t0 = time.perf_counter()
+
+    def __call__(self, message: str) -> None:
+        if not self.quiet:
+            print(f"[{time.perf_counter() - self.t0:6.1f} s] {message}", file=sys.stderr,
+                  flush=True)
