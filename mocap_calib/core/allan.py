@@ -99,7 +99,9 @@ class SensorNoise:
     adev_fit: Array
     fit_chi2: Array
 
-    def aggregate(self, values: Array, how: str) -> float | None:
+    @staticmethod
+    def aggregate(values: Array, how: str) -> float | None:
+        """Mean (``how="mean"``) or largest (``"max"``) of per-axis values; None if any is NaN."""
         if not np.all(np.isfinite(values)):
             return None
         return float(np.max(values) if how == "max" else np.mean(values))
@@ -314,6 +316,9 @@ def _analyse(x: Array, rate: float, sensor: str, tau_min_s: float | None,
     adev_all, sig_all, fit_all = [], [], []
     tau = tau_req
     for ax in range(3):
+        if np.ptp(x[:, ax]) == 0:
+            raise ObservabilityError(f"the {sensor} {'xyz'[ax]} axis is constant over the whole "
+                                     "log (dead, saturated or not logged); check the sensor")
         t_out, adev, _, _ = allantools.oadev(x[:, ax], rate=rate, data_type="freq",
                                              taus=tau_req)
         tau = np.asarray(t_out, dtype=float)

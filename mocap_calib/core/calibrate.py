@@ -54,6 +54,7 @@ class CalibrationOptions:
             value instead of the coarse search.
         priors: earlier results entering as prior factors.
         robust: down-weight mocap outliers.
+        adapt_noise: re-estimate the mocap noise level from the residuals.
         start, end: calibrate only this part of the session (s from the IMU start).
     """
 
@@ -67,6 +68,7 @@ class CalibrationOptions:
     time_offset: float | None = None
     priors: list[Prior] = field(default_factory=list)
     robust: bool = True
+    adapt_noise: bool = True
     start: float | None = None
     end: float | None = None
     max_iterations: int = 30
@@ -198,8 +200,16 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     init = PositionInit(att.R_MI, vel.p_MI, vel.gravity_dir, opts.gravity, delta0,
                         att.gyro_bias, vel.accel_bias, effects0)
     pos = run_position_stage(s, model, opts.noise, windows, init, opts.priors, opts.robust,
-                             opts.max_iterations, on_iteration=on_iteration, progress=say)
+                             opts.max_iterations, adapt_noise=opts.adapt_noise,
+                             on_iteration=on_iteration, progress=say)
 
+    sr, sp = pos.solver["mocap_noise_variance_scale"]
+    if max(abs(np.log(sr)), abs(np.log(sp))) > np.log(1.1):
+        notes.append(
+            f"mocap noise estimated from the residuals: {1e3 * pos.noise.mocap_position_sigma:.3g} "
+            f"mm, {np.degrees(pos.noise.mocap_rotation_sigma):.3g} deg per axis (assumed "
+            f"{1e3 * opts.noise.mocap_position_sigma:.3g} mm, "
+            f"{np.degrees(opts.noise.mocap_rotation_sigma):.3g} deg)")
     # Honest sigmas: when the residuals exceed the noise model, scale up (never down).
     scale = float(np.sqrt(max(1.0, pos.chi2_per_dof)))
     if scale > 1.05:
@@ -256,7 +266,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         sigma_time_offset=None if sig_td is None else float(sig_td[0]),
         gravity_magnitude=float(pos.g_mag), model=str(model), effects=effects,
         unobservable=unob, stages=[att.stats, vel.stats, pos.stats], solver=solver,
-        noise=opts.noise, notes=notes, session=session_info, diagnostics=diag)
+        noise=pos.noise, notes=notes, session=session_info, diagnostics=diag)
 
 
 def _imu_velocity(s: PreparedSession, delta: float, R_MI: Array, p_MI: Array,

@@ -267,7 +267,7 @@ def _check_initial_static(imu: ImuSamples, init_mask: NDArray[np.bool_], mag: Ar
 
 def detect_static_intervals(imu: ImuSamples, threshold_multiple: float, *,
                             init_static_s: float = 30.0, window_s: float = 1.0,
-                            min_interval_s: float = 1.0) -> IntArray:
+                            min_interval_s: float = 0.5) -> IntArray:
     """Static intervals of a multi-position session for one threshold multiple ``k``.
 
     Args:
@@ -677,6 +677,10 @@ def _fit_gyro(gyro_pad: Array, dt_pad: Array, u_start: Array, u_end: Array, sig:
     res = least_squares(fun, x0, method="lm", x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12,
                         diff_step=1e-7, max_nfev=400)
     x = res.x
+    if not res.success or not np.all(np.isfinite(x)):
+        raise ConvergenceError("multipos: the gyroscope fit did not converge; check that the "
+                               "rotations between static orientations are in the log without "
+                               "gaps and below the gyro's range")
     # Central differences at the optimum for the covariance (LM's returned Jacobian is the
     # forward-difference one of its last step).
     eps = 1e-6
@@ -692,10 +696,6 @@ def _fit_gyro(gyro_pad: Array, dt_pad: Array, u_start: Array, u_end: Array, sig:
     chi2 = rss / dof if dof > 0 else float("nan")
     cov, cond = _covariance(J, chi2 if dof > 0 else 1.0)
     err = np.linalg.norm(predicted(x) - u_end, axis=1)
-    if not res.success or not np.all(np.isfinite(x)):
-        raise ConvergenceError("multipos: the gyroscope fit did not converge; check that the "
-                               "rotations between static orientations are in the log without "
-                               "gaps and below the gyro's range")
     return _GyroFit(x.reshape(3, 3), cov, chi2, float(np.sqrt(np.mean(err**2))), cond)
 
 
@@ -776,7 +776,7 @@ def calibrate_multipos(
     init_static_s: float = 30.0,
     window_s: float = 1.0,
     threshold_multiples: Sequence[float] = tuple(range(2, 11)),
-    min_interval_s: float = 1.0,
+    min_interval_s: float = 0.5,
     gravity: float = 9.81,
     min_orientations: int = 9,
     prior: MultiposPrior | None = None,
@@ -872,7 +872,7 @@ def calibrate_multipos(
     else:
         # Exactly determined (as many intervals as parameters): nothing to rank by.
         k_best, iv, afit, n_distinct = fits[0]
-    means, _ = _interval_stats(imu.accel, iv)
+    means, sig_int = _interval_stats(imu.accel, iv)
 
     # Gyro bias: mean over the initial static period (w = 0 there), combined with a prior.
     bg, bg_sd, density = _gyro_bias(imu.gyro[det.init_mask], rate)
@@ -886,8 +886,7 @@ def calibrate_multipos(
     M_a, b_a = afit.M, afit.b
     h = (means - b_a) @ np.linalg.inv(M_a).T
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
-    _, sig_int = _interval_stats(imu.accel, iv)
-    sig_dir = sig_int / gravity
+    sig_dir = sig_int / gravity  # per-axis noise of the mean, as an angle
     starts, ends = iv[1:, 0], iv[:-1, 1]
     steps = starts - ends
     L = int(steps.max())

@@ -122,6 +122,7 @@ class PositionResult:
     chi2_per_dof: float
     windows: Windows
     weights: Array
+    noise: NoiseModel
     solver: dict[str, Any]
     history: list[dict[str, Any]]
 
@@ -171,7 +172,8 @@ def _prior_factor(block: str, key: int, value: Any, sigma: Array) -> gtsam.Nonli
 
 def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
                        init: PositionInit, priors: list[Prior] | None = None,
-                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 4,
+                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
+                       adapt_noise: bool = True,
                        on_iteration: Callable[[str, int, dict[str, Any], float], None] | None = None,
                        progress: Callable[[str], None] | None = None) -> PositionResult:
     """Refine all parameters on the window factors.
@@ -182,6 +184,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         init: starting values.
         priors: user priors (earlier calibrations), added as prior factors.
         robust: down-weight mocap outliers.
+        adapt_noise: re-estimate the mocap noise level from the innovations.
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
         progress: called with a short message at every IRLS round.
     """
@@ -292,12 +295,14 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         if on_iteration is not None:
             on_iteration("position", rec["iteration"], rec, float(err))
 
-    # IRLS: LM on a fixed weighted cost, then new weights from the unweighted innovations.
+    # Rounds of LM on a fixed cost; between rounds the mocap noise level is re-estimated from
+    # the innovations (it is rarely known well) and the robust weights are updated (IRLS).
     # The first evaluation (at the start values, unit weights) gives the "before" figures.
     iterations = 0
-    rounds = irls_rounds if robust else 1
+    rounds = irls_rounds if (robust or adapt_noise) else 1
     sol = values
     out0 = None
+    noise_scale = np.ones(2)
     for rnd in range(rounds):
         if progress is not None:
             progress(f"position factors: solve {rnd + 1} ({W} windows)")
@@ -306,12 +311,24 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
             out0 = first_eval[0] if first_eval else None
         iterations += rep.iterations
         batch.output(sol, 0)  # make sure the latest evaluation is at the solution
-        if not robust or rnd == rounds - 1:
+        if rnd == rounds - 1:
             break
-        w_before = pp.weights.copy()
-        change = pp.update_weights(evals[-1].d_raw)
-        if change < 0.25:
-            pp.weights = w_before  # keep the weights the solution was computed with
+        last_out = evals[-1]
+        changed = False
+        if adapt_noise:
+            s_rot, s_pos = pp.mocap_noise_scale(last_out)
+            if max(abs(np.log(s_rot)), abs(np.log(s_pos))) > np.log(1.05):
+                s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
+                pp.scale_mocap_noise(s_rot, s_pos)
+                noise_scale *= (s_rot, s_pos)
+                changed = True
+        if robust and not changed:
+            w_before = pp.weights.copy()
+            if pp.update_weights(last_out.d_raw) < 0.25:
+                pp.weights = w_before  # keep the weights the solution was computed with
+            else:
+                changed = True
+        if not changed:
             break
         batch.invalidate()
     out = evals[-1]
@@ -390,13 +407,16 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         after=out.innovation[..., 3:6][mask], weight=w_final[mask], unit="m",
         rotation_before=np.degrees(out0.innovation[..., 0:3][mask]),
         rotation_after=np.degrees(out.innovation[..., 0:3][mask]))
-    solver = {"position_batch_seconds": batch.seconds, "position_evaluations": batch.evaluations,
-              "windows": W, "window_steps": windows.steps}
+    solver = {"position_batch_seconds": round(batch.seconds, 3),
+              "position_evaluations": batch.evaluations, "windows": W,
+              "window_steps": windows.steps,
+              "mocap_noise_variance_scale": [round(float(x), 4) for x in noise_scale]}
     return PositionResult(
         R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
         effects=th.effects, gyro_bias_mean=bias_mean[0:3], accel_bias_mean=bias_mean[3:6],
         knots=th.knots, cov=cov, unobservable=unobservable, stats=stats, series=series,
-        chi2_per_dof=chi2, windows=windows, weights=w_final, solver=solver, history=history)
+        chi2_per_dof=chi2, windows=windows, weights=w_final, noise=pp.noise, solver=solver,
+        history=history)
 
 
 def rotation_error_deg(R_a: Array, R_b: Array) -> float:

@@ -20,7 +20,7 @@ over the steps of one window, not over the session.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -173,6 +173,8 @@ class EvalOut:
         innovation: (W, m+1, 6) one-step prediction errors (rad, m) at each sample.
         d_raw: (W, m+1) whitened innovation norm with unit robust weights.
         chi2: (W,) whitened cost per window (with the robust weights used).
+        q_rot, q_pos: (W, m+1) squared whitened attitude / position innovation (3 dof each):
+            their typical size tells whether the mocap noise is as modelled.
         raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
     """
 
@@ -180,6 +182,8 @@ class EvalOut:
     innovation: Array
     d_raw: Array
     chi2: Array
+    q_rot: Array
+    q_pos: Array
     raw_r: Array | None = None
     raw_J: Array | None = None
     whitened: Array | None = None
@@ -225,8 +229,8 @@ class PositionProblem:
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
         outs = [self._evaluate_chunk(th, c, store) for c in self.chunks]
         cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
-                   else None) for f in ("gram", "innovation", "d_raw", "chi2", "raw_r", "raw_J",
-                                        "whitened")}
+                   else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
+                                        "raw_r", "raw_J", "whitened")}
         return EvalOut(**cat)
 
     def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool) -> EvalOut:
@@ -364,6 +368,8 @@ class PositionProblem:
         gram = np.zeros((W, p + 1, p + 1))
         innov = np.zeros((W, m + 1, 6))
         d_raw = np.zeros((W, m + 1))
+        q_rot = np.zeros((W, m + 1))
+        q_pos = np.zeros((W, m + 1))
         chi2 = np.zeros(W)
         raw_J = np.zeros((W, m + 1, 6, p)) if store else None
         whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
@@ -398,6 +404,10 @@ class PositionProblem:
             chi2 += np.sum(Nw[:, :, p] ** 2, axis=1)
             innov[:, k] = N[:, :, p]
             d_raw[:, k] = np.linalg.norm(Nw[:, :, p], axis=1)
+            # L is lower-triangular: the first three whitened components involve only the
+            # attitude innovation and its own covariance block.
+            q_rot[:, k] = np.sum(Nw[:, 0:3, p] ** 2, axis=1)
+            q_pos[:, k] = np.sum(Nw[:, 3:6, p] ** 2, axis=1)
             wk = weighted[:, k]
             if np.any(wk):
                 # The robust weight's own test needs the innovation against the unweighted noise.
@@ -413,7 +423,8 @@ class PositionProblem:
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
         d_raw[~mask] = 0.0
         innov[~mask] = 0.0
-        return EvalOut(gram, innov, d_raw, chi2, r if store else None, raw_J, whitened)
+        return EvalOut(gram, innov, d_raw, chi2, q_rot, q_pos, r if store else None, raw_J,
+                       whitened)
 
     def _buffer(self, name: str, shape: tuple[int, ...], identity_blocks: bool = False) -> Array:
         """A reusable array: blocks not written by the caller keep their initial values."""
@@ -426,6 +437,26 @@ class PositionProblem:
                 buf[..., 9:15, 9:15] = np.eye(6)
             self._buffers[name] = buf
         return buf
+
+    # ------------------------------------------------------------------ noise and weights
+    def mocap_noise_scale(self, out: EvalOut, skip: int = 5) -> tuple[float, float]:
+        """Robust estimate of how much larger (variance) the mocap attitude / position noise is
+        than modelled: median whitened innovation over the median of chi^2_3.
+
+        Uses inlier samples past each window's first ``skip`` (where the diffuse start state
+        still absorbs the innovations)."""
+        use = self.win.mask & (self.weights >= 1.0)
+        use[:, :skip] = False
+        if use.sum() < 50:
+            return 1.0, 1.0
+        med = float(sps.chi2.median(3))
+        return (float(np.median(out.q_rot[use])) / med, float(np.median(out.q_pos[use])) / med)
+
+    def scale_mocap_noise(self, s_rot: float, s_pos: float) -> None:
+        """Multiply the mocap noise variances (attitude, position)."""
+        nz = self.noise
+        self.noise = replace(nz, mocap_rotation_sigma=nz.mocap_rotation_sigma * np.sqrt(s_rot),
+                             mocap_position_sigma=nz.mocap_position_sigma * np.sqrt(s_pos))
 
     # ------------------------------------------------------------------ robust weights
     def update_weights(self, d_raw: Array, c: float = ROBUST_C) -> float:

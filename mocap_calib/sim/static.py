@@ -18,6 +18,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import scipy.fft
 from numpy.typing import NDArray
 
 from mocap_calib.core import so3
@@ -43,16 +44,18 @@ def flicker_noise(rng: np.random.Generator, n: int, rate_hz: float, B: float,
     """
     if B <= 0 or n < 2:
         return np.zeros((n, channels))
-    f = np.fft.rfftfreq(n, 1.0 / rate_hz)
+    # Generate on an FFT-friendly length (a prime n would be slow) and keep the first n.
+    L = scipy.fft.next_fast_len(n, real=True)
+    f = np.fft.rfftfreq(L, 1.0 / rate_hz)
     psd = np.zeros_like(f)
     psd[1:] = B * B / (2.0 * np.pi * f[1:])
-    # E|X_k|^2 = n * rate * S(f_k) makes irfft's output have variance sum(S) df.
-    amp = np.sqrt(n * rate_hz * psd)
+    # E|X_k|^2 = L * rate * S(f_k) makes irfft's output have variance sum(S) df.
+    amp = np.sqrt(L * rate_hz * psd)
     z = (rng.normal(size=(channels, len(f))) + 1j * rng.normal(size=(channels, len(f))))
     z /= np.sqrt(2.0)
-    if n % 2 == 0:
+    if L % 2 == 0:
         z[:, -1] = z[:, -1].real * np.sqrt(2.0)  # the Nyquist bin is real
-    return np.fft.irfft(amp * z, n=n, axis=1).T
+    return scipy.fft.irfft(amp * z, n=L, axis=1)[:, :n].T
 
 
 def simulate_static(
