@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from mocap_calib.core import so3
 from mocap_calib.core.effects import EFFECTS, Model
 from mocap_calib.core.imu_model import Intrinsics, correct
+from mocap_calib.core.predict import ModelState
 from mocap_calib.core.result import CalibrationResult, Diagnostics
 from mocap_calib.core.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.stage_attitude import run_attitude_stage
@@ -244,10 +245,13 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
               "position_chi2_per_dof": round(pos.chi2_per_dof, 4), **pos.solver}
     if not model.has("time_offset"):
         notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
+    state = ModelState(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
+                       model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
+                       bias=pos.knots.copy(), t_mid=t_mid)
     diag = Diagnostics(
         residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
         iterations=pos.history,
-        extras={"windows": pos.windows, "knots": pos.knots, "weights": pos.weights,
+        extras={"model_state": state, "noise_used": pos.noise, "windows": pos.windows, "knots": pos.knots, "weights": pos.weights,
                 "clock_shift": s.clock_shift, "session": s, "delta": pos.delta,
                 "effects_theta": pos.effects, "t_mid": t_mid,
                 "stage1": {"R_MI": att.R_MI, "gyro_bias": att.gyro_bias},

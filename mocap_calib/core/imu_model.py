@@ -139,6 +139,24 @@ def correct(model: Model, params: Intrinsics, gyro_m: Array, accel_m: Array, u: 
     return Corrected(w, f, dw, df, dw_du, df_du)
 
 
+def forward(model: Model, params: Intrinsics, w: Array, f: Array, u: Array) -> tuple[Array, Array]:
+    """The measurement model forwards: raw gyro and accel for true ``w``, ``f`` at times ``u``.
+
+    The inverse of :func:`correct`.
+    """
+    Ea = _matrix_sum(model, params, "accel", "f")
+    Eg = _matrix_sum(model, params, "gyro", "w")
+    G = _matrix_sum(model, params, "gyro", "f")
+    du = (u - params.t_mid)[..., None]
+    ra = sum((params.theta(e.name) for e in model.units
+              if e.acts_on == "time" and e.sensor == "accel"), np.zeros(3))
+    rg = sum((params.theta(e.name) for e in model.units
+              if e.acts_on == "time" and e.sensor == "gyro"), np.zeros(3))
+    accel = f @ (np.eye(3) + Ea).T + params.accel_bias + du * ra
+    gyro = w @ (np.eye(3) + Eg).T + f @ G.T + params.gyro_bias + du * rg
+    return gyro, accel
+
+
 def imu_blocks(model: Model) -> list[tuple[str, int]]:
     """Parameter blocks that enter through the IMU signals, in a fixed order."""
     blocks = [("gyro_bias", 3), ("accel_bias", 3)]

@@ -34,7 +34,9 @@ class StageStats:
     Attributes:
         name: ``attitude``, ``velocity`` or ``position``.
         unit: unit of the residuals (per axis).
-        rms_before, rms_after: residual RMS per axis before / after the stage's solve.
+        rms_before, rms_after: residual RMS per axis before / after the stage's solve (all
+            residuals, as in the residual series).
+        rms_after_inliers: the same without the residuals the robust kernel down-weighted.
         rms_rotation_deg: for the position stage, the attitude part of the residuals.
         n_factors: number of factors (intervals or windows).
         n_residuals: number of residual vectors (intervals or mocap samples).
@@ -54,6 +56,7 @@ class StageStats:
     seconds: float
     chi2_per_dof: float
     rms_rotation_deg: list[float] | None = None
+    rms_after_inliers: list[float] | None = None
     batch_evaluations: int = 0
 
     def to_dict(self) -> dict[str, Any]:

@@ -397,10 +397,11 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
 
     stats = StageStats(
         name="position", unit="m",
-        rms_before=rms(out0.innovation[..., 3:6]), rms_after=rms_in(out.innovation[..., 3:6]),
+        rms_before=rms(out0.innovation[..., 3:6]), rms_after=rms(out.innovation[..., 3:6]),
+        rms_after_inliers=rms_in(out.innovation[..., 3:6]),
         n_factors=W, n_residuals=n_res, outliers=int(np.sum(mask & (w_final < 0.5))),
         iterations=iterations, seconds=time.perf_counter() - t_start, chi2_per_dof=chi2,
-        rms_rotation_deg=np.degrees(rms_in(out.innovation[..., 0:3])).tolist(),
+        rms_rotation_deg=np.degrees(rms(out.innovation[..., 0:3])).tolist(),
         batch_evaluations=batch.evaluations)
     series = ResidualSeries(
         t=windows.tau[mask], before=out0.innovation[..., 3:6][mask],

@@ -85,7 +85,7 @@ def calibrate(
     position_unit: POSITION_UNIT = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.cli.report import summary_table
+    from mocap_calib.report import summary_table
     from mocap_calib.core.calibrate import CalibrationOptions
     from mocap_calib.core.effects import Model
     from mocap_calib.io.yaml_io import save_result

@@ -1,4 +1,4 @@
-"""Readable terminal tables of a calibration result."""
+"""Readable text summaries of a calibration result (terminal, recordings, reports)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,303 @@
+"""Simulate what the IMU should have measured from the mocap poses, and compare.
+
+The IMU pose ``T_WI = T_WM T_MI`` is interpolated with cubic splines (positions per axis,
+quaternion components with a continuous sign) at the IMU sample times shifted by the clock
+offset; the splines' derivatives give the true angular rate ``w`` and specific force ``f``, which
+the calibrated measurement model turns into predicted raw gyro and accel samples.
+
+Differentiated mocap noise is large at high frequencies, so the comparison is made after the
+same zero-phase low-pass filter on measured and predicted signals, and the *noise floor* is what
+the same processing gives for noise alone: IMU white noise plus the bias random walk's wander
+between the estimated bias knots, plus the mocap noise pushed through the same splines. The
+floor is computed by Monte Carlo with a fixed seed (deterministic).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import signal
+from scipy.interpolate import CubicSpline
+
+from mocap_calib.core import so3
+from mocap_calib.core.effects import Model
+from mocap_calib.core.imu_model import Intrinsics, forward
+from mocap_calib.core.session import PreparedSession
+from mocap_calib.core.types import NoiseModel
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class ModelState:
+    """Everything needed to predict IMU samples: calibration plus the bias trajectory.
+
+    Attributes:
+        R_MI, p_MI: IMU pose in the marker frame.
+        g_W: gravity vector in the mocap world (m/s^2).
+        delta: mocap time minus IMU time (relative clocks, see :mod:`session`).
+        model: active effects; effects: their IMU-side parameters.
+        bias_t: (K,) mocap times of the bias knots; bias: (K, 6) gyro and accel bias there.
+        t_mid: IMU-clock middle of the session (drift terms).
+    """
+
+    R_MI: Array
+    p_MI: Array
+    g_W: Array
+    delta: float
+    model: Model
+    effects: dict[str, Array]
+    bias_t: Array
+    bias: Array
+    t_mid: float
+
+    def bias_at(self, tau: Array) -> Array:
+        """(n, 6) bias at mocap times ``tau`` (linear between knots, constant outside)."""
+        if len(self.bias_t) == 1:
+            return np.broadcast_to(self.bias[0], (len(tau), 6)).copy()
+        return np.stack([np.interp(tau, self.bias_t, self.bias[:, i]) for i in range(6)], axis=1)
+
+
+@dataclass
+class ImuPrediction:
+    """Measured and predicted IMU samples where the mocap supports a prediction.
+
+    Attributes:
+        u: (n,) IMU times (s since the IMU origin) of the compared samples.
+        segments: list of index arrays into ``u``: gap-free stretches.
+        gyro_meas, accel_meas: (n, 3) measured.
+        gyro_pred, accel_pred: (n, 3) predicted through the calibrated model.
+        w, f: (n, 3) true rate and specific force derived from the mocap.
+    """
+
+    u: Array
+    segments: list[NDArray[np.int64]]
+    gyro_meas: Array
+    accel_meas: Array
+    gyro_pred: Array
+    accel_pred: Array
+    w: Array
+    f: Array
+
+
+def _pose_splines(tau: Array, R_WI: Array, p_WI: Array,
+                  smooth_hz: float) -> tuple[CubicSpline, CubicSpline]:
+    q = so3.rotmat_to_quat(R_WI)
+    # Continuous sign so the component splines do not jump between q and -q.
+    flip = np.cumprod(np.where(np.einsum("ni,ni->n", q[1:], q[:-1]) < 0, -1.0, 1.0))
+    q[1:] *= flip[:, None]
+    p = p_WI
+    rate = 1.0 / float(np.median(np.diff(tau)))
+    if smooth_hz < 0.45 * rate and len(tau) > 30:
+        sos = signal.butter(4, smooth_hz, fs=rate, output="sos")
+        q = signal.sosfiltfilt(sos, q, axis=0)
+        p = signal.sosfiltfilt(sos, p_WI, axis=0)
+    return CubicSpline(tau, q, axis=0), CubicSpline(tau, p, axis=0)
+
+
+def _rate_and_accel(qs: CubicSpline, ps: CubicSpline, t: Array) -> tuple[Array, Array, Array]:
+    q = qs(t)
+    dq = qs(t, 1)
+    n2 = np.einsum("ni,ni->n", q, q)
+    qc = q * np.array([1.0, -1.0, -1.0, -1.0])
+    w = 2.0 * so3.quat_multiply(qc, dq)[:, 1:] / n2[:, None]
+    R = so3.quat_to_rotmat(q)
+    return R, w, ps(t, 2)
+
+
+def gap_free_segments(tau: Array, gap: float, min_length: float) -> list[tuple[float, float]]:
+    """Mocap-time spans without gaps, at least ``min_length`` long."""
+    breaks = np.flatnonzero(np.diff(tau) > gap) + 1
+    out = []
+    for seg in np.split(np.arange(len(tau)), breaks):
+        if len(seg) > 4 and tau[seg[-1]] - tau[seg[0]] >= min_length:
+            out.append((float(tau[seg[0]]), float(tau[seg[-1]])))
+    return out
+
+
+def predict_imu(s: PreparedSession, st: ModelState, min_segment: float = 3.0,
+                mocap: tuple[Array, Array] | None = None, smooth_hz: float = 10.0) -> ImuPrediction:
+    """Predict raw IMU samples from the mocap through the calibrated model.
+
+    Args:
+        s: prepared session.
+        st: calibration and bias trajectory.
+        min_segment: shorter gap-free mocap stretches are not used (s).
+        mocap: optional replacement ``(R_WM, p_WM)`` (used to push noise through the splines).
+        smooth_hz: zero-phase low-pass of the poses before differentiation. Differentiated
+            mocap noise is huge at high frequencies; left in, it multiplies with the attitude
+            noise in ``R^T (a - g)`` and leaks into every band.
+    """
+    R_WM, p_WM = (s.R_WM, s.p_WM) if mocap is None else mocap
+    R_WI = R_WM @ st.R_MI
+    p_WI = p_WM + R_WM @ st.p_MI
+    spans = gap_free_segments(s.tau, s.gap, min_segment)
+    idx_all: list[NDArray[np.int64]] = []
+    out_w, out_f = [], []
+    for a, b in spans:
+        sel = (s.tau >= a) & (s.tau <= b)
+        qs, ps = _pose_splines(s.tau[sel], R_WI[sel], p_WI[sel], smooth_hz)
+        # IMU samples whose mocap time lies inside the span (one sample of margin).
+        iu = np.flatnonzero((s.u + st.delta > a + 0.01) & (s.u + st.delta < b - 0.01))
+        if len(iu) < 10:
+            continue
+        R, w, a_W = _rate_and_accel(qs, ps, s.u[iu] + st.delta)
+        f = np.einsum("nji,nj->ni", R, a_W - st.g_W)
+        idx_all.append(iu)
+        out_w.append(w)
+        out_f.append(f)
+    if not idx_all:
+        empty = np.zeros((0, 3))
+        return ImuPrediction(np.zeros(0), [], empty, empty, empty, empty, empty, empty)
+    iu = np.concatenate(idx_all)
+    w = np.concatenate(out_w)
+    f = np.concatenate(out_f)
+    lengths = np.cumsum([0, *[len(i) for i in idx_all]])
+    segments = [np.arange(lengths[i], lengths[i + 1]) for i in range(len(idx_all))]
+    u = s.u[iu]
+    gyro_pred, accel_pred = model_forward(st, w, f, u)
+    return ImuPrediction(u, segments, s.gyro[iu], s.accel[iu], gyro_pred, accel_pred, w, f)
+
+
+def model_forward(st: ModelState, w: Array, f: Array, u: Array) -> tuple[Array, Array]:
+    """Raw measurements the model predicts for true ``w``, ``f`` at IMU times ``u``."""
+    b = st.bias_at(u + st.delta)
+    return forward(st.model, Intrinsics(b[:, 0:3], b[:, 3:6], st.effects, st.t_mid), w, f, u)
+
+
+def lowpass(x: Array, rate: float, cutoff: float, segments: list[NDArray[np.int64]]) -> Array:
+    """Zero-phase Butterworth low-pass, applied within each segment."""
+    sos = signal.butter(4, cutoff, fs=rate, output="sos")
+    y = np.zeros_like(x)
+    for seg in segments:
+        y[seg] = signal.sosfiltfilt(sos, x[seg], axis=0)
+    return y
+
+
+def interior(n: int, segments: list[NDArray[np.int64]], rate: float, cutoff: float) -> NDArray[np.bool_]:
+    """Samples away from segment ends, where the filter's and the splines' edge transients
+    have died out (two filter time constants)."""
+    keep = np.zeros(n, bool)
+    margin = int(np.ceil(2.0 * rate / cutoff))
+    for seg in segments:
+        if len(seg) > 2 * margin:
+            keep[seg[margin:-margin]] = True
+    return keep
+
+
+@dataclass
+class ResidualAnalysis:
+    """Measured minus predicted, in time (low-passed) and frequency, with the noise floor.
+
+    Attributes:
+        cutoff_hz: low-pass cutoff of the time-domain comparison.
+        gyro_rms, accel_rms: (3,) RMS of the low-passed residual per axis.
+        gyro_floor, accel_floor: (3,) what noise alone gives through the same processing.
+        freq: (F,) Welch frequencies; gyro_psd, accel_psd: (F, 3) residual PSDs;
+        gyro_psd_floor, accel_psd_floor: (F, 3) PSD of the noise-only residual.
+        gyro_lp, accel_lp: (n, 3) low-passed residual series (for plots).
+    """
+
+    cutoff_hz: float
+    gyro_rms: Array
+    accel_rms: Array
+    gyro_floor: Array
+    accel_floor: Array
+    freq: Array
+    gyro_psd: Array
+    accel_psd: Array
+    gyro_psd_floor: Array
+    accel_psd_floor: Array
+    gyro_lp: Array = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    accel_lp: Array = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    floor_parts: dict[str, Array] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, object]:
+        return {"cutoff_hz": self.cutoff_hz,
+                "gyro_rms": self.gyro_rms.tolist(), "gyro_floor": self.gyro_floor.tolist(),
+                "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist()}
+
+
+def _welch(x: Array, rate: float, segments: list[NDArray[np.int64]]) -> tuple[Array, Array]:
+    nper = int(min(1024, max(64, min(len(seg) for seg in segments) // 2)))
+    psds = []
+    weights = []
+    freq = np.zeros(0)
+    for seg in segments:
+        if len(seg) < nper:
+            continue
+        freq, p = signal.welch(x[seg], fs=rate, nperseg=nper, axis=0)
+        psds.append(p)
+        weights.append(len(seg))
+    if not psds:
+        return np.zeros(1), np.zeros((1, 3))
+    return freq, np.average(np.stack(psds), axis=0, weights=np.asarray(weights, float))
+
+
+def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
+                      pred: ImuPrediction | None = None, cutoff_hz: float = 2.0,
+                      bias_knot_spacing: float | None = None, seed: int = 0) -> ResidualAnalysis:
+    """Residuals of the calibrated model against the measurements, with their noise floor."""
+    pred = pred or predict_imu(s, st)
+    rate = s.imu_rate
+    cutoff = min(cutoff_hz, 0.45 * min(rate, s.mocap_rate))
+    rg = pred.gyro_meas - pred.gyro_pred
+    ra = pred.accel_meas - pred.accel_pred
+    rg_lp = lowpass(rg, rate, cutoff, pred.segments)
+    ra_lp = lowpass(ra, rate, cutoff, pred.segments)
+
+    # Noise floor: push synthetic noise through the same processing, averaged over a few
+    # draws so that the floor's own Monte Carlo scatter stays near 2 %.
+    rng = np.random.default_rng(seed)
+    n = len(pred.u)
+    keep = interior(n, pred.segments, rate, cutoff)
+
+    def rms(x: Array) -> Array:
+        return np.sqrt(np.mean(x[keep] ** 2, axis=0))
+
+    spacing = bias_knot_spacing or (float(np.median(np.diff(st.bias_t))) if len(st.bias_t) > 1
+                                    else pred.u[-1] - pred.u[0])
+    parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
+    floor2 = np.zeros(6)
+    draws = 3
+    for _ in range(draws):
+        white = np.concatenate([
+            rng.normal(0.0, noise.gyroscope_noise_density * np.sqrt(rate), (n, 3)),
+            rng.normal(0.0, noise.accelerometer_noise_density * np.sqrt(rate), (n, 3))], axis=1)
+        walk = _bias_walk_residual(rng, pred, noise, spacing)
+        R_noisy = s.R_WM @ so3.exp(rng.normal(0.0, noise.mocap_rotation_sigma, (len(s.tau), 3)))
+        p_noisy = s.p_WM + rng.normal(0.0, noise.mocap_position_sigma, (len(s.tau), 3))
+        pn = predict_imu(s, st, mocap=(R_noisy, p_noisy))
+        moc = -np.concatenate([pn.gyro_pred - pred.gyro_pred, pn.accel_pred - pred.accel_pred],
+                              axis=1)
+        for name, x in (("white", white), ("bias_walk", walk), ("mocap", moc)):
+            parts[name] += rms(lowpass(x, rate, cutoff, pred.segments)) ** 2 / draws
+        floor2 += rms(lowpass(white + walk + moc, rate, cutoff, pred.segments)) ** 2 / draws
+    fg = white[:, 0:3] + walk[:, 0:3] + moc[:, 0:3]
+    fa = white[:, 3:6] + walk[:, 3:6] + moc[:, 3:6]
+    freq, pg = _welch(rg, rate, pred.segments)
+    _, pa = _welch(ra, rate, pred.segments)
+    _, pgf = _welch(fg, rate, pred.segments)
+    _, paf = _welch(fa, rate, pred.segments)
+    return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
+                            np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
+                            {k: np.sqrt(v) for k, v in parts.items()})
+
+
+def _bias_walk_residual(rng: np.random.Generator, pred: ImuPrediction, noise: NoiseModel,
+                        spacing: float) -> Array:
+    """Bias random walk minus its piecewise-linear interpolation between knots ``spacing``
+    apart: the part of the bias the estimated knot trajectory cannot follow. (n, 6)."""
+    out = np.zeros((len(pred.u), 6))
+    q = np.r_[np.full(3, noise.gyroscope_random_walk), np.full(3, noise.accelerometer_random_walk)]
+    for seg in pred.segments:
+        t = pred.u[seg]
+        dt = np.diff(t, prepend=t[0])
+        walk = np.cumsum(rng.normal(0.0, 1.0, (len(seg), 6)) * np.sqrt(dt)[:, None] * q, axis=0)
+        knots_t = np.arange(t[0], t[-1] + spacing, spacing)
+        lin = np.stack([np.interp(t, knots_t, np.interp(knots_t, t, walk[:, i]))
+                        for i in range(6)], axis=1)
+        out[seg] = walk - lin
+    return out
