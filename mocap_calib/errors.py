@@ -31,7 +31,8 @@ class ConvergenceError(CalibrationError):
     exit_code = 4
 
 
-def input_error(what: str, fix: str, source: str | None = None, row: int | None = None) -> InputError:
+def input_error(what: str, fix: str, source: str | None = None,
+                row: int | None = None) -> InputError:
     """Build an :class:`InputError` whose message names the file, the row and the fix.
 
     Args:

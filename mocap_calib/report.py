@@ -11,8 +11,10 @@ from mocap_calib.core.result import CalibrationResult
 def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:
     if v is None:
         return "unobservable"
-    a = np.atleast_1d(np.asarray(v, dtype=float)) * scale
-    return "[" + ", ".join(f"{x:.{digits}g}" for x in a) + "]" if a.size > 1 else f"{a[0]:.{digits}g}"
+    a = np.atleast_1d(np.asarray(v, dtype=float)).ravel() * scale
+    if a.size == 1:
+        return f"{a[0]:.{digits}g}"
+    return "[" + ", ".join(f"{x:.{digits}g}" for x in a) + "]"
 
 
 def summary_table(r: CalibrationResult) -> str:

@@ -97,7 +97,8 @@ def load_priors(paths: list[Path], at_ns: int) -> list:
 def run_calibration(spec: InputSpec, options: CalibrationOptions, noise_file: Path | None = None,
                     noise_overrides: dict[str, float | None] | None = None,
                     prior_files: list[Path] | None = None, progress: ProgressFn | None = None,
-                    on_iteration: IterationFn | None = None) -> tuple[CalibrationResult, LoadedSession]:
+                    on_iteration: IterationFn | None = None,
+                    ) -> tuple[CalibrationResult, LoadedSession]:
     """Read the inputs and calibrate; returns the result and what was read."""
     session = load_session(spec)
     for note in session.notes:
@@ -135,7 +136,8 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
         mav0 = write_mav0(out_dir, sim.imu, sim.mocap)
         truth = save_yaml(out_dir / "truth.yaml", sim.truth, header)
         return [(mav0 / "imu0" / "data.csv", f"{len(sim.imu)} IMU samples at {imu_rate:g} Hz"),
-                (mav0 / "vicon0" / "data.csv", f"{len(sim.mocap)} mocap poses at {mocap_rate:g} Hz"),
+                (mav0 / "vicon0" / "data.csv",
+                 f"{len(sim.mocap)} mocap poses at {mocap_rate:g} Hz"),
                 (truth, "true calibration, effects and noise")]
     if parsed:
         raise InputError(f"--effect applies to --protocol flight only, not '{protocol}'")

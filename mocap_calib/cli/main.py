@@ -48,9 +48,9 @@ def main(argv: list[str] | None = None) -> int:
         print("error: interrupted", file=sys.stderr)
         code = 130
     except Exception as err:  # click usage errors and anything unexpected
-        import click
+        from typer._click.exceptions import ClickException
 
-        if isinstance(err, click.ClickException):
+        if isinstance(err, ClickException):
             err.show()
             code = err.exit_code
         elif isinstance(err, MemoryError):

@@ -88,7 +88,8 @@ class CalibrationOptions:
                 raise InputError(f"noise model: {k} = {v} must be a positive number")
 
 
-def _crop(imu: ImuSamples, mocap: MocapPoses, opts: CalibrationOptions) -> tuple[ImuSamples, MocapPoses]:
+def _crop(imu: ImuSamples, mocap: MocapPoses,
+          opts: CalibrationOptions) -> tuple[ImuSamples, MocapPoses]:
     if opts.start is None and opts.end is None:
         return imu, mocap
     lo = imu.t[0] + (opts.start or 0.0)
@@ -218,7 +219,9 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                      f"sigmas are scaled by {scale:.2f}")
 
     def sig(name: str) -> Array | None:
-        return None if name not in pos.cov else scale * np.sqrt(np.maximum(np.diag(pos.cov[name]), 0))
+        if name not in pos.cov:
+            return None
+        return scale * np.sqrt(np.maximum(np.diag(pos.cov[name]), 0))
 
     unob = dict(pos.unobservable)
 
@@ -251,12 +254,14 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     diag = Diagnostics(
         residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
         iterations=pos.history,
-        extras={"model_state": state, "noise_used": pos.noise, "windows": pos.windows, "knots": pos.knots, "weights": pos.weights,
+        extras={"model_state": state, "noise_used": pos.noise, "windows": pos.windows,
+                "knots": pos.knots, "weights": pos.weights,
                 "clock_shift": s.clock_shift, "session": s, "delta": pos.delta,
                 "effects_theta": pos.effects, "t_mid": t_mid,
                 "stage1": {"R_MI": att.R_MI, "gyro_bias": att.gyro_bias},
                 "stage2": {"p_MI": vel.p_MI, "accel_bias": vel.accel_bias,
-                           "gravity_dir": vel.gravity_dir, "gravity_norm_free": vel.gravity_norm_free}})
+                           "gravity_dir": vel.gravity_dir,
+                           "gravity_norm_free": vel.gravity_norm_free}})
     return CalibrationResult(
         gyro_bias=val("gyro_bias", pos.gyro_bias_mean),
         accel_bias=val("accel_bias", pos.accel_bias_mean),

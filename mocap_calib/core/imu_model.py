@@ -1,4 +1,4 @@
-"""Apply the measurement model backwards: raw IMU samples -> true rate ``w`` and specific force ``f``.
+"""The measurement model, both ways: raw IMU samples <-> true rate ``w`` and specific force ``f``.
 
 The model (``docs/conventions.md`` plus the effects in :mod:`mocap_calib.core.effects`) is
 

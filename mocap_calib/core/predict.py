@@ -176,7 +176,8 @@ def lowpass(x: Array, rate: float, cutoff: float, segments: list[NDArray[np.int6
     return y
 
 
-def interior(n: int, segments: list[NDArray[np.int64]], rate: float, cutoff: float) -> NDArray[np.bool_]:
+def interior(n: int, segments: list[NDArray[np.int64]], rate: float,
+             cutoff: float) -> NDArray[np.bool_]:
     """Samples away from segment ends, where the filter's and the splines' edge transients
     have died out (two filter time constants)."""
     keep = np.zeros(n, bool)

@@ -59,7 +59,8 @@ def hermite(t: Array, u: Array) -> Interp:
     g00, g10, g01, g11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
     a1, a2 = d / d1, d / d2
     weight = np.stack([-h10 * a1, h00 - h11 * a2, h01 + h10 * a1, h11 * a2], axis=-1)
-    dweight = np.stack([-g10 * a1, g00 - g11 * a2, g01 + g10 * a1, g11 * a2], axis=-1) / d[..., None]
+    dweight = np.stack([-g10 * a1, g00 - g11 * a2, g01 + g10 * a1, g11 * a2], axis=-1)
+    dweight /= d[..., None]
     index = i[..., None] + np.arange(-1, 3)
     return Interp(index, weight, dweight)
 
@@ -146,7 +147,7 @@ def integrate_steps(w_nodes: Array, f_nodes: Array, h: Array, n_sub: int) -> Ste
         s4 = (q + hs * k3[0], v + hs * k3[1], A + hs2 * k3[3], B + hs2 * k3[5])
         k4 = deriv(*s4, w1, f1)
 
-        def comb(idx: int, hh: Array) -> Array:
+        def comb(idx: int, hh: Array, k1=k1, k2=k2, k3=k3, k4=k4) -> Array:
             return hh / 6.0 * (k1[idx] + 2 * k2[idx] + 2 * k3[idx] + k4[idx])
 
         q = q + comb(0, hs)

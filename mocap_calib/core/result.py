@@ -23,8 +23,14 @@ def _list(a: Array | None) -> list[float] | None:
     return None if a is None else [float(x) for x in np.asarray(a).ravel()]
 
 
-def _arr(x: Any) -> Array | None:
-    return None if x is None else np.asarray(x, dtype=float)
+def _arr(x: Any, n: int | None = None, name: str = "value") -> Array | None:
+    """A float vector of ``n`` numbers (or None); ValueError names the key otherwise."""
+    if x is None:
+        return None
+    a = np.asarray(x, dtype=float)
+    if n is not None and a.shape != (n,):
+        raise ValueError(f"'{name}' must be a list of {n} numbers, got {x!r}")
+    return a
 
 
 @dataclass
@@ -172,23 +178,27 @@ class CalibrationResult:
         """Inverse of :meth:`to_dict`; raises ``KeyError``/``ValueError`` on a malformed dict."""
         T = d.get("T_marker_imu") or {}
         sig = d.get("sigma") or {}
+        for key, val in (("T_marker_imu", T), ("sigma", sig)):
+            if not isinstance(val, dict):
+                raise ValueError(f"'{key}' must be a mapping of keys to values")
         to = d.get("time_offset")
         sto = sig.get("time_offset")
         return cls(
-            gyro_bias=_arr(d.get("gyro_bias")),
-            accel_bias=_arr(d.get("accel_bias")),
-            rotation_wxyz=_arr(T.get("rotation_wxyz")),
-            translation=_arr(T.get("translation")),
-            gravity_in_mocap=_arr(d.get("gravity_in_mocap")),
+            gyro_bias=_arr(d.get("gyro_bias"), 3, "gyro_bias"),
+            accel_bias=_arr(d.get("accel_bias"), 3, "accel_bias"),
+            rotation_wxyz=_arr(T.get("rotation_wxyz"), 4, "rotation_wxyz"),
+            translation=_arr(T.get("translation"), 3, "translation"),
+            gravity_in_mocap=_arr(d.get("gravity_in_mocap"), 3, "gravity_in_mocap"),
             time_offset=None if to is None else float(to),
-            sigma_gyro_bias=_arr(sig.get("gyro_bias")),
-            sigma_accel_bias=_arr(sig.get("accel_bias")),
-            sigma_rotation=_arr(sig.get("rotation")),
-            sigma_translation=_arr(sig.get("translation")),
-            sigma_gravity=_arr(sig.get("gravity_in_mocap")),
+            sigma_gyro_bias=_arr(sig.get("gyro_bias"), 3, "sigma.gyro_bias"),
+            sigma_accel_bias=_arr(sig.get("accel_bias"), 3, "sigma.accel_bias"),
+            sigma_rotation=_arr(sig.get("rotation"), 3, "sigma.rotation"),
+            sigma_translation=_arr(sig.get("translation"), 3, "sigma.translation"),
+            sigma_gravity=_arr(sig.get("gravity_in_mocap"), 2, "sigma.gravity_in_mocap"),
             sigma_time_offset=None if sto is None else float(sto),
             gravity_magnitude=float(d.get("gravity_magnitude", 9.81)),
-            model=str(d.get("model", "base")),
+            model=(d["model"] if isinstance(d.get("model"), str)
+                   else "+".join(d.get("model") or ["base"])),
             effects=dict(d.get("effects") or {}),
             unobservable=dict(d.get("unobservable") or {}),
             stages=[StageStats.from_dict(s) for s in d.get("stages") or []],

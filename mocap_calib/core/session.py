@@ -54,13 +54,15 @@ class PreparedSession:
     def mocap_rate(self) -> float:
         return float(1.0 / np.median(np.diff(self.tau)))
 
-    def imu_covers(self, tau0: Array, tau1: Array, delta: float, margin: int = 3) -> NDArray[np.bool_]:
+    def imu_covers(self, tau0: Array, tau1: Array, delta: float,
+                   margin: int = 3) -> NDArray[np.bool_]:
         """Whether the IMU samples cover mocap-time spans ``[tau0, tau1]`` (with a margin)."""
         lo = self.u[margin] + delta
         hi = self.u[-1 - margin] + delta
         return (tau0 >= lo) & (tau1 <= hi)
 
-    def segments_without_gaps(self, idx0: NDArray[np.int64], idx1: NDArray[np.int64]) -> NDArray[np.bool_]:
+    def segments_without_gaps(self, idx0: NDArray[np.int64],
+                              idx1: NDArray[np.int64]) -> NDArray[np.bool_]:
         """Whether mocap index ranges ``[idx0, idx1]`` contain no gap."""
         gaps = np.concatenate([[0], np.cumsum(np.diff(self.tau) > self.gap)])
         return gaps[idx1] == gaps[idx0]
@@ -153,7 +155,8 @@ def screen_mocap_spikes(tau: Array, R: Array, p: Array, sigma_p: float, sigma_r:
     return bad
 
 
-def local_derivative(t: Array, y: Array, half: int, gap: float) -> tuple[Array, Array, NDArray[np.bool_]]:
+def local_derivative(t: Array, y: Array, half: int,
+                     gap: float) -> tuple[Array, Array, NDArray[np.bool_]]:
     """Smoothed value and first derivative of ``y(t)`` by a local quadratic fit.
 
     Args:

@@ -43,6 +43,9 @@ KEY_T = gtsam.symbol("t", 0)
 KEY_GM = gtsam.symbol("m", 0)
 
 
+IterationHook = Callable[[str, int, dict[str, Any], float], None]
+
+
 def key_effect(i: int) -> int:
     return gtsam.symbol("e", i)
 
@@ -170,25 +173,27 @@ def _prior_factor(block: str, key: int, value: Any, sigma: Array) -> gtsam.Nonli
     return gtsam.PriorFactorVector(key, np.atleast_1d(np.asarray(value, dtype=float)), nm)
 
 
-def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
-                       init: PositionInit, priors: list[Prior] | None = None,
-                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
-                       adapt_noise: bool = True,
-                       on_iteration: Callable[[str, int, dict[str, Any], float], None] | None = None,
-                       progress: Callable[[str], None] | None = None) -> PositionResult:
-    """Refine all parameters on the window factors.
+@dataclass
+class PositionGraph:
+    """The stage-3 factor graph, its start values and the machinery behind its factors."""
 
-    Args:
-        s: prepared session; model: active effects; noise: noise densities.
-        windows: from :func:`~mocap_calib.core.window_engine.make_windows`.
-        init: starting values.
-        priors: user priors (earlier calibrations), added as prior factors.
-        robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise level from the innovations.
-        on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
-        progress: called with a short message at every IRLS round.
-    """
-    t_start = time.perf_counter()
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    batch: BatchFactors
+    problem: PositionProblem
+    model: Model
+    init: PositionInit
+    block_keys: dict[str, int]
+    t_mid: float
+    evals: list[Any]
+
+    def theta(self, values: gtsam.Values) -> Theta:
+        return _theta(values, self.model, self.problem.win.count, self.init, self.t_mid)
+
+
+def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
+                         init: PositionInit, priors: list[Prior] | None = None) -> PositionGraph:
+    """Variables, window factors, bias random-walk factors, range priors and user priors."""
     W = windows.count
     t_mid = 0.5 * (s.u[0] + s.u[-1])
     pp = PositionProblem(s, model, noise, windows)
@@ -196,7 +201,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     block_keys = _block_keys(model)
     key_kinds = {KEY_R: "rot3", KEY_P: "point3", KEY_G: "unit3", KEY_T: "vector",
                  KEY_GM: "vector"}
-    for name, k in block_keys.items():
+    for k in block_keys.values():
         key_kinds.setdefault(k, "vector")
     shared = list(block_keys.values())
     for w in range(W):
@@ -222,7 +227,8 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     # Bias random walk between consecutive knots.
     for w in range(W - 1):
         dt = float(windows.start[w + 1] - windows.start[w])
-        sig = np.r_[np.full(3, noise.gyroscope_random_walk), np.full(3, noise.accelerometer_random_walk)]
+        sig = np.r_[np.full(3, noise.gyroscope_random_walk),
+                    np.full(3, noise.accelerometer_random_walk)]
         graph.add(gtsam.BetweenFactorVector(key_knot(w), key_knot(w + 1), np.zeros(6),
                                             gtsam.noiseModel.Diagonal.Sigmas(sig * np.sqrt(dt))))
 
@@ -280,6 +286,32 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
             value = np.atleast_1d(np.asarray(value, dtype=float)) + s.clock_shift  # t_d -> delta
         graph.add(_prior_factor(pr.block, key, value, pr.sigma))
 
+    return PositionGraph(graph, values, batch, pp, model, init, block_keys, t_mid, evals)
+
+
+def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
+                       init: PositionInit, priors: list[Prior] | None = None,
+                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
+                       adapt_noise: bool = True,
+                       on_iteration: IterationHook | None = None,
+                       progress: Callable[[str], None] | None = None) -> PositionResult:
+    """Refine all parameters on the window factors.
+
+    Args:
+        s: prepared session; model: active effects; noise: noise densities.
+        windows: from :func:`~mocap_calib.core.window_engine.make_windows`.
+        init: starting values.
+        priors: user priors (earlier calibrations), added as prior factors.
+        robust: down-weight mocap outliers.
+        adapt_noise: re-estimate the mocap noise level from the innovations.
+        on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
+        progress: called with a short message at every IRLS round.
+    """
+    t_start = time.perf_counter()
+    pg = build_position_graph(s, model, noise, windows, init, priors)
+    graph, values, batch, pp = pg.graph, pg.values, pg.batch, pg.problem
+    layout, block_keys, t_mid, evals = pp.layout, pg.block_keys, pg.t_mid, pg.evals
+    W = windows.count
     history: list[dict[str, Any]] = []
     first_eval: list[Any] = []
 
@@ -363,7 +395,8 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     bias_mean = Cm @ th.knots.reshape(-1)
     # Random-walk wander inside each window around the interpolation (Brownian bridge).
     bridge = (weights_w**2 * lengths).sum() / 12.0
-    rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2), np.full(3, noise.accelerometer_random_walk**2)]
+    rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2),
+                np.full(3, noise.accelerometer_random_walk**2)]
     bias_cov = Cm @ knot_cov @ Cm.T + np.diag(rw2 * bridge)
     cov["gyro_bias"] = bias_cov[0:3, 0:3]
     cov["accel_bias"] = bias_cov[3:6, 3:6]

@@ -231,7 +231,8 @@ class PositionProblem:
         cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
                    else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
                                         "raw_r", "raw_J", "whitened")}
-        return EvalOut(**cat)
+        extras = {k: np.concatenate([o.extras[k] for o in outs]) for k in outs[0].extras}
+        return EvalOut(**cat, extras=extras)
 
     def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool) -> EvalOut:
         s, win, L = self.s, self.win, self.layout
@@ -265,7 +266,7 @@ class PositionProblem:
         cm = correct(self.model, intr_m, ipm(s.gyro), ipm(s.accel), u_nodes[:, :, mid])
         dwf = self._buffer("dwf", (W, m, 6, p))  # d(w, f)/dtheta at each step
         dw, df = dwf[:, :, 0:3, :], dwf[:, :, 3:6, :]
-        for name, dim in L.blocks:
+        for name, _ in L.blocks:
             sl = L.slice(name)
             if name == "knot":
                 dw[:, :, :, sl.start:sl.start + 3] = cm.dw["gyro_bias"]
@@ -351,7 +352,8 @@ class PositionProblem:
         Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
         Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
         Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
-        Rn[..., 3:6, 3:6] = nz.mocap_position_sigma**2 * np.eye(3) + sr2 * lev @ np.swapaxes(lev, -1, -2)
+        Rn[..., 3:6, 3:6] = (nz.mocap_position_sigma**2 * np.eye(3)
+                             + sr2 * lev @ np.swapaxes(lev, -1, -2))
         wts = self.weights[c]
         weighted = wts < 1.0
 
@@ -423,8 +425,12 @@ class PositionProblem:
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
         d_raw[~mask] = 0.0
         innov[~mask] = 0.0
+        extras = {}
+        if store:  # the state-space model itself, for tests against a dense covariance
+            extras = {"F": F.copy(), "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn,
+                      "weights": wts.copy()}
         return EvalOut(gram, innov, d_raw, chi2, q_rot, q_pos, r if store else None, raw_J,
-                       whitened)
+                       whitened, extras)
 
     def _buffer(self, name: str, shape: tuple[int, ...], identity_blocks: bool = False) -> Array:
         """A reusable array: blocks not written by the caller keep their initial values."""

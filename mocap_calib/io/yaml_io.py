@@ -83,7 +83,11 @@ def save_result(path: str | Path, result: CalibrationResult) -> Path:
 def load_result(path: str | Path) -> CalibrationResult:
     """Read a result written by :func:`save_result` (or a truth file of the simulator)."""
     data = load_yaml(path, "calibration result")
-    version = int(data.get("version", RESULT_VERSION))
+    try:
+        version = int(data.get("version", RESULT_VERSION))
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: 'version' must be an integer, got {data.get('version')!r}; "
+                         "regenerate the file with mocap-calib") from None
     if version > RESULT_VERSION:
         raise InputError(f"{path}: written by a newer mocap-calib (result version {version}, this "
                          f"one reads up to {RESULT_VERSION}); upgrade mocap-calib")
@@ -92,7 +96,7 @@ def load_result(path: str | Path) -> CalibrationResult:
             raise InputError(f"{path}: missing key '{key}'; is this a mocap-calib result file?")
     try:
         return CalibrationResult.from_dict(data)
-    except (TypeError, ValueError, KeyError) as err:
+    except (TypeError, ValueError, KeyError, AttributeError) as err:
         raise InputError(f"{path}: malformed result ({err}); regenerate it with mocap-calib "
                          "calibrate") from None
 

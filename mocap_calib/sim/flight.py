@@ -67,7 +67,28 @@ def parse_effect(spec: str) -> tuple[str, list[float] | None]:
                          f"e.g. {name}=0.01") from None
     if not all(np.isfinite(values)):
         raise InputError(f"effect '{spec}': value must be finite")
+    allowed = _VALUE_COUNTS.get(name, (1,))
+    if len(values) not in allowed:
+        counts = " or ".join(str(c) for c in allowed)
+        raise InputError(f"effect '{spec}': give {counts} value(s) ({EFFECT_HELP[name]})")
+    if name in _NON_NEGATIVE and len(values) == 1 and values[0] < 0:
+        raise InputError(f"effect '{spec}': the magnitude must not be negative")
+    if name in MOCAP_FAULTS and (values[0] != int(values[0]) or values[0] > 1000):
+        raise InputError(f"effect '{spec}': give a whole number of events between 0 and 1000")
     return name, values
+
+
+#: How many values an effect accepts (a magnitude, or the full matrix / vector).
+_VALUE_COUNTS: dict[str, tuple[int, ...]] = {
+    "gyro_scale_misalignment": (1, 9),
+    "accel_scale_misalignment": (1, 9),
+    "gyro_g_sensitivity": (1, 9),
+    "gyro_bias_drift": (1, 3),
+    "accel_bias_drift": (1, 3),
+}
+#: Effects whose single value is a magnitude (std or count), so it cannot be negative.
+_NON_NEGATIVE = ("gyro_scale_misalignment", "accel_scale_misalignment", "gyro_g_sensitivity",
+                 "gyro_bias_drift", "accel_bias_drift", "gravity_magnitude", *MOCAP_FAULTS)
 
 
 @dataclass(frozen=True)
@@ -89,12 +110,16 @@ class SimConfig:
         if not self.duration > 1.0:
             raise InputError(f"--duration {self.duration}: must be more than 1 s")
         if self.duration > 4 * 3600:
-            raise InputError(f"--duration {self.duration}: more than 4 h; simulate shorter sessions")
+            raise InputError(f"--duration {self.duration}: more than 4 h; simulate shorter "
+                             "sessions")
         for name, rate in (("--imu-rate", self.imu_rate), ("--mocap-rate", self.mocap_rate)):
             if not 1.0 <= rate <= 10000.0:
                 raise InputError(f"{name} {rate}: must be between 1 and 10000 Hz")
         if self.mocap_rate > self.imu_rate:
             raise InputError("--mocap-rate must not exceed --imu-rate")
+        for name, values in self.effects.items():
+            spec = name if values is None else f"{name}={','.join(repr(v) for v in values)}"
+            parse_effect(spec)
 
 
 @dataclass(frozen=True)
@@ -253,7 +278,7 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
             "translation": [0.0] * 3, "gravity_in_mocap": [0.0] * 2, "time_offset": 0.0,
         },
         "gravity_magnitude": float(g),
-        "model": ["base", *[e for e in effects if e in CANONICAL_EFFECTS]],
+        "model": "+".join(["base", *[e for e in effects if e in CANONICAL_EFFECTS]]),
         "effects": {},
         "noise": noise.to_dict(),
         "simulation": {

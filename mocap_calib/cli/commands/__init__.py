@@ -2,7 +2,7 @@
 
 import importlib
 
-for _name in ("simulate", "calibrate", "diagnose", "view", "multipos", "allan"):
+for _name in ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift"):
     try:
         importlib.import_module(f"{__name__}.{_name}")
     except ModuleNotFoundError as _err:  # a command not written yet

@@ -85,10 +85,10 @@ def calibrate(
     position_unit: POSITION_UNIT = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.report import summary_table
     from mocap_calib.core.calibrate import CalibrationOptions
     from mocap_calib.core.effects import Model
     from mocap_calib.io.yaml_io import save_result
+    from mocap_calib.report import summary_table
     from mocap_calib.workflows import InputSpec, run_calibration
 
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
@@ -101,7 +101,8 @@ def calibrate(
         "gyroscope_noise_density": gyro_noise, "gyroscope_random_walk": gyro_walk,
         "accelerometer_noise_density": accel_noise, "accelerometer_random_walk": accel_walk,
         "mocap_position_sigma": None if mocap_noise_mm is None else mocap_noise_mm * 1e-3,
-        "mocap_rotation_sigma": None if mocap_noise_deg is None else float(np.radians(mocap_noise_deg)),
+        "mocap_rotation_sigma": (None if mocap_noise_deg is None
+                                 else float(np.radians(mocap_noise_deg))),
     }
     progress = Progress(quiet)
     result, session = run_calibration(spec, opts, noise, overrides, prior or [], progress)

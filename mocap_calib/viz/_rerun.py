@@ -1,0 +1,160 @@
+"""Thin helpers around rerun-sdk 0.41; every rerun import of the package goes through here.
+
+Nothing here imports rerun at module import time: :func:`import_rerun` does, when a recording
+is actually written, so the CLI and the core start without loading the viewer SDK.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.errors import CalibrationError
+
+Array = NDArray[np.float64]
+
+APPLICATION_ID = "mocap_calib"
+TIMELINE = "t"  # mocap time, s since the mocap origin (tau)
+ITERATION = "iteration"  # solver iterations of the position stage
+AXES = ("x", "y", "z")
+
+# Per-axis colours: saturated for "after" / measured, pale for "before" / predicted.
+AXIS_RGB = ((230, 60, 60), (60, 170, 60), (60, 110, 230))
+PALE_RGB = ((240, 170, 170), (170, 215, 170), (170, 190, 240))
+GRAY = (150, 150, 150)
+
+
+def import_rerun() -> ModuleType:
+    """Import ``rerun`` or raise a one-line error saying how to install it."""
+    try:
+        import rerun as rr
+    except ImportError as err:  # pragma: no cover - rerun-sdk is a dependency
+        raise CalibrationError(f"rerun-sdk is not installed ({err}); install it with "
+                               "pip install 'rerun-sdk==0.41.*'") from None
+    return rr
+
+
+class Logger:
+    """A headless rerun recording stream writing to one file, with series helpers.
+
+    Args:
+        path: the ``.rrd`` file to write.
+        blueprint: optional default blueprint (layout) stored in the file.
+        name: recording name shown by the viewer.
+    """
+
+    def __init__(self, path: str, blueprint: Any = None, name: str | None = None) -> None:
+        self.rr = import_rerun()
+        # No make_default: the global stream is left alone, nothing is spawned.
+        self.rec = self.rr.RecordingStream(APPLICATION_ID)
+        self.rec.save(path, default_blueprint=blueprint)
+        if name:
+            self.rec.send_recording_name(name)
+
+    def close(self) -> None:
+        """Flush everything and close the file."""
+        self.rec.flush()
+        self.rec.disconnect()
+
+    # ------------------------------------------------------------------ series
+    def style(self, path: str, name: str, color: Sequence[int], width: float = 1.5) -> None:
+        """Static line style (legend name, colour, width) of one scalar series."""
+        self.rec.log(path, self.rr.SeriesLines(names=[name], colors=[list(color)],
+                                               widths=[width]), static=True)
+
+    def scalars(self, path: str, t: Array, values: Array, *, timeline: str = TIMELINE,
+                sequence: bool = False) -> None:
+        """One scalar series in a single chunk (``send_columns``).
+
+        Args:
+            path: entity path.
+            t: (n,) time stamps: seconds (duration timeline) or integers (sequence).
+            values: (n,) values (logged as float64, unchanged).
+            timeline: timeline name.
+            sequence: ``t`` is a sequence index rather than seconds.
+        """
+        rr = self.rr
+        t = np.asarray(t)
+        index = (rr.TimeColumn(timeline, sequence=t.astype(np.int64)) if sequence
+                 else rr.TimeColumn(timeline, duration=t.astype(np.float64)))
+        self.rec.send_columns(path, indexes=[index],
+                              columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
+
+    def xyz(self, prefix: str, t: Array, values: Array, label: str, unit: str, *,
+            pale: bool = False, timeline: str = TIMELINE, sequence: bool = False,
+            width: float = 1.5) -> None:
+        """Three series ``prefix/x``, ``prefix/y``, ``prefix/z`` from an (n, 3) array."""
+        colors = PALE_RGB if pale else AXIS_RGB
+        for i, axis in enumerate(AXES):
+            path = f"{prefix}/{axis}"
+            self.style(path, f"{label} {axis} [{unit}]", colors[i], width)
+            self.scalars(path, t, values[:, i], timeline=timeline, sequence=sequence)
+
+    def text(self, path: str, text: str, markdown: bool = False) -> None:
+        """A static text document."""
+        media = self.rr.MediaType.MARKDOWN if markdown else self.rr.MediaType.TEXT
+        self.rec.log(path, self.rr.TextDocument(text, media_type=media), static=True)
+
+
+def default_blueprint(stages: Sequence[str], has_rotation: bool,
+                      diagnose: Sequence[tuple[str, Sequence[str]]], has_solver: bool) -> Any:
+    """The viewer layout: 3D scene and summary on the left, tabs of time series on the right.
+
+    Args:
+        stages: residual stages present (``attitude``, ``velocity``, ``position``).
+        has_rotation: the position stage has its rotation residuals.
+        diagnose: per diagnose step, its entity name (``diagnose/<step>``) and its stages.
+        has_solver: solver iterations were logged.
+    """
+    import_rerun()
+    import rerun.blueprint as rrb
+
+    units = {"attitude": "deg", "velocity": "m/s", "position": "m"}
+    res_views = []
+    for st in stages:
+        res_views.append(rrb.TimeSeriesView(
+            origin=f"residuals/{st}", name=f"{st} residual ({units.get(st, '')})",
+            contents=["+ $origin/before/**", "+ $origin/after/**"]))
+    if has_rotation:
+        res_views.append(rrb.TimeSeriesView(origin="residuals/position/rotation",
+                                            name="position-stage attitude residual (deg)"))
+    # Query expressions only know a trailing "/**" wildcard: list the weight series.
+    res_views.append(rrb.TimeSeriesView(origin="residuals", name="robust weights (1 = inlier)",
+                                        contents=[f"+ $origin/{st}/weight" for st in stages]))
+    imu_views = [
+        rrb.TimeSeriesView(origin="imu/gyro", name="gyro measured vs predicted (rad/s)",
+                           contents=["+ $origin/measured/**", "+ $origin/predicted/**"]),
+        rrb.TimeSeriesView(origin="imu/gyro/difference", name="gyro measured - predicted"),
+        rrb.TimeSeriesView(origin="imu/accel", name="accel measured vs predicted (m/s^2)",
+                           contents=["+ $origin/measured/**", "+ $origin/predicted/**"]),
+        rrb.TimeSeriesView(origin="imu/accel/difference", name="accel measured - predicted"),
+    ]
+    dr_views = [
+        rrb.TimeSeriesView(origin="dead_reckoning", name=f"dead-reckoning {q} error at the end",
+                           contents=[f"+ $origin/{k}/{q}_error" for k in ("before", "after")])
+        for q in ("position", "attitude")]
+    tabs = [rrb.Vertical(*res_views, name="residuals"),
+            rrb.Vertical(*imu_views, name="IMU"),
+            rrb.Vertical(*dr_views, name="dead reckoning")]
+    if has_solver:
+        tabs.append(rrb.Grid(
+            *(rrb.TimeSeriesView(origin=f"solver/{k}", name=f"{k} (timeline: iteration)")
+              for k in ("cost", "p_MI", "R_MI", "time_offset", "gyro_bias", "accel_bias",
+                        "gravity_tilt")), name="solver"))
+    if diagnose:
+        tabs.append(rrb.Tabs(*(rrb.Vertical(
+            *(rrb.TimeSeriesView(origin=f"diagnose/{step}/{st}", name=f"{step}: {st}",
+                                 contents=["+ $origin/before/**", "+ $origin/after/**"])
+              for st in step_stages), name=step) for step, step_stages in diagnose),
+            name="diagnose"))
+    left = rrb.Vertical(
+        rrb.Spatial3DView(origin="world", name="trajectory, IMU frame, dead reckoning"),
+        rrb.Tabs(rrb.TextDocumentView(origin="summary", name="summary"),
+                 rrb.TextDocumentView(origin="guide", name="guide")),
+        row_shares=[3, 2])
+    return rrb.Blueprint(rrb.Horizontal(left, rrb.Tabs(*tabs), column_shares=[2, 3]),
+                         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)

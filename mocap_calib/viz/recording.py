@@ -1,0 +1,446 @@
+"""A rerun recording (``.rrd``) of a calibration, for judging it by eye.
+
+Everything is on the timeline ``t``: mocap time in seconds since the mocap origin (``tau`` in
+:mod:`mocap_calib.core.session`; an IMU sample at IMU time ``u`` is shown at ``u + delta``).
+Solver iterations are on the sequence timeline ``iteration``. Entity paths:
+
+- ``world/mocap/trajectory``: marker path ``p_WM`` (static strips, split at mocap gaps).
+- ``world/marker``, ``world/imu``: ``T_WM`` and ``T_WI = T_WM T_MI`` over time, with axes.
+- ``world/imu/lever``: IMU origin to marker origin, i.e. ``p_MI`` (static).
+- ``world/gravity``: estimated gravity direction next to the mocap -z axis (static arrows).
+- ``world/dead_reckoning/<mocap|before|after>``: 2 s IMU dead-reckoning segments, and
+  ``dead_reckoning/<before|after>/<position|attitude>_error`` their errors at the end.
+- ``residuals/<stage>/<before|after>/<x|y|z>``, ``residuals/<stage>/weight``: stage residuals
+  (complete series) and robust weights; ``residuals/position/rotation/<before|after>/<x|y|z>``
+  the position stage's attitude part (deg).
+- ``imu/<gyro|accel>/<measured|predicted|difference>/<x|y|z>``: raw IMU vs the prediction.
+- ``solver/<cost|time_offset|gravity_tilt>``, ``solver/<p_MI|R_MI|gyro_bias|accel_bias>/<x|y|z>``:
+  position-stage iterates on ``iteration``.
+- ``diagnose/<step>/<stage>/...``: optional extra residual series, laid out like ``residuals``.
+- ``summary`` (:func:`mocap_calib.report.summary_table`), ``guide``: text documents.
+
+The 3D poses are decimated to at most :data:`POSE_RATE_HZ` (by picking samples) and the IMU
+signals to :data:`IMU_RATE_HZ` (by block means, which also low-pass their noise), which keeps a
+10-minute session under 30 MB; residual series are complete.
+Only this package imports rerun, and only when a recording is written.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core import so3
+from mocap_calib.core.effects import Model
+from mocap_calib.core.imu_model import Intrinsics, correct
+from mocap_calib.core.predict import ModelState, predict_imu
+from mocap_calib.core.preint import StepIncrements, hermite, integrate_steps, node_times
+from mocap_calib.core.result import CalibrationResult, ResidualSeries
+from mocap_calib.core.session import PreparedSession, local_derivative, prepare
+from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.errors import InputError
+from mocap_calib.report import summary_table
+from mocap_calib.viz._rerun import AXIS_RGB, GRAY, ITERATION, TIMELINE, Logger, default_blueprint
+
+Array = NDArray[np.float64]
+
+#: Highest rate (Hz) of the 3D poses in a recording.
+POSE_RATE_HZ = 50.0
+#: Highest rate (Hz) of the IMU signal series: block means, which low-pass the raw signals to
+#: about the 10 Hz bandwidth of the prediction from (low-passed) mocap poses.
+IMU_RATE_HZ = 25.0
+#: Length (s) of one dead-reckoning segment, and spacing (s) of their starts.
+DR_LENGTH_S = 2.0
+DR_EVERY_S = 10.0
+
+#: ``(label, {stage: ResidualSeries})`` per diagnose step (see ``diagnose_steps``).
+DiagnoseSteps = Sequence[tuple[str, Mapping[str, ResidualSeries]]]
+
+_GUIDE = """\
+# How to read this recording
+
+* **Timeline `t`**: mocap time (s since the mocap origin). IMU samples are shown at their
+  mocap time (IMU stamp + estimated clock offset). Switch to the **`iteration`** timeline for
+  `solver/...` (the position stage's iterates).
+* **3D (`world/`)**: grey = marker path; `world/marker` and `world/imu` are the marker and
+  the IMU frame (placed by the estimated T_MI); the line `world/imu/lever` joins them.
+  `world/gravity`: estimated gravity direction next to the mocap -z axis.
+* **Dead reckoning** (`world/dead_reckoning`): every 10 s the IMU is integrated for 2 s from
+  the mocap state (attitude, position, velocity of the IMU origin). *before* = raw IMU
+  (zero biases, no effects), *after* = the calibrated model; both use the estimated T_MI,
+  gravity and clock offset. *mocap* = where the IMU really went. After should stay on it.
+* **Residuals**: *before* = at the stage's start values, *after* = at its solution; the RMS
+  of *after* equals the stage's `rms_after` in the result. Spikes with a low `weight` were
+  down-weighted as outliers.
+* **IMU**: measured raw gyro/accel vs what the calibrated model predicts from the mocap
+  (block means at about 25 Hz); the difference should be noise around zero.
+"""
+
+
+# ---------------------------------------------------------------------------- public API
+def write_calibration_recording(path: str | Path, result: CalibrationResult, imu: ImuSamples,
+                                mocap: MocapPoses, *,
+                                diagnose_steps: DiagnoseSteps | None = None) -> Path:
+    """Write a rerun recording of a calibration (see the module docstring for its contents).
+
+    Args:
+        path: the ``.rrd`` file to write (parent folders are created).
+        result: the calibration; with ``result.diagnostics`` (as :func:`calibrate` returns it)
+            the recording shows exactly the session, model state and residuals the solver
+            used. Without diagnostics (e.g. a result read from YAML) the session is prepared
+            again from ``imu``/``mocap`` with constant biases, and residual and solver series
+            are left out.
+        imu: the raw IMU samples the calibration read.
+        mocap: the mocap poses the calibration read.
+        diagnose_steps: optional extra residual series, ``[(label, {stage: ResidualSeries})]``,
+            logged under ``diagnose/<label>/<stage>/...`` like ``residuals/`` (labels are
+            reduced to ``[A-Za-z0-9_.-]``; a repeated label gets a ``_2``... suffix).
+
+    Returns:
+        The written path.
+
+    Raises:
+        InputError: ``path`` is a folder, or (without diagnostics) the result lacks a value.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; give a file name for the recording, e.g. "
+                         "calib.rrd")
+    s, st = _session_and_state(result, imu, mocap)
+    diag = result.diagnostics
+    residuals = dict(diag.residuals) if diag is not None else {}
+    history = list(diag.iterations) if diag is not None else []
+    steps = _named_steps(diagnose_steps or [])
+    pos = residuals.get("position")
+    blueprint = default_blueprint(list(residuals), pos is not None and pos.rotation_after
+                                  is not None, [(n, list(x)) for n, x in steps], bool(history))
+
+    # Written under a temporary name and renamed at the end: no half-written recording.
+    tmp = path.with_name(f".{path.name}.partial")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        log = Logger(str(tmp), blueprint, name=f"mocap-calib {result.model}")
+    except (OSError, RuntimeError) as err:
+        raise InputError(f"{path}: cannot write the recording ({err})") from None
+    done = False
+    try:
+        log.rec.log("world", log.rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        log.text("summary", summary_table(result))
+        log.text("guide", _GUIDE, markdown=True)
+        _log_world(log, s, st)
+        _log_dead_reckoning(log, dead_reckoning(s, st))
+        for stage, series in residuals.items():
+            _log_residuals(log, f"residuals/{stage}", series)
+        _log_imu(log, s, st)
+        _log_solver(log, history, s.clock_shift)
+        for name, series_by_stage in steps:
+            for stage, series in series_by_stage.items():
+                _log_residuals(log, f"diagnose/{name}/{stage}", series)
+        done = True
+    finally:
+        log.close()
+        if done:
+            os.replace(tmp, path)
+        else:
+            tmp.unlink(missing_ok=True)
+    return path
+
+
+@dataclass(frozen=True)
+class DeadReckoning:
+    """IMU dead-reckoning segments started from the mocap state.
+
+    Attributes:
+        tau: (S, m+1) mocap times of the segment samples.
+        R_ref, p_ref: (S, m+1, 3, 3), (S, m+1, 3) IMU pose from the mocap (``T_WM T_MI``).
+        R_before, p_before: integrated from the raw IMU (zero biases, no effects).
+        R_after, p_after: integrated through the calibrated model (knot biases, effects).
+    """
+
+    tau: Array
+    R_ref: Array
+    p_ref: Array
+    R_before: Array
+    p_before: Array
+    R_after: Array
+    p_after: Array
+
+    def position_error(self, which: str) -> Array:
+        """(S,) position error at the segment ends (m), ``which`` = before / after."""
+        p = self.p_before if which == "before" else self.p_after
+        return np.linalg.norm(p[:, -1] - self.p_ref[:, -1], axis=1)
+
+    def attitude_error(self, which: str) -> Array:
+        """(S,) attitude error at the segment ends (deg)."""
+        R = self.R_before if which == "before" else self.R_after
+        return so3.angle_deg(np.einsum("sji,sjk->sik", R[:, -1], self.R_ref[:, -1]))
+
+
+def dead_reckoning(s: PreparedSession, st: ModelState, length: float = DR_LENGTH_S,
+                   every: float = DR_EVERY_S) -> DeadReckoning | None:
+    """Integrate the IMU for ``length`` seconds from the mocap state, every ``every`` seconds.
+
+    Each segment starts at a mocap sample with the IMU attitude and position ``T_WM T_MI`` and
+    the IMU-origin velocity from a local quadratic fit of ``p_WI``; it is integrated with the
+    core's preintegration (Hermite-interpolated IMU, RK4 between mocap samples) under the
+    estimated gravity ``g_W`` and clock offset. Segments crossing a mocap gap or the IMU's ends
+    are skipped.
+
+    Returns:
+        The segments, or None if the session has room for none.
+    """
+    M = len(s.tau)
+    m = max(2, int(round(length * s.mocap_rate)))
+    if M <= m + 1:
+        return None
+    R_WI = s.R_WM @ st.R_MI
+    p_WI = s.p_WM + s.R_WM @ st.p_MI
+    half = max(2, int(round(0.05 * s.mocap_rate)))
+    _, v_WI, valid = local_derivative(s.tau, p_WI, half, s.gap)
+    cand = np.searchsorted(s.tau, np.arange(s.tau[0] + 0.5 * every, s.tau[-1] - length, every))
+    cand = np.unique(cand[cand + m < M])
+    if len(cand) == 0:
+        return None
+    ok = (valid[cand] & s.segments_without_gaps(cand, cand + m)
+          & s.imu_covers(s.tau[cand], s.tau[cand + m], st.delta))
+    i0 = cand[ok]
+    if len(i0) == 0:
+        return None
+    idx = i0[:, None] + np.arange(m + 1)
+    tau = s.tau[idx]
+    h = np.diff(tau, axis=1)
+    n_sub = max(1, int(round(s.imu_rate / (2.0 * s.mocap_rate))))
+    nodes = node_times(tau, n_sub)  # (S, m, 2 n_sub + 1)
+    u_nodes = nodes - st.delta
+    ip = hermite(s.u, u_nodes)
+    gyro, accel = ip(s.gyro), ip(s.accel)
+    b = st.bias_at(nodes.ravel()).reshape(nodes.shape + (6,))
+    corr = correct(st.model, Intrinsics(b[..., 0:3], b[..., 3:6], st.effects, st.t_mid),
+                   gyro, accel, u_nodes, sensitivities=False)
+    start = (R_WI[i0], p_WI[i0], v_WI[i0])
+    R_b, p_b = _chain(integrate_steps(gyro, accel, h, n_sub), h, *start, st.g_W)
+    R_a, p_a = _chain(integrate_steps(corr.w, corr.f, h, n_sub), h, *start, st.g_W)
+    return DeadReckoning(tau, R_WI[idx], p_WI[idx], R_b, p_b, R_a, p_a)
+
+
+# ---------------------------------------------------------------------------- computation
+def _chain(inc: StepIncrements, h: Array, R0: Array, p0: Array, v0: Array,
+           g_W: Array) -> tuple[Array, Array]:
+    """Compose step increments into attitudes and positions (as the window engine does)."""
+    S, m = h.shape
+    R = np.empty((S, m + 1, 3, 3))
+    p = np.empty((S, m + 1, 3))
+    v = v0.copy()
+    R[:, 0], p[:, 0] = R0, p0
+    for k in range(m):
+        hk = h[:, k, None]
+        Rk = R[:, k]
+        p[:, k + 1] = (p[:, k] + v * hk + 0.5 * g_W * hk**2
+                       + np.einsum("sij,sj->si", Rk, inc.dp[:, k]))
+        v = v + g_W * hk + np.einsum("sij,sj->si", Rk, inc.dv[:, k])
+        R[:, k + 1] = Rk @ inc.dR[:, k]
+    return R, p
+
+
+def _stride(rate: float, max_rate: float) -> int:
+    """Decimation factor that brings ``rate`` to at most ``max_rate``."""
+    return max(1, int(np.ceil(rate / max_rate - 1e-9)))
+
+
+def _block_means(x: Array, segments: Sequence[NDArray[np.int64]], k: int) -> Array:
+    """Means of ``k`` consecutive rows, within each segment (a partial last block is dropped)."""
+    out = []
+    for seg in segments:
+        n = len(seg) // k
+        if n:
+            out.append(x[seg[:n * k]].reshape(n, k, *x.shape[1:]).mean(axis=1))
+    return np.concatenate(out) if out else np.zeros((0, *x.shape[1:]))
+
+
+def _session_and_state(result: CalibrationResult, imu: ImuSamples,
+                       mocap: MocapPoses) -> tuple[PreparedSession, ModelState]:
+    """The session and model state the solver used, or rebuilt from the result's values."""
+    diag = result.diagnostics
+    if diag is not None and "session" in diag.extras and "model_state" in diag.extras:
+        return diag.extras["session"], diag.extras["model_state"]
+    need = {"gyro_bias": result.gyro_bias, "accel_bias": result.accel_bias,
+            "T_marker_imu": result.rotation_wxyz, "translation": result.translation,
+            "gravity_in_mocap": result.gravity_in_mocap, "time_offset": result.time_offset}
+    missing = [k for k, v in need.items() if v is None]
+    if missing:
+        raise InputError(f"the result has no value for {', '.join(missing)}; a recording "
+                         "without the solver's diagnostics needs the full calibration")
+    s = prepare(imu, mocap, noise=result.noise)
+    model = Model.parse(result.model)
+    effects: dict[str, Array] = {}
+    for eff in model.units:
+        if eff.sensor in ("gyro", "accel"):
+            value = (result.effects.get(eff.name) or {}).get(eff.param)
+            effects[eff.name] = eff.zero() if value is None else eff.theta_from_report(value)
+    g_dir = np.asarray(result.gravity_in_mocap, dtype=float)
+    st = ModelState(
+        R_MI=so3.quat_to_rotmat(np.asarray(result.rotation_wxyz, dtype=float)),
+        p_MI=np.asarray(result.translation, dtype=float),
+        g_W=result.gravity_magnitude * g_dir / np.linalg.norm(g_dir),
+        delta=s.clock_shift + float(result.time_offset or 0.0), model=model, effects=effects,
+        bias_t=np.array([s.tau[0]]), bias=np.r_[result.gyro_bias, result.accel_bias][None],
+        t_mid=0.5 * float(s.u[0] + s.u[-1]))
+    return s, st
+
+
+def _named_steps(steps: DiagnoseSteps) -> list[tuple[str, Mapping[str, ResidualSeries]]]:
+    """Entity-safe, unique step names."""
+    out: list[tuple[str, Mapping[str, ResidualSeries]]] = []
+    seen: set[str] = set()
+    for label, series in steps:
+        base = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(label)).strip("_") or "step"
+        name, n = base, 1
+        while name in seen:
+            n += 1
+            name = f"{base}_{n}"
+        seen.add(name)
+        out.append((name, series))
+    return out
+
+
+# ---------------------------------------------------------------------------- logging
+def _quat_xyzw(R: Array) -> Array:
+    return so3.rotmat_to_quat(R)[:, [1, 2, 3, 0]]
+
+
+def _log_world(log: Logger, s: PreparedSession, st: ModelState) -> None:
+    """Marker path, marker and IMU frames over time, lever arm, gravity."""
+    rr = log.rr
+    k = _stride(s.mocap_rate, POSE_RATE_HZ)
+    idx = np.arange(0, len(s.tau), k)
+    tau, R_WM, p_WM = s.tau[idx], s.R_WM[idx], s.p_WM[idx]
+    R_WI = R_WM @ st.R_MI
+    p_WI = p_WM + R_WM @ st.p_MI
+
+    # Path, split at mocap gaps (a gap between two kept samples breaks the strip).
+    gaps = np.concatenate([[0], np.cumsum(np.diff(s.tau) > s.gap)])[idx]
+    strips = [p_WM[gaps == g] for g in np.unique(gaps)]
+    strips = [x for x in strips if len(x) > 1]
+    extent = float(np.max(np.ptp(s.p_WM, axis=0))) if len(s.p_WM) else 1.0
+    axis_len = float(np.clip(0.05 * extent, 0.05, 0.3))
+    log.rec.log("world/mocap/trajectory",
+                rr.LineStrips3D(strips, colors=[GRAY], radii=rr.components.Radius.ui_points(1.0)),
+                static=True)
+
+    time = [rr.TimeColumn(TIMELINE, duration=tau)]
+    log.rec.send_columns("world/marker", indexes=time,
+                         columns=rr.Transform3D.columns(translation=p_WM,
+                                                        quaternion=_quat_xyzw(R_WM)))
+    log.rec.send_columns("world/imu", indexes=time,
+                         columns=rr.Transform3D.columns(translation=p_WI,
+                                                        quaternion=_quat_xyzw(R_WI)))
+    log.rec.log("world/marker", rr.TransformAxes3D(axis_len), static=True)
+    log.rec.log("world/imu", rr.TransformAxes3D(0.6 * axis_len), static=True)
+    p_IM = -st.R_MI.T @ st.p_MI  # marker origin in the IMU frame
+    log.rec.log("world/imu/lever",
+                rr.LineStrips3D([[np.zeros(3), p_IM]], colors=[(255, 200, 0)],
+                                labels=[f"T_MI lever {1e3 * np.linalg.norm(st.p_MI):.1f} mm"]),
+                static=True)
+
+    g_dir = st.g_W / np.linalg.norm(st.g_W)
+    tilt = float(np.degrees(np.arccos(np.clip(-g_dir[2], -1.0, 1.0))))
+    L = max(0.3 * extent, 0.2)
+    centre = np.mean(s.p_WM, axis=0)
+    log.rec.log("world/gravity",
+                rr.Arrows3D(vectors=[L * g_dir, [0.0, 0.0, -L]], origins=[centre, centre],
+                            colors=[(255, 140, 0), GRAY],
+                            labels=[f"gravity (tilt {tilt:.2f} deg)", "mocap -z"]),
+                static=True)
+
+
+def _log_dead_reckoning(log: Logger, dr: DeadReckoning | None) -> None:
+    """Segments as strips at their start time, and their end errors as series."""
+    if dr is None:
+        return
+    rr = log.rr
+    t0 = dr.tau[:, 0]
+    n = len(t0)
+    time = [rr.TimeColumn(TIMELINE, duration=t0)]
+    parts = (("mocap", dr.p_ref, GRAY, "mocap"),
+             ("before", dr.p_before, AXIS_RGB[0], "raw IMU"),
+             ("after", dr.p_after, AXIS_RGB[2], "calibrated IMU"))
+    for name, p, color, label in parts:
+        log.rec.send_columns(
+            f"world/dead_reckoning/{name}", indexes=time,
+            columns=rr.LineStrips3D.columns(strips=list(p), colors=[color] * n,
+                                            labels=[label] * n,
+                                            radii=[rr.components.Radius.ui_points(2.0)] * n))
+    for which, color in (("before", AXIS_RGB[0]), ("after", AXIS_RGB[2])):
+        path = f"dead_reckoning/{which}/position_error"
+        log.style(path, f"{which}: position error after {DR_LENGTH_S:g} s [m]", color)
+        log.scalars(path, t0, dr.position_error(which))
+        path = f"dead_reckoning/{which}/attitude_error"
+        log.style(path, f"{which}: attitude error after {DR_LENGTH_S:g} s [deg]", color)
+        log.scalars(path, t0, dr.attitude_error(which))
+
+
+def _log_residuals(log: Logger, prefix: str, series: ResidualSeries) -> None:
+    """Complete before/after series per axis, the weights, and the rotation part if any."""
+    unit = series.unit
+    log.xyz(f"{prefix}/before", series.t, series.before, "before", unit, pale=True, width=1.0)
+    log.xyz(f"{prefix}/after", series.t, series.after, "after", unit)
+    log.style(f"{prefix}/weight", f"{prefix.rsplit('/', 1)[-1]} weight", GRAY)
+    log.scalars(f"{prefix}/weight", series.t, series.weight)
+    if series.rotation_before is not None:
+        log.xyz(f"{prefix}/rotation/before", series.t, series.rotation_before, "before", "deg",
+                pale=True, width=1.0)
+    if series.rotation_after is not None:
+        log.xyz(f"{prefix}/rotation/after", series.t, series.rotation_after, "after", "deg")
+
+
+def _log_imu(log: Logger, s: PreparedSession, st: ModelState) -> None:
+    """Measured vs predicted raw IMU signals and their difference, as block means."""
+    pred = predict_imu(s, st)
+    if len(pred.u) == 0:
+        return
+    k = _stride(s.imu_rate, IMU_RATE_HZ)
+    tau = _block_means(pred.u, pred.segments, k) + st.delta
+    for sensor, meas, model, unit in (("gyro", pred.gyro_meas, pred.gyro_pred, "rad/s"),
+                                      ("accel", pred.accel_meas, pred.accel_pred, "m/s^2")):
+        mm = _block_means(meas, pred.segments, k)
+        pm = _block_means(model, pred.segments, k)
+        log.xyz(f"imu/{sensor}/measured", tau, mm, f"{sensor} measured", unit, width=1.0)
+        log.xyz(f"imu/{sensor}/predicted", tau, pm, f"{sensor} predicted", unit, pale=True,
+                width=2.5)
+        log.xyz(f"imu/{sensor}/difference", tau, mm - pm, f"{sensor} measured - predicted", unit)
+
+
+def _log_solver(log: Logger, history: Sequence[Mapping], clock_shift: float) -> None:
+    """Position-stage iterates on the ``iteration`` timeline."""
+    if not history:
+        return
+    it = np.array([h["iteration"] for h in history], dtype=np.int64)
+
+    def col(key: str) -> Array:
+        return np.array([np.asarray(h[key], dtype=float) for h in history])
+
+    g = col("g_dir")
+    g = g / np.linalg.norm(g, axis=1, keepdims=True)
+    scalars = {
+        "cost": (col("cost"), "cost (LM error)"),
+        "time_offset": (1e3 * (col("delta") - clock_shift), "time offset [ms]"),
+        "gravity_tilt": (np.degrees(np.arccos(np.clip(-g[:, 2], -1.0, 1.0))),
+                         "gravity tilt from mocap -z [deg]"),
+    }
+    for key, (values, name) in scalars.items():
+        log.style(f"solver/{key}", name, (200, 120, 0))
+        log.scalars(f"solver/{key}", it, values, timeline=ITERATION, sequence=True)
+    vectors = {
+        "p_MI": (1e3 * col("p_MI"), "p_MI", "mm"),
+        "R_MI": (np.degrees(so3.log(col("R_MI"))), "R_MI rotation vector", "deg"),
+        "gyro_bias": (col("gyro_bias"), "gyro bias (mean)", "rad/s"),
+        "accel_bias": (col("accel_bias"), "accel bias (mean)", "m/s^2"),
+    }
+    for key, (values, label, unit) in vectors.items():
+        log.xyz(f"solver/{key}", it, values, label, unit, timeline=ITERATION, sequence=True)
