@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from mocap_calib.core import so3
 from mocap_calib.core.graph import BatchFactors, BatchOutput, run_lm
 from mocap_calib.core.preint import hermite, preintegrate_spans
+from mocap_calib.core.ranges import RANGE_SIGMA
 from mocap_calib.core.result import ResidualSeries, StageStats
 from mocap_calib.core.session import PreparedSession, local_derivative
 from mocap_calib.core.types import NoiseModel
@@ -57,9 +58,8 @@ def initial_rotation(s: PreparedSession, delta: float) -> tuple[Array, Array]:
     U, S, Vt = np.linalg.svd(a.T @ b)
     d = np.sign(np.linalg.det(Vt.T @ U.T))
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    if S[1] < 1e-2 * S[0]:
-        raise ObservabilityError("the body rotates about one axis only; R_MI needs rotation "
-                                 "about at least two axes")
+    # With rotation about one axis only, R is arbitrary about that axis; the weak range prior
+    # of the graphs keeps it in place and the marginals then report it as unobservable.
     b_g = w_I.mean(axis=0) - R.T @ w_M_s.mean(axis=0)
     return R, b_g
 
@@ -149,6 +149,10 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         graph = gtsam.NonlinearFactorGraph()
         for f in batch.factors():
             graph.add(f)
+        graph.add(gtsam.PriorFactorRot3(
+            KEY_R, gtsam.Rot3(R0), gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["rotation"])))
+        graph.add(gtsam.PriorFactorVector(
+            KEY_BG, bg0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["gyro_bias"])))
         init = gtsam.Values()
         init.insert(KEY_R, gtsam.Rot3(R_est))
         init.insert(KEY_BG, b_est)

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from mocap_calib.core import so3
 from mocap_calib.core.graph import BatchFactors, BatchOutput, run_lm
 from mocap_calib.core.preint import hermite, preintegrate_spans
+from mocap_calib.core.ranges import RANGE_SIGMA
 from mocap_calib.core.result import ResidualSeries, StageStats
 from mocap_calib.core.session import PreparedSession, local_derivative
 from mocap_calib.core.stage_attitude import keyframes
@@ -119,10 +120,20 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     M[:, :, 3:6] = -np.eye(3) * dt[:, None, None]
     M[:, :, 6:9] = R_i @ A
     rhs = -(data.dvM - np.einsum("nij,nj->ni", R_i, dv))
-    x, *_ = np.linalg.lstsq(M.reshape(-1, 9), rhs.reshape(-1), rcond=None)
+    # Solve around a level world (g along -z): directions the motion leaves undetermined (e.g.
+    # accel bias along a body axis that stays vertical) keep that guess instead of blowing up.
+    x0 = np.r_[np.zeros(3), 0.0, 0.0, -gravity, np.zeros(3)]
+    A = M.reshape(-1, 9)
+    H = A.T @ A
+    H_reg = H + 1e-9 * np.trace(H) / 9.0 * np.eye(9)
+    x = x0 + np.linalg.solve(H_reg, A.T @ (rhs.reshape(-1) - A @ x0))
     p0, g_free, b0 = x[0:3], x[3:6], x[6:9]
     g_norm = float(np.linalg.norm(g_free))
-    if not 0.7 * gravity < g_norm < 1.3 * gravity:
+    # Residual-scaled uncertainty of the free gravity vector: only check |g| where it is known.
+    res = rhs.reshape(-1) - A @ x
+    s2 = float(res @ res) / max(1, A.shape[0] - 9)
+    g_sig = np.sqrt(np.diag(np.linalg.inv(H_reg))[3:6] * s2)
+    if np.all(g_sig < 0.05 * gravity) and not 0.7 * gravity < g_norm < 1.3 * gravity:
         raise ObservabilityError(
             f"the accelerometer and mocap disagree on gravity (|g| fits as {g_norm:.2f} m/s^2, "
             f"expected {gravity:.2f}); check the accel units, the mocap units (m) and the time "
@@ -158,6 +169,13 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         graph = gtsam.NonlinearFactorGraph()
         for f in batch.factors():
             graph.add(f)
+        graph.add(gtsam.PriorFactorVector(
+            KEY_BA, b0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["accel_bias"])))
+        graph.add(gtsam.PriorFactorPoint3(
+            KEY_P, p0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["translation"])))
+        graph.add(gtsam.PriorFactorUnit3(
+            KEY_G, gtsam.Unit3(g_free / g_norm),
+            gtsam.noiseModel.Isotropic.Sigma(2, RANGE_SIGMA["gravity"])))
         init = gtsam.Values()
         init.insert(KEY_BA, b_est)
         init.insert(KEY_P, gtsam.Point3(*p_est))
