@@ -174,3 +174,34 @@ def joint_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     jm = marg.jointMarginalCovariance(kv)
     blocks = [[np.asarray(jm.at(a, b)) for b in keys] for a in keys]
     return np.block(blocks)
+
+
+def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                                  combo: dict[int, Array]) -> Array:
+    """Covariance of ``y = sum_k C_k dx_k`` (tangent-space increments of several keys).
+
+    A joint marginal over many keys is dense and cubic in their number; this solves the sparse
+    information system ``H z = C^T`` instead, linear in the length of a chain of keys.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    gfg = graph.linearize(values)
+    grad = gfg.gradientAtZero()  # one vector per key: gives each key's tangent dimension
+    offsets: dict[int, int] = {}
+    n = 0
+    for k in sorted(gfg.keys()):  # sparseJacobian_ orders columns by key
+        offsets[k] = n
+        n += int(np.asarray(grad.at(k)).shape[0])
+    ijs = np.asarray(gfg.sparseJacobian_())
+    rows = ijs[0].astype(int) - 1
+    cols = ijs[1].astype(int) - 1
+    keep = cols < n  # the last column is the right-hand side
+    A = sp.csc_matrix((ijs[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n))
+    H = (A.T @ A).tocsc()
+    m = next(iter(combo.values())).shape[0]
+    Ct = np.zeros((n, m))
+    for k, Ck in combo.items():
+        Ct[offsets[k]:offsets[k] + Ck.shape[1]] = Ck.T
+    Z = splu(H).solve(Ct)
+    return Ct.T @ Z

@@ -23,7 +23,12 @@ from numpy.typing import NDArray
 
 from mocap_calib.core import so3
 from mocap_calib.core.effects import EFFECTS, Model
-from mocap_calib.core.graph import BatchFactors, BatchOutput, run_lm
+from mocap_calib.core.graph import (
+    BatchFactors,
+    BatchOutput,
+    linear_combination_covariance,
+    run_lm,
+)
 from mocap_calib.core.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
 from mocap_calib.core.result import ResidualSeries, StageStats
 from mocap_calib.core.session import PreparedSession
@@ -368,19 +373,15 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
             coef[w, w] = 1.0
     weights_w = lengths / lengths.sum()
     c_mean = weights_w @ coef  # (W,)
-    kv = gtsam.KeyVector()
-    for w in range(W):
-        kv.append(key_knot(w))
-    jm = marg.jointMarginalCovariance(kv)
-    knot_cov = np.block([[np.asarray(jm.at(key_knot(a), key_knot(b))) for b in range(W)]
-                         for a in range(W)])
     Cm = np.kron(c_mean[None, :], np.eye(6))  # (6, 6W)
     bias_mean = Cm @ th.knots.reshape(-1)
+    combo = {key_knot(w): Cm[:, 6 * w:6 * w + 6] for w in range(W)}
+    knot_part = linear_combination_covariance(graph, sol, combo)
     # Random-walk wander inside each window around the interpolation (Brownian bridge).
     bridge = (weights_w**2 * lengths).sum() / 12.0
     rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2),
                 np.full(3, noise.accelerometer_random_walk**2)]
-    bias_cov = Cm @ knot_cov @ Cm.T + np.diag(rw2 * bridge)
+    bias_cov = knot_part + np.diag(rw2 * bridge)
     cov["gyro_bias"] = bias_cov[0:3, 0:3]
     cov["accel_bias"] = bias_cov[3:6, 3:6]
 
