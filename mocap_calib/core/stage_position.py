@@ -91,6 +91,7 @@ class PositionInit:
     gyro_bias: Array
     accel_bias: Array
     effects: dict[str, Array] = field(default_factory=dict)
+    knots: Array | None = None  # (W, 6) bias knots to start from (a previous fit's)
 
 
 @dataclass
@@ -114,6 +115,8 @@ class PositionResult:
     windows: Windows
     weights: Array
     noise: NoiseModel
+    cost: float  # chi^2 of the whole graph at the solution
+    dof: int  # residual dimensions minus parameters
     solver: dict[str, Any]
     history: list[dict[str, Any]]
 
@@ -232,7 +235,8 @@ def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, wi
         if eff.sensor in ("gyro", "accel"):
             values.insert(key_effect(i), init.effects.get(eff.name, eff.zero()))
     for w in range(W):
-        values.insert(key_knot(w), np.r_[init.gyro_bias, init.accel_bias])
+        values.insert(key_knot(w), np.r_[init.gyro_bias, init.accel_bias] if init.knots is None
+                      else np.asarray(init.knots[w], dtype=float))
 
     # Weak range priors (see RANGE_SIGMA) around the starting point.
     range_priors = {
@@ -280,7 +284,7 @@ def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, wi
 def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
                        init: PositionInit, priors: list[Prior] | None = None,
                        robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
-                       adapt_noise: bool = True,
+                       adapt_noise: bool = True, weights: Array | None = None,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None) -> PositionResult:
     """Refine all parameters on the window factors.
@@ -292,6 +296,8 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         priors: user priors (earlier calibrations), added as prior factors.
         robust: down-weight mocap outliers.
         adapt_noise: re-estimate the mocap noise level from the innovations.
+        weights: fixed robust weights (W, m+1) from an earlier fit: no re-weighting, so that
+            fits of different models minimise costs of the same family (model comparison).
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
         progress: called with a short message at every IRLS round.
     """
@@ -319,6 +325,9 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     # the innovations (it is rarely known well) and the robust weights are updated (IRLS).
     # The first evaluation (at the start values, unit weights) gives the "before" figures.
     iterations = 0
+    if weights is not None:
+        pp.weights = np.asarray(weights, dtype=float).copy()
+        robust = False
     rounds = irls_rounds if (robust or adapt_noise) else 1
     sol = values
     out0 = None
@@ -353,6 +362,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         batch.invalidate()
     out = evals[-1]
     th = _theta(sol, model, W, init, t_mid)
+    cost = 2.0 * graph.error(sol)  # chi^2 of the whole graph (windows, random walk, priors)
     marg = gtsam.Marginals(graph, sol)
 
     cov: dict[str, Array] = {}
@@ -433,8 +443,8 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
         effects=th.effects, gyro_bias_mean=bias_mean[0:3], accel_bias_mean=bias_mean[3:6],
         knots=th.knots, cov=cov, unobservable=unobservable, stats=stats, series=series,
-        chi2_per_dof=chi2, windows=windows, weights=w_final, noise=pp.noise, solver=solver,
-        history=history)
+        chi2_per_dof=chi2, windows=windows, weights=w_final, noise=pp.noise, cost=cost,
+        dof=int(dof), solver=solver, history=history)
 
 
 def rotation_error_deg(R_a: Array, R_b: Array) -> float:

@@ -32,7 +32,7 @@ DEFAULT_MAGNITUDE: dict[str, float] = {
     "accel_scale_misalignment": 0.003,
     "gyro_g_sensitivity": 3e-4,
     "gyro_bias_drift": 2e-5,
-    "accel_bias_drift": 1e-3,
+    "accel_bias_drift": 2e-3,
     "gravity_magnitude": 9.79,
     "mocap_dropouts": 5,
     "mocap_outliers": 5,

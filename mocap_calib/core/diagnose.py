@@ -1,0 +1,333 @@
+"""Model diagnosis: find what the calibrated model misses, name it, add it, repeat.
+
+1. Calibrate the starting model (default: the base model, no time offset).
+2. Simulate what the IMU should have measured from the mocap through the calibrated model and
+   compare with what it measured (:mod:`mocap_calib.core.predict`): residual RMS per sensor and
+   axis in a low band, against the noise floor that noise alone gives through the same
+   processing, and residual spectra.
+3. For every candidate effect (the canonical ones), refit with the effect added and score it
+   with a likelihood-ratio test: ``T = (chi2_M - chi2_M+e) / s^2`` against ``chi2_k``
+   (``k`` = the effect's parameters), where ``s^2 = max(1, chi2/dof)`` of the extended fit
+   absorbs a misjudged overall noise level. The noise model and the robust weights are frozen
+   for all fits, so every fit minimises a cost of the same family. The threshold is
+   Bonferroni-corrected over the candidates tried.
+4. The most significant candidate (smallest p-value) must also *show* in the measurement
+   domain: its fit has to lower the low-band residual of the sensor it acts on. It is added,
+   and the loop repeats until no candidate passes; then the answer is "none".
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats as sps
+
+from mocap_calib.core.calibrate import CalibrationOptions, calibrate
+from mocap_calib.core.effects import CANONICAL_EFFECTS, EFFECTS, Model
+from mocap_calib.core.predict import ModelState, ResidualAnalysis, analyse_residuals
+from mocap_calib.core.result import CalibrationResult, ResidualSeries
+from mocap_calib.core.session import PreparedSession
+from mocap_calib.core.stage_position import PositionInit, PositionResult, run_position_stage
+from mocap_calib.core.timesync import coarse_offset_arrays
+from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class DiagnoseOptions:
+    """How to diagnose.
+
+    Attributes:
+        start: the starting model (default: base, no time offset).
+        candidates: effects to try.
+        alpha: family-wise false-alarm rate per step (Bonferroni over the candidates).
+        max_steps: most effects to add.
+        calibration: options of the underlying calibrations (noise, gravity, windows...).
+        cutoff_hz: band of the measurement-domain comparison.
+    """
+
+    start: Model = field(default_factory=Model)
+    candidates: tuple[str, ...] = CANONICAL_EFFECTS
+    alpha: float = 0.01
+    max_steps: int = 4
+    calibration: CalibrationOptions = field(default_factory=CalibrationOptions)
+    cutoff_hz: float = 2.0
+
+
+@dataclass
+class CandidateScore:
+    """One candidate's test."""
+
+    effect: str
+    dof: int
+    delta_chi2: float
+    scale: float
+    statistic: float
+    log10_p: float
+    significant: bool
+    residual_drop: float  # relative low-band residual drop on the effect's sensor (0.1 = 10 %)
+    params: object = None
+    sigma: object = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"effect": self.effect, "dof": self.dof, "delta_chi2": round(self.delta_chi2, 3),
+                "noise_scale": round(self.scale, 4), "statistic": round(self.statistic, 3),
+                "log10_p": round(self.log10_p, 3), "significant": self.significant,
+                "residual_drop": round(self.residual_drop, 4)}
+
+
+@dataclass
+class Residuals:
+    """Low-band residual RMS per sensor and axis with the noise floor."""
+
+    gyro_rms: Array
+    gyro_floor: Array
+    accel_rms: Array
+    accel_floor: Array
+    analysis: ResidualAnalysis | None = None
+
+    @classmethod
+    def of(cls, ra: ResidualAnalysis) -> Residuals:
+        return cls(ra.gyro_rms, ra.gyro_floor, ra.accel_rms, ra.accel_floor, ra)
+
+    def ratio(self, sensor: str) -> float:
+        """RMS over axes divided by the floor over axes (1 = at the noise floor)."""
+        rms, floor = ((self.gyro_rms, self.gyro_floor) if sensor == "gyro"
+                      else (self.accel_rms, self.accel_floor))
+        return float(np.sqrt(np.sum(rms**2) / np.sum(floor**2)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"gyro_rms": self.gyro_rms.tolist(), "gyro_floor": self.gyro_floor.tolist(),
+                "gyro_ratio": round(self.ratio("gyro"), 4),
+                "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist(),
+                "accel_ratio": round(self.ratio("accel"), 4)}
+
+
+@dataclass
+class DiagnoseStep:
+    """One step: the model, the candidates' scores, and what was added (if anything)."""
+
+    model: str
+    residuals: Residuals
+    chi2: float
+    dof: int
+    candidates: list[CandidateScore]
+    added: str | None = None
+    added_params: object = None
+    added_sigma: object = None
+    residuals_after: Residuals | None = None
+    series: dict[str, ResidualSeries] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"model": self.model, "chi2": round(self.chi2, 3), "dof": self.dof,
+                             "residuals": self.residuals.to_dict(),
+                             "candidates": [c.to_dict() for c in self.candidates]}
+        if self.added is not None:
+            best = next(c for c in self.candidates if c.effect == self.added)
+            d["added"] = {"effect": self.added, EFFECTS[self.added].param: self.added_params,
+                          "sigma": self.added_sigma, "statistic": round(best.statistic, 3),
+                          "dof": best.dof, "log10_p": round(best.log10_p, 3)}
+            if self.residuals_after is not None:
+                d["residuals_after"] = self.residuals_after.to_dict()
+        return d
+
+
+@dataclass
+class DiagnoseReport:
+    """The outcome: effects found in order, every step, and the final calibration."""
+
+    found: list[str]
+    start_model: str
+    final_model: str
+    steps: list[DiagnoseStep]
+    final: CalibrationResult
+    final_residuals: Residuals
+    threshold_log10_p: float
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def verdict(self) -> str:
+        return "none" if not self.found else "+".join(self.found)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "found": list(self.found),
+            "verdict": self.verdict,
+            "start_model": self.start_model,
+            "final_model": self.final_model,
+            "test": {"kind": "likelihood ratio, noise-scaled, Bonferroni over candidates",
+                     "threshold_log10_p": round(self.threshold_log10_p, 3)},
+            "steps": [s.to_dict() for s in self.steps],
+            "final_residuals": self.final_residuals.to_dict(),
+            "final_calibration": self.final.to_dict(),
+            "notes": list(self.notes),
+            "seconds": round(self.seconds, 2),
+        }
+
+
+def _log10_sf(t: float, k: int) -> float:
+    """log10 P(chi2_k > t), finite far into the tail (Wilson-Hilferty when scipy underflows)."""
+    lp = float(sps.chi2.logsf(t, k))
+    if np.isfinite(lp):
+        return lp / np.log(10.0)
+    z = ((t / k) ** (1.0 / 3.0) - (1.0 - 2.0 / (9.0 * k))) / np.sqrt(2.0 / (9.0 * k))
+    return float(sps.norm.logsf(z) / np.log(10.0))
+
+
+def _sensor_of(effect: str) -> str:
+    e = EFFECTS[effect]
+    return e.sensor if e.sensor in ("gyro", "accel") else ("accel" if effect ==
+                                                            "gravity_magnitude" else "both")
+
+
+def _state(pos: PositionResult, model: Model, t_mid: float) -> ModelState:
+    return ModelState(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
+                      model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
+                      bias=pos.knots.copy(), t_mid=t_mid)
+
+
+def _drop(before: Residuals, after: Residuals, sensor: str) -> float:
+    if sensor == "both":
+        return max(_drop(before, after, "gyro"), _drop(before, after, "accel"))
+    return 1.0 - after.ratio(sensor) / before.ratio(sensor)
+
+
+def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None = None,
+             progress: Callable[[str], None] | None = None) -> DiagnoseReport:
+    """Run the diagnosis loop (see the module docstring).
+
+    Args:
+        imu: raw IMU samples; mocap: marker poses.
+        options: see :class:`DiagnoseOptions`.
+        progress: called with one-line messages.
+    """
+    opts = options or DiagnoseOptions()
+    say = progress or (lambda _m: None)
+    t0 = time.perf_counter()
+    notes: list[str] = []
+    model = opts.start
+    cal_opts = replace(opts.calibration, model=model, adapt_noise=False)
+
+    say(f"fitting the starting model {model}")
+    try:
+        start = calibrate(imu, mocap, cal_opts)
+    except Exception as err:  # the streams may not even overlap without the offset
+        from mocap_calib.errors import InputError
+
+        if not isinstance(err, InputError) or model.has("time_offset"):
+            raise
+        model = model.with_effect("time_offset")
+        notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
+        cal_opts = replace(cal_opts, model=model)
+        start = calibrate(imu, mocap, cal_opts)
+    ex = start.diagnostics.extras
+    s: PreparedSession = ex["session"]
+    noise: NoiseModel = ex["noise_used"]
+    t_mid = float(ex["t_mid"])
+    windows = ex["windows"]
+    weights = ex["weights"]
+    coarse_delta = None
+
+    def fit(m: Model, init_from: PositionResult | None, extra: dict[str, Array]) -> PositionResult:
+        base = init_from
+        init = PositionInit(
+            R_MI=base.R_MI, p_MI=base.p_MI, g_dir=base.g_dir, g_mag=base.g_mag,
+            delta=base.delta, gyro_bias=base.gyro_bias_mean, accel_bias=base.accel_bias_mean,
+            effects={**base.effects, **extra}, knots=base.knots)
+        if m.has("time_offset") and not model.has("time_offset") and "time_offset" in extra:
+            init.delta = float(extra["time_offset"][0])
+        return run_position_stage(s, m, noise, windows, init, robust=False, adapt_noise=False,
+                                  weights=weights, max_iterations=opts.calibration.max_iterations)
+
+    # The current fit, as a PositionResult (refit the start model with frozen weights so every
+    # later comparison uses exactly the same cost).
+    init0 = PositionInit(
+        R_MI=start.R_marker_imu, p_MI=start.translation, g_dir=start.gravity_in_mocap,
+        g_mag=start.gravity_magnitude, delta=float(ex["delta"]),
+        gyro_bias=start.gyro_bias, accel_bias=start.accel_bias,
+        effects=dict(ex["effects_theta"]), knots=ex["knots"])
+    current = run_position_stage(s, model, noise, windows, init0, robust=False,
+                                 adapt_noise=False, weights=weights)
+    cur_res = Residuals.of(analyse_residuals(s, _state(current, model, t_mid), noise,
+                                             cutoff_hz=opts.cutoff_hz))
+    found: list[str] = []
+    steps: list[DiagnoseStep] = []
+    threshold = 0.0
+    for _step in range(opts.max_steps):
+        todo = [c for c in opts.candidates if not model.has(c)]
+        if not todo:
+            break
+        threshold = float(np.log10(opts.alpha / len(todo)))
+        scores: list[CandidateScore] = []
+        fits: dict[str, tuple[PositionResult, Residuals]] = {}
+        for cand in todo:
+            say(f"step {len(steps) + 1}: trying {cand}")
+            m = model.with_effect(cand)
+            extra: dict[str, Array] = {}
+            if cand == "time_offset":
+                if coarse_delta is None:
+                    coarse_delta = coarse_offset_arrays(s.u, s.gyro, s.tau, s.R_WM,
+                                                        s.clock_shift).time_offset + s.clock_shift
+                extra["time_offset"] = np.array([coarse_delta])
+            try:
+                f = fit(m, current, extra)
+            except Exception as err:  # a candidate that cannot be fitted is not the answer
+                notes.append(f"step {len(steps) + 1}: {cand} could not be fitted ({err})")
+                continue
+            k = EFFECTS[cand].dim
+            d = current.cost - f.cost
+            scale = max(1.0, f.cost / max(f.dof, 1))
+            stat = max(d, 0.0) / scale
+            log10_p = _log10_sf(stat, k)
+            # The measurement-domain check is only needed where the test is significant.
+            res = (Residuals.of(analyse_residuals(s, _state(f, m, t_mid), noise,
+                                                  cutoff_hz=opts.cutoff_hz))
+                   if log10_p < threshold else cur_res)
+            fits[cand] = (f, res)
+            eff = EFFECTS[cand]
+            if cand == "time_offset":
+                params, sig = float(f.delta - s.clock_shift), float(np.sqrt(
+                    f.cov["time_offset"][0, 0]))
+            elif cand == "gravity_magnitude":
+                params, sig = float(f.g_mag), float(np.sqrt(f.cov["gravity_magnitude"][0, 0]))
+            else:
+                params = eff.report_value(f.effects[cand])
+                sig = eff.report_sigma(np.sqrt(np.diag(f.cov[cand])))
+            drop = _drop(cur_res, res, _sensor_of(cand))
+            scores.append(CandidateScore(cand, k, float(d), float(scale), float(stat), log10_p,
+                                         log10_p < threshold and drop > 0.0, float(drop),
+                                         params, sig))
+        scores.sort(key=lambda c: c.log10_p)
+        step = DiagnoseStep(str(model), cur_res, current.cost, current.dof, scores,
+                            series={"position": current.series})
+        steps.append(step)
+        best = next((c for c in scores if c.significant), None)
+        if best is None:
+            break
+        f, res = fits[best.effect]
+        step.added = best.effect
+        step.added_params = best.params
+        step.added_sigma = best.sigma
+        step.residuals_after = res
+        say(f"step {len(steps)}: {best.effect} explains the gap (T = {best.statistic:.1f} on "
+            f"{best.dof} dof, log10 p = {best.log10_p:.1f})")
+        found.append(best.effect)
+        model = model.with_effect(best.effect)
+        current, cur_res = f, res
+
+    say(f"final calibration with {model}")
+    final = calibrate(imu, mocap, replace(opts.calibration, model=model))
+    fx = final.diagnostics.extras
+    final_res = Residuals.of(analyse_residuals(fx["session"], fx["model_state"], fx["noise_used"],
+                                               cutoff_hz=opts.cutoff_hz))
+    steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
+                              series={"position": current.series}))
+    return DiagnoseReport(found, str(opts.start), str(model), steps, final, final_res, threshold,
+                          notes, time.perf_counter() - t0)
