@@ -42,7 +42,13 @@ def summary_table(r: CalibrationResult) -> str:
         for key, val in rec.items():
             if key == "sigma":
                 continue
-            rows.append((f"{name}.{key}", _fmt(val), _fmt(rec.get("sigma"), digits=2), ""))
+            sig = rec.get("sigma")
+            if val is not None and np.asarray(val).ndim == 2:  # a 3x3 matrix: one row per line
+                for i in range(3):
+                    rows.append((f"{name}.{key}" if i == 0 else "", _fmt(np.asarray(val)[i]),
+                                 "" if sig is None else _fmt(np.asarray(sig)[i], digits=2), ""))
+            else:
+                rows.append((f"{name}.{key}", _fmt(val), _fmt(sig, digits=2), ""))
     w = [max(len(row[i]) for row in rows + [("parameter", "estimate", "1-sigma", "unit")])
          for i in range(4)]
     lines = [f"{'parameter':<{w[0]}}  {'estimate':<{w[1]}}  {'1-sigma':<{w[2]}}  unit",
@@ -68,4 +74,40 @@ def summary_table(r: CalibrationResult) -> str:
             lines.append(f"UNOBSERVABLE {k}: {why}")
     for n in r.notes:
         lines.append(f"note: {n}")
+    return "\n".join(lines)
+
+
+def diagnose_table(report) -> str:
+    """The diagnosis: per step the model, residual/floor ratios, the best candidates and what
+    was added; then the verdict and the final calibration."""
+    lines = [f"model diagnosis: start {report.start_model}", ""]
+    for i, step in enumerate(report.steps):
+        r = step.residuals
+        final = i == len(report.steps) - 1
+        title = "final" if final else f"step {i + 1}"
+        lines.append(f"{title}: model {step.model}")
+        g_axes = _fmt(r.gyro_rms / r.gyro_floor, digits=3)
+        a_axes = _fmt(r.accel_rms / r.accel_floor, digits=3)
+        lines.append(f"  low-band residual RMS / noise floor: gyro {r.ratio('gyro'):.3f} "
+                     f"(per axis {g_axes}), accel {r.ratio('accel'):.3f} (per axis {a_axes})")
+        if step.candidates:
+            lines.append(f"  {'candidate':<26} {'T':>12} {'dof':>4} {'log10 p':>9} "
+                         f"{'resid. drop':>11}  verdict")
+            for c in step.candidates[:4]:
+                verdict = "ADDED" if c.effect == step.added else (
+                    "significant" if c.significant else "")
+                lines.append(f"  {c.effect:<26} {c.statistic:>12.1f} {c.dof:>4} "
+                             f"{c.log10_p:>9.1f} {100 * c.residual_drop:>10.1f}%  {verdict}")
+            if len(step.candidates) > 4:
+                lines.append(f"  ... {len(step.candidates) - 4} more, none better")
+        if step.added is not None:
+            lines.append(f"  -> added {step.added}: {_fmt(step.added_params, digits=3)}")
+            lines.append(f"     1-sigma {_fmt(step.added_sigma, digits=2)}")
+        lines.append("")
+    lines.append(f"found: {', '.join(report.found) if report.found else 'none'}   "
+                 f"(threshold log10 p < {report.threshold_log10_p:.2f})")
+    for n in report.notes:
+        lines.append(f"note: {n}")
+    lines.append("")
+    lines.append(summary_table(report.final))
     return "\n".join(lines)

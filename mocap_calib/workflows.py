@@ -155,3 +155,40 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
     truth = save_yaml(out_dir / "truth.yaml", truth_d, header)
     return [(path, f"{len(imu)} IMU samples at {imu_rate:g} Hz ({protocol})"),
             (truth, "true intrinsics and noise")]
+
+
+def run_diagnosis(spec: InputSpec, options, noise_file: Path | None = None,
+                  noise_overrides: dict[str, float | None] | None = None,
+                  progress: ProgressFn | None = None):
+    """Read the inputs and run the model diagnosis; returns the report and what was read."""
+    from mocap_calib.core.diagnose import diagnose
+
+    session = load_session(spec)
+    for note in session.notes:
+        if progress is not None:
+            progress(note)
+    noise = resolve_noise(session, noise_file, noise_overrides or {})
+    opts = replace(options, calibration=replace(options.calibration, noise=noise))
+    report = diagnose(session.imu, session.mocap, opts, progress=progress)
+    report.final.session["inputs"] = list(session.notes)
+    return report, session
+
+
+def diagnose_series(report) -> list[tuple[str, dict]]:
+    """Residual series of every diagnosis step, for the rerun recording: the low-band
+    measured-minus-predicted gyro and accel, and the position-factor innovations."""
+    from mocap_calib.core.result import ResidualSeries
+
+    out = []
+    for i, step in enumerate(report.steps):
+        series: dict = {}
+        ra = step.residuals.analysis
+        if ra is not None and len(ra.t):
+            w = ra.keep.astype(float)
+            series["gyro_lowpass"] = ResidualSeries(ra.t, ra.gyro_lp, ra.gyro_lp, w, "rad/s")
+            series["accel_lowpass"] = ResidualSeries(ra.t, ra.accel_lp, ra.accel_lp, w, "m/s^2")
+        if "position" in step.series:
+            series["position"] = step.series["position"]
+        label = f"{i}_{step.model}" if i < len(report.steps) - 1 else f"{i}_final_{step.model}"
+        out.append((label, series))
+    return out

@@ -199,6 +199,9 @@ class ResidualAnalysis:
         freq: (F,) Welch frequencies; gyro_psd, accel_psd: (F, 3) residual PSDs;
         gyro_psd_floor, accel_psd_floor: (F, 3) PSD of the noise-only residual.
         gyro_lp, accel_lp: (n, 3) low-passed residual series (for plots).
+        floor_parts: floor per source (white noise, bias walk, mocap), gyro then accel axes.
+        t: (n,) mocap-clock times of the series; keep: (n,) samples the RMS uses (away
+            from segment ends).
     """
 
     cutoff_hz: float
@@ -214,6 +217,8 @@ class ResidualAnalysis:
     gyro_lp: Array = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     accel_lp: Array = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     floor_parts: dict[str, Array] = field(default_factory=dict)
+    t: Array = field(repr=False, default_factory=lambda: np.zeros(0))  # mocap-clock times
+    keep: NDArray[np.bool_] = field(repr=False, default_factory=lambda: np.zeros(0, bool))
 
     def to_dict(self) -> dict[str, object]:
         return {"cutoff_hz": self.cutoff_hz,
@@ -284,7 +289,7 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
     _, paf = _welch(fa, rate, pred.segments)
     return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
                             np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
-                            {k: np.sqrt(v) for k, v in parts.items()})
+                            {k: np.sqrt(v) for k, v in parts.items()}, pred.u + st.delta, keep)
 
 
 def _bias_walk_residual(rng: np.random.Generator, pred: ImuPrediction, noise: NoiseModel,

@@ -1,0 +1,91 @@
+"""``mocap-calib diagnose``: find what the calibrated model misses, name it, add it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from mocap_calib.cli.common import (
+    ACCEL_UNIT,
+    COLUMNS,
+    GYRO_UNIT,
+    IMU,
+    MAV0,
+    MOCAP,
+    POSE_SOURCE,
+    POSITION_UNIT,
+    QUAT_ORDER,
+    TIME_UNIT,
+    Progress,
+)
+from mocap_calib.cli.main import app
+
+
+@app.command(
+    help="Diagnose the measurement model: calibrate the starting model, predict what the IMU "
+    "should have measured from the mocap, find where prediction and measurement disagree, name "
+    "the missing effect (likelihood-ratio test over the canonical effects), add it and repeat "
+    "until nothing significant is left ('none' when nothing is missing).",
+    epilog="Example: mocap-calib diagnose sim_out --out report.yaml --rrd report.rrd",
+)
+def diagnose(
+    mav0: MAV0 = None,
+    imu: IMU = None,
+    mocap: MOCAP = None,
+    out: Annotated[Path, typer.Option(help="Report YAML to write.")] = Path("report.yaml"),
+    rrd: Annotated[Path | None, typer.Option(
+        help="Also write a rerun recording with the residuals of every step.",
+        show_default=False)] = None,
+    start: Annotated[str, typer.Option(
+        help="Starting model, e.g. base or base+time_offset.")] = "base",
+    candidates: Annotated[str | None, typer.Option(
+        help="Effects to try, joined by '+' (default: all canonical effects).",
+        show_default=False)] = None,
+    alpha: Annotated[float, typer.Option(
+        help="False-alarm rate per step (Bonferroni-corrected over the candidates).")] = 0.01,
+    max_steps: Annotated[int, typer.Option(help="Most effects to add.")] = 4,
+    gravity: Annotated[float, typer.Option(help="Assumed |g| in m/s^2.")] = 9.81,
+    noise: Annotated[Path | None, typer.Option(
+        help="Noise model YAML (Kalibr imu.yaml keys).", show_default=False)] = None,
+    window: Annotated[float, typer.Option(help="Length of the position-factor windows, s.")] = 5.0,
+    pose_source: POSE_SOURCE = "auto",
+    columns: COLUMNS = None,
+    time_unit: TIME_UNIT = None,
+    gyro_unit: GYRO_UNIT = None,
+    accel_unit: ACCEL_UNIT = None,
+    quat_order: QUAT_ORDER = None,
+    position_unit: POSITION_UNIT = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
+) -> None:
+    from mocap_calib.core.calibrate import CalibrationOptions
+    from mocap_calib.core.diagnose import DiagnoseOptions
+    from mocap_calib.core.effects import CANONICAL_EFFECTS, Model
+    from mocap_calib.errors import InputError
+    from mocap_calib.io.yaml_io import save_yaml
+    from mocap_calib.report import diagnose_table
+    from mocap_calib.workflows import InputSpec, diagnose_series, run_diagnosis
+
+    if not 0.0 < alpha < 0.5:
+        raise InputError(f"--alpha {alpha}: must be between 0 and 0.5, e.g. 0.01")
+    if max_steps < 1:
+        raise InputError(f"--max-steps {max_steps}: must be at least 1")
+    cands = CANONICAL_EFFECTS if candidates is None else Model.parse(candidates).effects
+    spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
+                     quat_order, position_unit)
+    opts = DiagnoseOptions(start=Model.parse(start), candidates=tuple(cands), alpha=alpha,
+                           max_steps=max_steps,
+                           calibration=CalibrationOptions(gravity=gravity, window=window))
+    progress = Progress(quiet)
+    report, session = run_diagnosis(spec, opts, noise, None, progress)
+    save_yaml(out, report.to_dict(), "mocap-calib model diagnosis report (see docs/diagnosis.md)")
+    typer.echo(diagnose_table(report))
+    typer.echo(f"\nwrote {out}")
+    if rrd is not None:
+        from mocap_calib.viz.recording import write_calibration_recording
+
+        progress("writing rerun recording")
+        path = write_calibration_recording(rrd, report.final, session.imu, session.mocap,
+                                           diagnose_steps=diagnose_series(report))
+        typer.echo(f"wrote {path}  (open with: mocap-calib view {path})")
