@@ -68,13 +68,20 @@ def _from_chart(name: str, x: Array, ref: object) -> object:
     return x
 
 
-def priors_from_results(results: Sequence[CalibrationResult],
-                        at_ns: int | None = None) -> list[Prior]:
+#: Blocks that change from one power-up or recording to the next: no prior by default.
+SESSION_SPECIFIC = ("gyro_bias", "accel_bias", "time_offset")
+
+
+def priors_from_results(results: Sequence[CalibrationResult], at_ns: int | None = None,
+                        session_specific: bool = False) -> list[Prior]:
     """Priors for a new session from earlier results.
 
     Args:
         results: earlier calibrations (any order).
         at_ns: start of the new session (IMU clock, ns); needed with two or more results.
+        session_specific: also give priors on the biases and the clock offset (turn-on biases
+            and recorder clocks usually differ between sessions, so by default only the rig's
+            geometry, the room's tilt and the IMU intrinsics carry over).
 
     Raises:
         InputError: two or more results without session times, or at the same time.
@@ -86,7 +93,8 @@ def priors_from_results(results: Sequence[CalibrationResult],
             raise InputError("two or more --prior files need the new session's start time to "
                              "extrapolate their trend")
         r = results[0]
-        return [Prior(n, v, s) for n, (v, s) in _blocks(r).items()]
+        return [Prior(n, v, s) for n, (v, s) in _blocks(r).items()
+                if session_specific or n not in SESSION_SPECIFIC]
     times = []
     for r in results:
         t = r.session.get("imu_start_ns")
@@ -103,6 +111,8 @@ def priors_from_results(results: Sequence[CalibrationResult],
     latest = _blocks(results[-1])
     priors: list[Prior] = []
     for name, (ref, _) in latest.items():
+        if not session_specific and name in SESSION_SPECIFIC:
+            continue
         xs, sig, ts = [], [], []
         for r, t in zip(results, t_s, strict=True):
             b = _blocks(r).get(name)
