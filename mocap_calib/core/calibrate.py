@@ -250,7 +250,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
     state = ModelState(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
                        model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
-                       bias=pos.knots.copy(), t_mid=t_mid)
+                       bias=pos.knots.copy(), t_mid=t_mid, bias_sigma=pos.knot_sigma.copy())
     diag = Diagnostics(
         residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
         iterations=pos.history,

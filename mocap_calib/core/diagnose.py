@@ -190,7 +190,7 @@ def _sensor_of(effect: str) -> str:
 def _state(pos: PositionResult, model: Model, t_mid: float) -> ModelState:
     return ModelState(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
                       model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
-                      bias=pos.knots.copy(), t_mid=t_mid)
+                      bias=pos.knots.copy(), t_mid=t_mid, bias_sigma=pos.knot_sigma.copy())
 
 
 def _drop(before: Residuals, after: Residuals, sensor: str) -> float:

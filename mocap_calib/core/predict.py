@@ -41,6 +41,7 @@ class ModelState:
         model: active effects; effects: their IMU-side parameters.
         bias_t: (K,) mocap times of the bias knots; bias: (K, 6) gyro and accel bias there.
         t_mid: IMU-clock middle of the session (drift terms).
+        bias_sigma: (K, 6) 1-sigma of the knots (their estimation error is part of the floor).
     """
 
     R_MI: Array
@@ -52,6 +53,7 @@ class ModelState:
     bias_t: Array
     bias: Array
     t_mid: float
+    bias_sigma: Array | None = None
 
     def bias_at(self, tau: Array) -> Array:
         """(n, 6) bias at mocap times ``tau`` (linear between knots, constant outside)."""
@@ -267,12 +269,17 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
                                     else pred.u[-1] - pred.u[0])
     parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
     floor2 = np.zeros(6)
-    draws = 3
+    draws = 4
     for _ in range(draws):
         white = np.concatenate([
             rng.normal(0.0, noise.gyroscope_noise_density * np.sqrt(rate), (n, 3)),
             rng.normal(0.0, noise.accelerometer_noise_density * np.sqrt(rate), (n, 3))], axis=1)
         walk = _bias_walk_residual(rng, pred, noise, spacing)
+        if st.bias_sigma is not None and len(st.bias_t) > 1:
+            # The estimated knots are off by their own uncertainty, interpolated in between.
+            err = rng.normal(size=st.bias_sigma.shape) * st.bias_sigma
+            walk += np.stack([np.interp(pred.u + st.delta, st.bias_t, err[:, i])
+                              for i in range(6)], axis=1)
         R_noisy = s.R_WM @ so3.exp(rng.normal(0.0, noise.mocap_rotation_sigma, (len(s.tau), 3)))
         p_noisy = s.p_WM + rng.normal(0.0, noise.mocap_position_sigma, (len(s.tau), 3))
         pn = predict_imu(s, st, mocap=(R_noisy, p_noisy))

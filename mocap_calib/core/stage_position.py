@@ -107,6 +107,7 @@ class PositionResult:
     gyro_bias_mean: Array
     accel_bias_mean: Array
     knots: Array
+    knot_sigma: Array  # (W, 6) marginal 1-sigma of each bias knot
     cov: dict[str, Array]
     unobservable: dict[str, str]
     stats: StageStats
@@ -368,6 +369,8 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     cov: dict[str, Array] = {}
     for name, key in block_keys.items():
         cov[name] = np.asarray(marg.marginalCovariance(key))
+    knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(w))))
+                           for w in range(W)])
 
     # Session-mean bias: each window's mean bias interpolated towards the next knot.
     starts = windows.start
@@ -442,7 +445,8 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     return PositionResult(
         R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
         effects=th.effects, gyro_bias_mean=bias_mean[0:3], accel_bias_mean=bias_mean[3:6],
-        knots=th.knots, cov=cov, unobservable=unobservable, stats=stats, series=series,
+        knots=th.knots, knot_sigma=knot_sigma, cov=cov, unobservable=unobservable,
+        stats=stats, series=series,
         chi2_per_dof=chi2, windows=windows, weights=w_final, noise=pp.noise, cost=cost,
         dof=int(dof), solver=solver, history=history)
 
