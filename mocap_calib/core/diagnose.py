@@ -235,15 +235,15 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     weights = ex["weights"]
     coarse_delta = None
 
-    def fit(m: Model, init_from: PositionResult | None, extra: dict[str, Array]) -> PositionResult:
-        base = init_from
+    def fit(m: Model, base: PositionResult, extra: dict[str, Array], nz: NoiseModel,
+            adapt: bool = False) -> PositionResult:
         init = PositionInit(
             R_MI=base.R_MI, p_MI=base.p_MI, g_dir=base.g_dir, g_mag=base.g_mag,
             delta=base.delta, gyro_bias=base.gyro_bias_mean, accel_bias=base.accel_bias_mean,
             effects={**base.effects, **extra}, knots=base.knots)
-        if m.has("time_offset") and not model.has("time_offset") and "time_offset" in extra:
+        if "time_offset" in extra:
             init.delta = float(extra["time_offset"][0])
-        return run_position_stage(s, m, noise, windows, init, robust=False, adapt_noise=False,
+        return run_position_stage(s, m, nz, windows, init, robust=False, adapt_noise=adapt,
                                   weights=weights, max_iterations=opts.calibration.max_iterations)
 
     # The current fit, as a PositionResult (refit the start model with frozen weights so every
@@ -253,8 +253,12 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
         g_mag=start.gravity_magnitude, delta=float(ex["delta"]),
         gyro_bias=start.gyro_bias, accel_bias=start.accel_bias,
         effects=dict(ex["effects_theta"]), knots=ex["knots"])
+    # Every step first re-estimates the mocap noise level with the current model (rarely known
+    # well; a missing effect inflates it, so it is redone after each effect is added); the
+    # candidates of the step are then fitted with that noise level frozen.
     current = run_position_stage(s, model, noise, windows, init0, robust=False,
-                                 adapt_noise=False, weights=weights)
+                                 adapt_noise=True, weights=weights)
+    noise = current.noise
     cur_res = Residuals.of(analyse_residuals(s, _state(current, model, t_mid), noise,
                                              cutoff_hz=opts.cutoff_hz))
     found: list[str] = []
@@ -277,7 +281,7 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
                                                         s.clock_shift).time_offset + s.clock_shift
                 extra["time_offset"] = np.array([coarse_delta])
             try:
-                f = fit(m, current, extra)
+                f = fit(m, current, extra, noise)
             except Exception as err:  # a candidate that cannot be fitted is not the answer
                 notes.append(f"step {len(steps) + 1}: {cand} could not be fitted ({err})")
                 continue
@@ -320,7 +324,13 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             f"{best.dof} dof, log10 p = {best.log10_p:.1f})")
         found.append(best.effect)
         model = model.with_effect(best.effect)
-        current, cur_res = f, res
+        current = fit(model, f, {}, noise, adapt=True)
+        if current.noise != noise:
+            noise = current.noise
+            cur_res = Residuals.of(analyse_residuals(s, _state(current, model, t_mid), noise,
+                                                     cutoff_hz=opts.cutoff_hz))
+        else:
+            cur_res = res
 
     say(f"final calibration with {model}")
     final = calibrate(imu, mocap, replace(opts.calibration, model=model))

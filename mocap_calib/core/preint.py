@@ -109,15 +109,22 @@ def _qrot(q: Array) -> Array:
 
 
 def integrate_steps(w_nodes: Array, f_nodes: Array, h: Array, n_sub: int) -> StepIncrements:
-    """RK4-integrate each step from the corrected signals at its nodes.
+    """RK4-integrate each step from the corrected signals at ``2 n_sub + 1`` equally spaced
+    nodes (see :func:`integrate_pieces` for pieces of any length)."""
+    return integrate_pieces(w_nodes, f_nodes, np.repeat((h / n_sub)[..., None], n_sub, axis=-1))
+
+
+def integrate_pieces(w_nodes: Array, f_nodes: Array, hs_all: Array) -> StepIncrements:
+    """RK4-integrate each step piece by piece; piece ``i`` runs from node ``2i`` through its
+    midpoint node ``2i + 1`` to node ``2i + 2``.
 
     Args:
-        w_nodes: (..., 2 n_sub + 1, 3) angular rate at the nodes.
-        f_nodes: (..., 2 n_sub + 1, 3) specific force at the nodes.
-        h: (...) step durations.
-        n_sub: RK4 sub-steps per step.
+        w_nodes: (..., 2 n + 1, 3) angular rate at the nodes.
+        f_nodes: (..., 2 n + 1, 3) specific force at the nodes.
+        hs_all: (..., n) piece durations (zero-length pieces are allowed: padding).
     """
-    lead = h.shape
+    n_sub = hs_all.shape[-1]
+    lead = hs_all.shape[:-1]
     q = np.zeros(lead + (4,))
     q[..., 0] = 1.0
     v = np.zeros(lead + (3,))
@@ -126,8 +133,6 @@ def integrate_steps(w_nodes: Array, f_nodes: Array, h: Array, n_sub: int) -> Ste
     C = np.zeros(lead + (3, 3))
     B = np.zeros(lead + (3, 3))
     D = np.zeros(lead + (3, 3))
-    hs = (h / n_sub)[..., None]
-    hs2 = hs[..., None]
 
     def deriv(qq: Array, vv: Array, AA: Array, BB: Array, w: Array, f: Array):
         R = _qrot(qq)
@@ -135,6 +140,8 @@ def integrate_steps(w_nodes: Array, f_nodes: Array, h: Array, n_sub: int) -> Ste
         return _qmul_vec(qq, w), Rf, vv, R, AA, so3.hat(Rf) @ AA, BB
 
     for i in range(n_sub):
+        hs = hs_all[..., i, None]
+        hs2 = hs[..., None]
         w0, wm, w1 = (w_nodes[..., 2 * i + j, :] for j in range(3))
         f0, fm, f1 = (f_nodes[..., 2 * i + j, :] for j in range(3))
         k1 = deriv(q, v, A, B, w0, f0)
@@ -162,7 +169,8 @@ def integrate_steps(w_nodes: Array, f_nodes: Array, h: Array, n_sub: int) -> Ste
 
 
 def preintegrate_spans(u: Array, gyro: Array, accel: Array, tau0: Array, tau1: Array,
-                       delta: float, correct_fn, node_spacing: float) -> StepIncrements:
+                       delta: float, correct_fn, node_spacing: float | None = None,
+                       ) -> StepIncrements:
     """Preintegrate the IMU over mocap-time spans ``[tau0, tau1]`` (one "step" each).
 
     Args:
@@ -170,11 +178,63 @@ def preintegrate_spans(u: Array, gyro: Array, accel: Array, tau0: Array, tau1: A
         tau0, tau1: (n,) span ends on the mocap clock.
         delta: mocap time minus IMU time.
         correct_fn: ``(gyro, accel, u) -> (w, f)`` applying the measurement model backwards.
-        node_spacing: target node spacing (s), about the IMU sample spacing.
+        node_spacing: unused (pieces follow the IMU samples); kept for callers.
     """
-    n_sub = max(1, int(np.ceil(np.max(tau1 - tau0) / (2.0 * node_spacing))))
-    tau = np.stack([tau0, tau1], axis=1)
-    nodes = node_times(tau, n_sub)[:, 0, :]  # (n, 2 n_sub + 1)
-    ip = hermite(u, nodes - delta)
-    w, f = correct_fn(ip(gyro), ip(accel), nodes - delta)
-    return integrate_steps(w, f, tau1 - tau0, n_sub)
+    pc = pieces(u, tau0, tau1, delta)
+    w, f = correct_fn(pc(gyro), pc(accel), pc.nodes - delta)
+    return integrate_pieces(w, f, pc.hs)
+
+
+@dataclass(frozen=True)
+class Pieces:
+    """Each step cut at the IMU sample times inside it.
+
+    Every piece lies between two consecutive IMU samples, where the cubic Hermite interpolant
+    is one cubic, and RK4 on it (Simpson's rule at the piece's ends and midpoint) integrates it
+    exactly. So every interior sample carries the same weight whatever the sub-sample phase of
+    the clock offset and the cost is smooth in the offset. (Nodes spaced evenly within a mocap
+    step sample the interpolant across sample boundaries; with vibration in a real IMU signal
+    that makes the cost ripple with the IMU period and traps the offset in local minima.)
+
+    Attributes:
+        nodes: (..., 2 n + 1) times (mocap clock): piece ends and midpoints.
+        hs: (..., n) piece durations (zero for padding).
+        interp: Hermite weights of the IMU samples at the nodes (IMU clock).
+    """
+
+    nodes: Array
+    hs: Array
+    interp: Interp
+
+    def __call__(self, y: Array) -> Array:
+        """Signal ``y`` (IMU samples, (N, c)) at the nodes."""
+        return self.interp(y)
+
+    def derivative(self, y: Array) -> Array:
+        """Time derivative of the interpolated signal at the nodes."""
+        return self.interp.derivative(y)
+
+
+def pieces(u: Array, tau0: Array, tau1: Array, delta: float) -> Pieces:
+    """Cut steps ``[tau0, tau1]`` (mocap clock) at the IMU sample times ``u + delta``.
+
+    Steps must lie within the IMU span. Steps with fewer samples inside are padded with
+    zero-length pieces at their end, so all steps have the same number of pieces.
+    """
+    t = u + delta
+    i0 = np.searchsorted(t, tau0, side="right")  # first sample strictly after tau0
+    i1 = np.searchsorted(t, tau1, side="left")  # first sample at or after tau1
+    count = np.maximum(i1 - i0, 0)
+    n_in = int(count.max()) if count.size else 0
+    j = np.arange(n_in)
+    inner_idx = np.minimum(i0[..., None] + j, len(t) - 1)
+    inner = np.where(j < count[..., None], t[inner_idx], tau1[..., None])
+    bounds = np.concatenate([tau0[..., None], inner, tau1[..., None]], axis=-1)
+    hs = np.diff(bounds, axis=-1)
+    n = hs.shape[-1]
+    nodes = np.empty(bounds.shape[:-1] + (2 * n + 1,))
+    nodes[..., 0::2] = bounds
+    nodes[..., 1::2] = 0.5 * (bounds[..., :-1] + bounds[..., 1:])
+    # Nodes exactly on a sample must use the segment that starts there (the interpolant is
+    # continuous, but its cubic differs on each side only in derivatives).
+    return Pieces(nodes, hs, hermite(u, nodes - delta))

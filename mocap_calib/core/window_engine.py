@@ -29,7 +29,7 @@ from scipy import stats as sps
 from mocap_calib.core import so3
 from mocap_calib.core.effects import EFFECTS, Model
 from mocap_calib.core.imu_model import Intrinsics, correct
-from mocap_calib.core.preint import hermite, integrate_steps, node_times
+from mocap_calib.core.preint import hermite, integrate_pieces, pieces
 from mocap_calib.core.session import PreparedSession
 from mocap_calib.core.types import NoiseModel
 
@@ -198,32 +198,21 @@ class PositionProblem:
         model: active effects.
         noise: noise densities.
         windows: from :func:`make_windows`.
-        n_sub: RK4 sub-steps between mocap samples.
         chunk_steps: windows are processed in chunks of about this many samples (memory).
     """
 
     def __init__(self, s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
-                 n_sub: int | None = None, chunk_steps: int = 40_000) -> None:
+                 chunk_steps: int = 40_000) -> None:
         self.s = s
         self.model = model
         self.noise = noise
         self.win = windows
-        if n_sub is None:
-            # Nodes about every IMU sample: one RK4 step spans two IMU samples.
-            n_sub = max(1, int(round(s.imu_rate / (2.0 * self._step_rate(windows)))))
-        self.n_sub = n_sub
         self.layout = layout_for(model)
         per = max(1, chunk_steps // max(1, windows.steps))
         self.chunks = [np.arange(i, min(i + per, windows.count))
                        for i in range(0, windows.count, per)]
         self.weights = np.ones(windows.idx.shape)
         self._buffers: dict[str, Array] = {}
-
-    @staticmethod
-    def _step_rate(windows: Windows) -> float:
-        dt = np.diff(windows.tau, axis=1)[np.diff(windows.mask.astype(int), axis=1) == 0]
-        dt = dt[dt > 0]
-        return float(1.0 / np.median(dt)) if dt.size else 100.0
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
@@ -246,24 +235,20 @@ class PositionProblem:
         p_WM = win.p_WM[c]
         h = np.diff(tau, axis=1)  # padded steps have h = 0
 
-        # --- IMU signals at the nodes, corrected with each window's knot biases.
-        nodes = node_times(tau, self.n_sub)  # (W, m, 2n+1)
-        u_nodes = nodes - th.delta
-        ip = hermite(s.u, u_nodes)
-        gyro_n, accel_n = ip(s.gyro), ip(s.accel)
+        # --- IMU signals on pieces between IMU samples (see preint.Pieces), corrected with
+        # each window's knot biases.
+        pc = pieces(s.u, tau[:, :-1], tau[:, 1:], th.delta)  # nodes (W, m, 2n+1)
         intr = Intrinsics(th.knots[c, None, None, 0:3], th.knots[c, None, None, 3:6], th.effects,
                           th.t_mid)
-        need_dot = L.has("time_offset")
-        corr = correct(self.model, intr, gyro_n, accel_n, u_nodes, sensitivities=False,
-                       gyro_dot=ip.derivative(s.gyro) if need_dot else None,
-                       accel_dot=ip.derivative(s.accel) if need_dot else None)
-        inc = integrate_steps(corr.w, corr.f, h, self.n_sub)
+        corr = correct(self.model, intr, pc(s.gyro), pc(s.accel), pc.nodes - th.delta,
+                       sensitivities=False)
+        inc = integrate_pieces(corr.w, corr.f, pc.hs)
 
         # Sensitivities at step midpoints.
-        mid = self.n_sub
-        ipm = hermite(s.u, u_nodes[:, :, mid])
+        u_mid = 0.5 * (tau[:, :-1] + tau[:, 1:]) - th.delta
+        ipm = hermite(s.u, u_mid)
         intr_m = Intrinsics(th.knots[c, None, 0:3], th.knots[c, None, 3:6], th.effects, th.t_mid)
-        cm = correct(self.model, intr_m, ipm(s.gyro), ipm(s.accel), u_nodes[:, :, mid])
+        cm = correct(self.model, intr_m, ipm(s.gyro), ipm(s.accel), u_mid)
         dwf = self._buffer("dwf", (W, m, 6, p))  # d(w, f)/dtheta at each step
         dw, df = dwf[:, :, 0:3, :], dwf[:, :, 3:6, :]
         for name, _ in L.blocks:
@@ -274,12 +259,12 @@ class PositionProblem:
                 df[:, :, :, sl.start:sl.start + 3] = cm.df["gyro_bias"]
                 df[:, :, :, sl.start + 3:sl.stop] = cm.df["accel_bias"]
             elif name == "time_offset":
-                # Signals are read at u = tau - delta: d/d delta = -d/du, averaged over the step
-                # with the integrator's own (composite Simpson) node weights, so the Jacobian is
-                # that of the discretised residual, noise included.
-                simpson = _simpson_weights(self.n_sub)
-                dw[:, :, :, sl] = -np.einsum("j,wmjc->wmc", simpson, corr.dw_du)[..., None]
-                df[:, :, :, sl] = -np.einsum("j,wmjc->wmc", simpson, corr.df_du)[..., None]
+                # Signals are read at u = tau - delta: d/d delta = -d/du. Averaged over the step
+                # the integral of the interpolant's derivative is (end - start) / h, exactly:
+                # it telescopes, so the signal's noise does not add up along the window.
+                hinv = np.where(h > 0, 1.0 / np.where(h > 0, h, 1.0), 0.0)[..., None, None]
+                dw[:, :, :, sl] = -(corr.w[:, :, -1] - corr.w[:, :, 0])[..., None] * hinv
+                df[:, :, :, sl] = -(corr.f[:, :, -1] - corr.f[:, :, 0])[..., None] * hinv
             elif name in cm.dw:
                 dw[:, :, :, sl] = cm.dw[name]
                 df[:, :, :, sl] = cm.df[name]
@@ -473,14 +458,6 @@ class PositionProblem:
         change = float(np.max(np.abs(w - self.weights))) if w.size else 0.0
         self.weights = w
         return change
-
-
-def _simpson_weights(n_sub: int) -> Array:
-    """Composite Simpson weights of the ``2 n_sub + 1`` nodes of a step (sum to 1)."""
-    w = np.zeros(2 * n_sub + 1)
-    for i in range(n_sub):
-        w[2 * i: 2 * i + 3] += np.array([1.0, 4.0, 1.0])
-    return w / w.sum()
 
 
 def compress(gram: Array) -> tuple[Array, Array]:
