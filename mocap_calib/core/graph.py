@@ -135,6 +135,11 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
     params.setRelativeErrorTol(relative_tol)
     params.setAbsoluteErrorTol(1e-12)
     params.setVerbosityLM("SILENT")
+    # Marquardt's scaling: damping proportional to the Hessian's diagonal. The parameters'
+    # scales differ by many orders (radians, metres, scale factors, seconds), so a plain
+    # lambda * I either does nothing for some or freezes others.
+    params.setDiagonalDamping(True)
+    params.setlambdaUpperBound(1e12)
     t0 = time.perf_counter()
     initial_error = graph.error(initial)
     opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)

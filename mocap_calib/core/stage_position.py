@@ -336,11 +336,16 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     for rnd in range(rounds):
         if progress is not None:
             progress(f"position factors: solve {rnd + 1} ({W} windows)")
+        pp.freeze_whitening(True)
+        batch.invalidate()
         sol, rep = run_lm(graph, sol, max_iterations, hook)
         if out0 is None:
             out0 = first_eval[0] if first_eval else None
         iterations += rep.iterations
-        batch.output(sol, 0)  # make sure the latest evaluation is at the solution
+        # A full evaluation at the solution: whitening, statistics and marginals there.
+        pp.freeze_whitening(False)
+        batch.invalidate()
+        batch.output(sol, 0)
         if rnd == rounds - 1:
             break
         last_out = evals[-1]

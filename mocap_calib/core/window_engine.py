@@ -213,17 +213,27 @@ class PositionProblem:
                        for i in range(0, windows.count, per)]
         self.weights = np.ones(windows.idx.shape)
         self._buffers: dict[str, Array] = {}
+        self.freeze = False
+        self._ops: dict[int, dict[str, Array]] = {}
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
-        outs = [self._evaluate_chunk(th, c, store) for c in self.chunks]
+        outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
         cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
                    else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
                                         "raw_r", "raw_J", "whitened")}
         extras = {k: np.concatenate([o.extras[k] for o in outs]) for k in outs[0].extras}
         return EvalOut(**cat, extras=extras)
 
-    def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool) -> EvalOut:
+    def freeze_whitening(self, on: bool) -> None:
+        """With ``on``, the next evaluation records its whitening operator (filter transition,
+        gains, whitening factors) and later ones reuse it, so the cost is a fixed weighted
+        least squares (what Gauss-Newton assumes) until this is called again."""
+        self.freeze = on
+        self._ops = {}
+
+    def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool,
+                        ci: int = 0) -> EvalOut:
         s, win, L = self.s, self.win, self.layout
         nz = self.noise
         W = len(c)
@@ -352,6 +362,14 @@ class PositionProblem:
         P[:, 3:6, 3:6] = DIFFUSE[1] ** 2 * np.eye(3)
         P[:, 6:9, 6:9] = DIFFUSE[2] ** 2 * np.eye(3)
         X = np.zeros((W, 15, p + 1))
+        # A frozen whitening operator (transition for the filter mean, gains, whitening) makes
+        # the cost an exact weighted least squares in the parameters while LM runs on it.
+        frozen = self._ops.get(ci) if self.freeze else None
+        record = self.freeze and frozen is None
+        if record:
+            rec_F = F.copy()
+            rec_Li = np.zeros((W, m + 1, 6, 6))
+            rec_K = np.zeros((W, m + 1, 15, 6))
         gram = np.zeros((W, p + 1, p + 1))
         innov = np.zeros((W, m + 1, 6))
         d_raw = np.zeros((W, m + 1))
@@ -368,11 +386,14 @@ class PositionProblem:
                 Fk = F[:, k - 1]
                 S = Fk[:, 0:9, 0:9] @ S - Fk[:, 0:9, 9:15] @ dwf[:, k - 1]
                 S[:, 3:9, gcols] += g_in[:, k - 1]
-                X = Fk @ X
-                P = Fk @ P @ np.swapaxes(Fk, 1, 2)
-                P[:, i15, i15] += q_diag[:, k - 1]
-                P[:, 3 + i3, 6 + i3] += q_pv[:, k - 1, None]
-                P[:, 6 + i3, 3 + i3] += q_pv[:, k - 1, None]
+                if frozen is not None:
+                    X = frozen["F"][:, k - 1] @ X
+                else:
+                    X = Fk @ X
+                    P = Fk @ P @ np.swapaxes(Fk, 1, 2)
+                    P[:, i15, i15] += q_diag[:, k - 1]
+                    P[:, 3 + i3, 6 + i3] += q_pv[:, k - 1, None]
+                    P[:, 6 + i3, 3 + i3] += q_pv[:, k - 1, None]
             # Residual Jacobian: direct part minus the nominal's sensitivity.
             N[:, 0:3, :p] = -(Pm_rot[:, k] @ S[:, 0:3, :])
             N[:, 0:3, rs] += Jinv[:, k]
@@ -383,8 +404,11 @@ class PositionProblem:
                 raw_J[:, k] = N[:, :, :p]
             N -= X[:, 0:6, :]
             ok = mask[:, k]
-            Sinn = P[:, 0:6, 0:6] + Rn[:, k] / wts[:, k, None, None]
-            Li = np.linalg.inv(np.linalg.cholesky(Sinn))
+            if frozen is not None:
+                Li = frozen["Li"][:, k]
+            else:
+                Sinn = P[:, 0:6, 0:6] + Rn[:, k] / wts[:, k, None, None]
+                Li = np.linalg.inv(np.linalg.cholesky(Sinn))
             Nw = Li @ N
             Nw[~ok] = 0.0
             gram += np.swapaxes(Nw, 1, 2) @ Nw
@@ -396,18 +420,26 @@ class PositionProblem:
             q_rot[:, k] = np.sum(Nw[:, 0:3, p] ** 2, axis=1)
             q_pos[:, k] = np.sum(Nw[:, 3:6, p] ** 2, axis=1)
             wk = weighted[:, k]
-            if np.any(wk):
+            if frozen is None and np.any(wk):
                 # The robust weight's own test needs the innovation against the unweighted noise.
                 Sraw = P[wk, 0:6, 0:6] + Rn[wk, k]
                 d_raw[wk, k] = np.linalg.norm(
                     np.linalg.solve(np.linalg.cholesky(Sraw), N[wk, :, p:]), axis=(1, 2))
             if store:
                 whitened[:, k] = Nw
+            if frozen is not None:
+                X += frozen["K"][:, k] @ N
+                continue
             K = P[:, :, 0:6] @ (np.swapaxes(Li, 1, 2) @ Li)  # (W, 15, 6)
             K[~ok] = 0.0
             X += K @ N
             P -= K @ P[:, 0:6, :]
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
+            if record:
+                rec_Li[:, k] = Li
+                rec_K[:, k] = K
+        if record:
+            self._ops[ci] = {"F": rec_F, "Li": rec_Li, "K": rec_K}
         d_raw[~mask] = 0.0
         innov[~mask] = 0.0
         extras = {}
