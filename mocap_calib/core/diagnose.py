@@ -172,6 +172,36 @@ class DiagnoseReport:
         }
 
 
+#: Beyond these, a named effect is implausible for a MEMS IMU: it most likely absorbs something
+#: outside the candidate list (a non-rigid mount, mocap processing lag, ...).
+PLAUSIBLE = {"scale": 0.03, "misalignment_rad": float(np.radians(2.0)),
+             "g_sensitivity": 1e-3, "gyro_bias_rate": 1e-3, "accel_bias_rate": 0.05,
+             "gravity_magnitude": (9.76, 9.84)}
+
+
+def plausibility(effect: str, value: object) -> str | None:
+    """A one-line warning when an effect's estimate is outside typical MEMS ranges."""
+    v = np.asarray(value, dtype=float)
+    if effect.endswith("scale_misalignment"):
+        scale = np.abs(np.diag(v) - 1.0).max()
+        mis = np.abs(v - np.diag(np.diag(v))).max()
+        if scale > PLAUSIBLE["scale"] or mis > PLAUSIBLE["misalignment_rad"]:
+            return (f"{effect}: scale error up to {100 * scale:.1f} %, misalignment up to "
+                    f"{np.degrees(mis):.1f} deg: implausible for a MEMS IMU")
+    elif effect == "gyro_g_sensitivity" and np.abs(v).max() > PLAUSIBLE["g_sensitivity"]:
+        return (f"{effect}: up to {np.abs(v).max():.2g} rad/s per m/s^2: implausible for a "
+                "MEMS gyro (typical < 2e-4)")
+    elif effect in ("gyro_bias_drift", "accel_bias_drift"):
+        key = "gyro_bias_rate" if effect.startswith("gyro") else "accel_bias_rate"
+        if np.abs(v).max() > PLAUSIBLE[key]:
+            return f"{effect}: trend {np.abs(v).max():.2g} per s: implausibly fast"
+    elif effect == "gravity_magnitude":
+        lo, hi = PLAUSIBLE["gravity_magnitude"]
+        if not lo <= float(v) <= hi:
+            return f"{effect}: |g| = {float(v):.4f} m/s^2 is outside Earth's {lo}-{hi}"
+    return None
+
+
 def _log10_sf(t: float, k: int) -> float:
     """log10 P(chi2_k > t), finite far into the tail (Wilson-Hilferty when scipy underflows)."""
     lp = float(sps.chi2.logsf(t, k))
@@ -323,6 +353,10 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
         say(f"step {len(steps)}: {best.effect} explains the gap (T = {best.statistic:.1f} on "
             f"{best.dof} dof, log10 p = {best.log10_p:.1f})")
         found.append(best.effect)
+        warning = plausibility(best.effect, best.params)
+        if warning is not None:
+            notes.append(f"step {len(steps)}: {warning}; it probably absorbs something outside "
+                         "the candidate list")
         model = model.with_effect(best.effect)
         current = fit(model, f, {}, noise, adapt=True)
         if current.noise != noise:

@@ -9,7 +9,7 @@ from different epochs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +45,7 @@ class PreparedSession:
     gap: float
     dropped_mocap_rows: int = 0
     spikes_removed: int = 0
+    removed_tau: Array = field(default_factory=lambda: np.zeros(0))  # times of removed spikes
 
     @property
     def imu_rate(self) -> float:
@@ -116,6 +117,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
         gap=gap,
         dropped_mocap_rows=mocap.dropped_rows,
         spikes_removed=int(bad.sum()),
+        removed_tau=mocap.t[bad],
     )
 
 
