@@ -1,0 +1,81 @@
+"""`mocap-calib calibrate` end to end: the result file, the terminal table, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from mocap_calib.cli.main import main
+from mocap_calib.workflows import simulate_to_folder
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cal") / "s"
+    simulate_to_folder(out, seed=21, duration=40.0, effects=["time_offset=0.005"])
+    return out
+
+
+def _one_line_error(code: int, err: str, code_expected: int = 2) -> None:
+    assert code == code_expected, err
+    lines = [x for x in err.strip().splitlines() if x.strip()]
+    assert lines and lines[-1].startswith("error:"), err
+    assert "Traceback" not in err
+
+
+def test_calibrate_writes_the_conventions_keys(session: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "calib.yaml"
+    assert main(["calibrate", str(session), "--out", str(out), "-q"]) == 0
+    stdout = capsys.readouterr().out
+    assert "time_offset" in stdout and "position" in stdout
+    d = yaml.safe_load(out.read_text())
+    truth = yaml.safe_load((session / "truth.yaml").read_text())
+    for key in ("gyro_bias", "accel_bias", "gravity_in_mocap", "time_offset"):
+        assert key in d
+    assert set(d["T_marker_imu"]) == {"rotation_wxyz", "translation"}
+    assert set(d["sigma"]) >= {"gyro_bias", "accel_bias", "rotation", "translation",
+                               "gravity_in_mocap", "time_offset"}
+    assert d["time_offset"] == pytest.approx(truth["time_offset"], abs=2e-4)
+    assert np.linalg.norm(np.subtract(d["T_marker_imu"]["translation"],
+                                      truth["T_marker_imu"]["translation"])) < 2e-3
+    assert [s["name"] for s in d["stages"]] == ["attitude", "velocity", "position"]
+
+
+def test_calibrate_with_two_files_and_an_effect(session: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "c.yaml"
+    code = main(["calibrate", "--imu", str(session / "mav0/imu0/data.csv"), "--mocap",
+                 str(session / "mav0/vicon0/data.csv"), "--out", str(out), "--model",
+                 "base+time_offset+gravity_magnitude", "-q"])
+    assert code == 0, capsys.readouterr().err
+    d = yaml.safe_load(out.read_text())
+    assert d["model"] == "base+time_offset+gravity_magnitude"
+    assert d["effects"]["gravity_magnitude"]["gravity_magnitude"] == pytest.approx(9.81, abs=0.02)
+
+
+@pytest.mark.parametrize("args", [
+    [],  # neither a folder nor files
+    ["--imu", "nope.csv"],  # --mocap missing
+    ["{session}", "--imu", "x.csv", "--mocap", "y.csv"],  # both kinds
+    ["{tmp}/does_not_exist"],
+    ["{session}", "--model", "base+warp_drive"],
+    ["{session}", "--gravity", "98.1"],
+    ["{session}", "--window", "0.001"],
+    ["{session}", "--noise", "{tmp}/missing_noise.yaml"],
+    ["{session}", "--gyro-noise", "-1"],
+    ["{session}", "--start", "30", "--end", "10"],
+    ["{session}", "--prior", "{tmp}/no_prior.yaml"],
+])
+def test_bad_input_is_one_line_exit_2(args: list[str], session: Path, tmp_path: Path,
+                                      capsys) -> None:
+    argv = [a.format(session=session, tmp=tmp_path) for a in args]
+    code = main(["calibrate", *argv, "--out", str(tmp_path / "o.yaml"), "-q"])
+    _one_line_error(code, capsys.readouterr().err)
+
+
+def test_too_short_a_session_is_exit_3(tmp_path: Path, capsys) -> None:
+    simulate_to_folder(tmp_path / "short", seed=3, duration=6.0)
+    code = main(["calibrate", str(tmp_path / "short"), "--out", str(tmp_path / "o.yaml"), "-q"])
+    _one_line_error(code, capsys.readouterr().err, 3)
