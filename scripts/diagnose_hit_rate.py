@@ -5,7 +5,7 @@ session; the diagnosis starts from the base model and must name that effect firs
 with no hidden effect must give "none", and a pair of effects hidden together must both be
 found. Also reported: the final low-band residual RMS over the noise floor.
 
-Usage: python scripts/diagnose_hit_rate.py [--seeds N] [--duration S] [--jobs J]
+Usage: python scripts/diagnose_hit_rate.py [--seeds N] [--duration S] [--jobs J] [--extra-nulls M]
 """
 
 from __future__ import annotations
@@ -42,11 +42,15 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=90.0)
     ap.add_argument("--jobs", type=int, default=max(1, (os.cpu_count() or 2)))
     ap.add_argument("--first-seed", type=int, default=1000)
+    ap.add_argument("--extra-nulls", type=int, default=0,
+                    help="more sessions with nothing hidden, for a tighter false-alarm rate")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     cases = [((e,), s, args.duration) for e in CANONICAL_EFFECTS for s in seeds]
     cases += [((), s, args.duration) for s in seeds]
     cases += [(PAIR, s, args.duration) for s in seeds]
+    extra = range(args.first_seed + args.seeds, args.first_seed + args.seeds + args.extra_nulls)
+    cases += [((), s, args.duration) for s in extra]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_case, cases))
     hits = total = false_alarms = nulls = pair_ok = pairs = 0
