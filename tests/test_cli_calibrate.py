@@ -28,9 +28,11 @@ def _one_line_error(code: int, err: str, code_expected: int = 2) -> None:
 
 def test_calibrate_writes_the_conventions_keys(session: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "calib.yaml"
-    assert main(["calibrate", str(session), "--out", str(out), "-q"]) == 0
+    rep = tmp_path / "calib.txt"
+    assert main(["calibrate", str(session), "--out", str(out), "--report", str(rep), "-q"]) == 0
     stdout = capsys.readouterr().out
     assert "time_offset" in stdout and "position" in stdout
+    assert "gyro_bias" in rep.read_text() and "chi2/dof" in rep.read_text()
     d = yaml.safe_load(out.read_text())
     truth = yaml.safe_load((session / "truth.yaml").read_text())
     for key in ("gyro_bias", "accel_bias", "gravity_in_mocap", "time_offset"):

@@ -103,10 +103,15 @@ class Residuals:
         return float(np.sqrt(np.sum(rms**2) / np.sum(floor**2)))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"gyro_rms": self.gyro_rms.tolist(), "gyro_floor": self.gyro_floor.tolist(),
-                "gyro_ratio": round(self.ratio("gyro"), 4),
-                "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist(),
-                "accel_ratio": round(self.ratio("accel"), 4)}
+        d: dict[str, Any] = {
+            "gyro_rms": self.gyro_rms.tolist(), "gyro_floor": self.gyro_floor.tolist(),
+            "gyro_ratio": round(self.ratio("gyro"), 4),
+            "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist(),
+            "accel_ratio": round(self.ratio("accel"), 4)}
+        if self.analysis is not None:
+            d["cutoff_hz"] = self.analysis.cutoff_hz
+            d["power_over_floor_by_band"] = self.analysis.band_ratios()
+        return d
 
 
 @dataclass

@@ -225,7 +225,24 @@ class ResidualAnalysis:
     def to_dict(self) -> dict[str, object]:
         return {"cutoff_hz": self.cutoff_hz,
                 "gyro_rms": self.gyro_rms.tolist(), "gyro_floor": self.gyro_floor.tolist(),
-                "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist()}
+                "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist(),
+                "bands": self.band_ratios()}
+
+    def band_ratios(self, edges: tuple[float, ...] = (0.0, 0.5, 2.0, 5.0, 10.0, 20.0, 50.0),
+                    ) -> dict[str, object]:
+        """Residual over noise-floor power per frequency band, per sensor and axis (Welch)."""
+        out: dict[str, object] = {}
+        for sensor, psd, floor in (("gyro", self.gyro_psd, self.gyro_psd_floor),
+                                   ("accel", self.accel_psd, self.accel_psd_floor)):
+            rows = {}
+            for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+                sel = (self.freq > lo) & (self.freq <= hi)
+                if not np.any(sel):
+                    continue
+                ratio = psd[sel].sum(axis=0) / np.maximum(floor[sel].sum(axis=0), 1e-300)
+                rows[f"{lo:g}-{hi:g} Hz"] = [round(float(x), 3) for x in ratio]
+            out[sensor] = rows
+        return out
 
 
 def _welch(x: Array, rate: float, segments: list[NDArray[np.int64]]) -> tuple[Array, Array]:

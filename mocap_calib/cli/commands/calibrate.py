@@ -38,6 +38,9 @@ def calibrate(
     rrd: Annotated[Path | None, typer.Option(
         help="Also write a rerun recording of residuals and trajectories.",
         show_default=False)] = None,
+    report: Annotated[Path | None, typer.Option(
+        help="Also write the summary (estimates, 1-sigma, stage figures, notes) as a text "
+        "report.", show_default=False)] = None,
     model: Annotated[str, typer.Option(
         help="Measurement model: base plus effects joined by '+', e.g. "
         "base+time_offset+gyro_scale_misalignment. Effects: time_offset, "
@@ -107,8 +110,13 @@ def calibrate(
     progress = Progress(quiet)
     result, session = run_calibration(spec, opts, noise, overrides, prior or [], progress)
     save_result(out, result)
-    typer.echo(summary_table(result))
+    table = summary_table(result)
+    typer.echo(table)
     typer.echo(f"\nwrote {out}")
+    if report is not None:
+        report.parent.mkdir(parents=True, exist_ok=True)
+        report.write_text(f"mocap-calib calibration report\n\n{table}\n")
+        typer.echo(f"wrote {report}")
     if rrd is not None:
         from mocap_calib.viz.recording import write_calibration_recording
 
