@@ -162,23 +162,8 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
     return opt.values(), report
 
 
-def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                         keys: Sequence[int]) -> dict[int, Array]:
-    """Marginal covariance of each key (in its tangent space)."""
-    marg = gtsam.Marginals(graph, values)
-    return {k: np.asarray(marg.marginalCovariance(k)) for k in keys}
 
 
-def joint_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                     keys: Sequence[int]) -> Array:
-    """Joint marginal covariance of several keys, in the given order."""
-    marg = gtsam.Marginals(graph, values)
-    kv = gtsam.KeyVector()
-    for k in keys:
-        kv.append(k)
-    jm = marg.jointMarginalCovariance(kv)
-    blocks = [[np.asarray(jm.at(a, b)) for b in keys] for a in keys]
-    return np.block(blocks)
 
 
 def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,

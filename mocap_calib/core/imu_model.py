@@ -156,11 +156,3 @@ def forward(model: Model, params: Intrinsics, w: Array, f: Array, u: Array) -> t
     gyro = w @ (np.eye(3) + Eg).T + f @ G.T + params.gyro_bias + du * rg
     return gyro, accel
 
-
-def imu_blocks(model: Model) -> list[tuple[str, int]]:
-    """Parameter blocks that enter through the IMU signals, in a fixed order."""
-    blocks = [("gyro_bias", 3), ("accel_bias", 3)]
-    for eff in model.units:
-        if eff.sensor in ("gyro", "accel"):
-            blocks.append((eff.name, eff.dim))
-    return blocks

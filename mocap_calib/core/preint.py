@@ -1,10 +1,10 @@
 """IMU signal interpolation and per-step preintegration with bias Jacobians (vectorised).
 
-Between two mocap samples the IMU signal is evaluated at ``2 n_sub + 1`` equally spaced nodes
-(cubic Hermite interpolation of the samples, on the IMU clock shifted by the time offset) and
-integrated with ``n_sub`` classical RK4 steps. Alongside the increments ``dR, dv, dp`` (in the
-step-start body frame) RK4 integrates the integrals that make up the exact error-state
-transition over the step:
+Between two mocap samples the IMU signal is the cubic Hermite interpolant of its samples (on the
+IMU clock shifted by the time offset). Each step is cut at the IMU sample times inside it
+(:func:`pieces`) and every piece is integrated by classical RK4 from its ends and midpoint
+(:func:`integrate_pieces`). Alongside the increments ``dR, dv, dp`` (in the step-start body
+frame) RK4 integrates the integrals that make up the exact error-state transition of the step:
 
     A = int dR dt,   C = int A dt,   B = int [dR f]x A dt,   D = int B dt.
 
@@ -65,10 +65,6 @@ def hermite(t: Array, u: Array) -> Interp:
     return Interp(index, weight, dweight)
 
 
-def node_times(tau: Array, n_sub: int) -> Array:
-    """Node times of every step: ``(..., m, 2 n_sub + 1)`` from mocap times ``(..., m + 1)``."""
-    frac = np.arange(2 * n_sub + 1) / (2 * n_sub)
-    return tau[..., :-1, None] + (tau[..., 1:] - tau[..., :-1])[..., None] * frac
 
 
 @dataclass(frozen=True)
@@ -108,10 +104,6 @@ def _qrot(q: Array) -> Array:
     return so3.quat_to_rotmat(q / np.sqrt(n2)[..., None])
 
 
-def integrate_steps(w_nodes: Array, f_nodes: Array, h: Array, n_sub: int) -> StepIncrements:
-    """RK4-integrate each step from the corrected signals at ``2 n_sub + 1`` equally spaced
-    nodes (see :func:`integrate_pieces` for pieces of any length)."""
-    return integrate_pieces(w_nodes, f_nodes, np.repeat((h / n_sub)[..., None], n_sub, axis=-1))
 
 
 def integrate_pieces(w_nodes: Array, f_nodes: Array, hs_all: Array) -> StepIncrements:

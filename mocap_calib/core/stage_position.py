@@ -21,7 +21,6 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
 from mocap_calib.core.effects import EFFECTS, Model
 from mocap_calib.core.graph import (
     BatchFactors,
@@ -455,7 +454,3 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         chi2_per_dof=chi2, windows=windows, weights=w_final, noise=pp.noise, cost=cost,
         dof=int(dof), solver=solver, history=history)
 
-
-def rotation_error_deg(R_a: Array, R_b: Array) -> float:
-    """Angle between two rotations (deg)."""
-    return float(np.degrees(np.linalg.norm(so3.log(R_a.T @ R_b))))

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy import stats as sps
 
 from mocap_calib.core import so3
-from mocap_calib.core.effects import EFFECTS, Model
+from mocap_calib.core.effects import Model
 from mocap_calib.core.imu_model import Intrinsics, correct
 from mocap_calib.core.preint import hermite, integrate_pieces, pieces
 from mocap_calib.core.session import PreparedSession
@@ -507,10 +507,4 @@ def compress(gram: Array) -> tuple[Array, Array]:
     return U[..., :, p], U[..., :, :p]
 
 
-def theta_effect_blocks(model: Model) -> list[tuple[str, int]]:
-    """IMU-side effect blocks of a model (name, dim), in layout order."""
-    return [(e.name, e.dim) for e in model.units if e.sensor in ("gyro", "accel")]
 
-
-__all__ = ["EFFECTS", "PositionProblem", "Theta", "Windows", "compress", "layout_for",
-           "make_windows"]

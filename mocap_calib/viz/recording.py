@@ -40,7 +40,7 @@ from mocap_calib.core import so3
 from mocap_calib.core.effects import Model
 from mocap_calib.core.imu_model import Intrinsics, correct
 from mocap_calib.core.predict import ModelState, predict_imu
-from mocap_calib.core.preint import StepIncrements, hermite, integrate_steps, node_times
+from mocap_calib.core.preint import StepIncrements, integrate_pieces, pieces
 from mocap_calib.core.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.types import ImuSamples, MocapPoses
@@ -215,17 +215,16 @@ def dead_reckoning(s: PreparedSession, st: ModelState, length: float = DR_LENGTH
     idx = i0[:, None] + np.arange(m + 1)
     tau = s.tau[idx]
     h = np.diff(tau, axis=1)
-    n_sub = max(1, int(round(s.imu_rate / (2.0 * s.mocap_rate))))
-    nodes = node_times(tau, n_sub)  # (S, m, 2 n_sub + 1)
+    pc = pieces(s.u, tau[:, :-1], tau[:, 1:], st.delta)  # the window engine's integration
+    nodes = pc.nodes
     u_nodes = nodes - st.delta
-    ip = hermite(s.u, u_nodes)
-    gyro, accel = ip(s.gyro), ip(s.accel)
+    gyro, accel = pc(s.gyro), pc(s.accel)
     b = st.bias_at(nodes.ravel()).reshape(nodes.shape + (6,))
     corr = correct(st.model, Intrinsics(b[..., 0:3], b[..., 3:6], st.effects, st.t_mid),
                    gyro, accel, u_nodes, sensitivities=False)
     start = (R_WI[i0], p_WI[i0], v_WI[i0])
-    R_b, p_b = _chain(integrate_steps(gyro, accel, h, n_sub), h, *start, st.g_W)
-    R_a, p_a = _chain(integrate_steps(corr.w, corr.f, h, n_sub), h, *start, st.g_W)
+    R_b, p_b = _chain(integrate_pieces(gyro, accel, pc.hs), h, *start, st.g_W)
+    R_a, p_a = _chain(integrate_pieces(corr.w, corr.f, pc.hs), h, *start, st.g_W)
     return DeadReckoning(tau, R_WI[idx], p_WI[idx], R_b, p_b, R_a, p_a)
 
 
