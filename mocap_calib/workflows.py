@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -43,7 +42,6 @@ class LoadedSession:
     mocap: MocapPoses
     notes: list[str] = field(default_factory=list)
     sensor_noise: NoiseModel | None = None
-    reference: dict[str, Any] = field(default_factory=dict)
 
 
 def load_session(spec: InputSpec) -> LoadedSession:
@@ -57,9 +55,8 @@ def load_session(spec: InputSpec) -> LoadedSession:
         time_unit=spec.time_unit, gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit,
         quat_order=spec.quat_order, position_unit=spec.position_unit)
     sensor_noise = None
-    reference: dict[str, Any] = {}
     if spec.path is not None:
-        from mocap_calib.io.euroc import find_mav0, read_t_bs
+        from mocap_calib.io.euroc import find_mav0
 
         root = find_mav0(spec.path)
         sensor = root / "imu0" / "sensor.yaml"
@@ -69,10 +66,7 @@ def load_session(spec: InputSpec) -> LoadedSession:
                 notes.append(f"noise densities from {sensor}")
             except InputError:
                 sensor_noise = None
-        T_IM = read_t_bs(root / "vicon0" / "sensor.yaml") if (root / "vicon0").is_dir() else None
-        if T_IM is not None:
-            reference["T_imu_marker_published"] = np.asarray(T_IM)
-    return LoadedSession(imu, mocap, notes, sensor_noise, reference)
+    return LoadedSession(imu, mocap, notes, sensor_noise)
 
 
 def resolve_noise(session: LoadedSession, noise_file: Path | None,

@@ -119,9 +119,8 @@ def test_bad_options_are_input_errors() -> None:
             calibrate(sim.imu, sim.mocap, opts)
 
 
-def test_unobservable_lever_arm_is_reported_not_returned() -> None:
-    """A body that only yaws cannot show the lever arm's component along the yaw axis: the
-    result must say so instead of printing a number, and still estimate the rest."""
+def yaw_only_session() -> tuple[ImuSamples, MocapPoses]:
+    """90 s of a body that only yaws (no roll or pitch), with the truth below."""
     from mocap_calib.sim.trajectory import Trajectory, _SineSum
 
     rng = np.random.default_rng(5)
@@ -137,8 +136,6 @@ def test_unobservable_lever_arm_is_reported_not_returned() -> None:
                        sines(1e-4, (0.4,))))
     n = 90 * 200 + 1
     t = np.arange(n) / 200.0
-    R_MI = so3.exp([0.3, -0.2, 0.1])
-    p_MI = np.array([0.05, -0.03, 0.08])
     g_W = np.array([0.0, 0.0, -9.81])
     R_WI = traj.rotation(t)
     w = traj.angular_velocity_body(t)
@@ -146,10 +143,19 @@ def test_unobservable_lever_arm_is_reported_not_returned() -> None:
     gyro = w + 0.01 + rng.normal(0, 2.4e-3, (n, 3))
     accel = f + 0.05 + rng.normal(0, 2.8e-2, (n, 3))
     tm = t[::2]
-    R_WM = traj.rotation(tm) @ R_MI.T
-    p_WM = traj.position(tm) - R_WM @ p_MI + rng.normal(0, 5e-4, (len(tm), 3))
-    imu = ImuSamples(t, gyro, accel)
-    mocap = MocapPoses(tm, so3.rotmat_to_quat(R_WM), p_WM)
+    R_WM = traj.rotation(tm) @ YAW_R_MI.T
+    p_WM = traj.position(tm) - R_WM @ YAW_P_MI + rng.normal(0, 5e-4, (len(tm), 3))
+    return ImuSamples(t, gyro, accel), MocapPoses(tm, so3.rotmat_to_quat(R_WM), p_WM)
+
+
+YAW_R_MI = so3.exp([0.3, -0.2, 0.1])
+YAW_P_MI = np.array([0.05, -0.03, 0.08])
+
+
+def test_unobservable_lever_arm_is_reported_not_returned() -> None:
+    """A body that only yaws cannot show the lever arm's component along the yaw axis: the
+    result must say so instead of printing a number, and still estimate the rest."""
+    imu, mocap = yaw_only_session()
     res = calibrate(imu, mocap, CalibrationOptions(model=Model()))
     assert res.translation is None and "translation" in res.unobservable
     assert "component 2" in res.unobservable["translation"]  # along the yaw axis
@@ -157,6 +163,6 @@ def test_unobservable_lever_arm_is_reported_not_returned() -> None:
     # What the motion does excite is still estimated, and right: R_MI about the yaw axis shows
     # through the accelerometer (horizontal accelerations rotate with the yaw).
     R_est = so3.quat_to_rotmat(res.rotation_wxyz)
-    assert np.degrees(np.linalg.norm(so3.log(R_MI.T @ R_est))) < 0.1
+    assert np.degrees(np.linalg.norm(so3.log(YAW_R_MI.T @ R_est))) < 0.1
     assert np.abs(res.gyro_bias - 0.01).max() < 2e-4
     assert np.abs(res.accel_bias - 0.05).max() < 5e-3

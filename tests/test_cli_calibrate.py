@@ -81,3 +81,10 @@ def test_too_short_a_session_is_exit_3(tmp_path: Path, capsys) -> None:
     simulate_to_folder(tmp_path / "short", seed=3, duration=6.0)
     code = main(["calibrate", str(tmp_path / "short"), "--out", str(tmp_path / "o.yaml"), "-q"])
     _one_line_error(code, capsys.readouterr().err, 3)
+
+
+def test_unwritable_output_fails_before_calibrating(session: Path, tmp_path: Path,
+                                                     capsys) -> None:
+    (tmp_path / "a_folder").mkdir()
+    code = main(["calibrate", str(session), "--out", str(tmp_path / "a_folder"), "-q"])
+    _one_line_error(code, capsys.readouterr().err)

@@ -84,3 +84,14 @@ def test_cli_diagnose_bad_options_exit_2(capsys, tmp_path) -> None:
         code = main(["diagnose", str(tmp_path / "s"), "--out", str(tmp_path / "r.yaml"), *args])
         err = capsys.readouterr().err
         assert code == 2 and err.startswith("error:") and "Traceback" not in err
+
+
+def test_diagnose_runs_when_the_start_model_leaves_a_parameter_unobservable() -> None:
+    """A body that only yaws: the lever arm along the yaw axis is unobservable in every model;
+    the diagnosis must still run (from the solver's values, not the result's nulls)."""
+    from test_calibrate import yaw_only_session
+
+    imu, mocap = yaw_only_session()
+    rep = diagnose(imu, mocap, DiagnoseOptions(candidates=("time_offset", "gravity_magnitude")))
+    assert rep.found == []
+    assert "translation" in rep.final.unobservable

@@ -132,3 +132,14 @@ def test_importing_the_core_loads_no_outer_layer() -> None:
     loaded = json.loads(proc.stdout.strip().splitlines()[-1])
     assert "mocap_calib.core.calibrate" in modules
     assert loaded == [], f"importing the core loaded {loaded}"
+
+
+FORBIDDEN_IN_VIZ = ("mocap_calib.io", "mocap_calib.cli", "mocap_calib.workflows",
+                    "mocap_calib.workflows_imu", "typer")
+
+
+@pytest.mark.parametrize("path", sorted(VIZ_DIR.rglob("*.py")), ids=lambda p: p.name)
+def test_viz_imports_only_the_core(path: Path) -> None:
+    bad = [(line, mod) for line, mod in imported_modules(path)
+           if any(matches(mod, f) for f in FORBIDDEN_IN_VIZ)]
+    assert not bad, f"{path.name} imports outer layers: {bad}"

@@ -248,20 +248,12 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
               "position_chi2_per_dof": round(pos.chi2_per_dof, 4), **pos.solver}
     if not model.has("time_offset"):
         notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
-    state = ModelState(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
-                       model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
-                       bias=pos.knots.copy(), t_mid=t_mid, bias_sigma=pos.knot_sigma.copy())
+    state = ModelState.from_position(pos, model, t_mid)
     diag = Diagnostics(
         residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
         iterations=pos.history,
         extras={"model_state": state, "noise_used": pos.noise, "windows": pos.windows,
-                "knots": pos.knots, "weights": pos.weights,
-                "clock_shift": s.clock_shift, "session": s, "delta": pos.delta,
-                "effects_theta": pos.effects, "t_mid": t_mid,
-                "stage1": {"R_MI": att.R_MI, "gyro_bias": att.gyro_bias},
-                "stage2": {"p_MI": vel.p_MI, "accel_bias": vel.accel_bias,
-                           "gravity_dir": vel.gravity_dir,
-                           "gravity_norm_free": vel.gravity_norm_free}})
+                "weights": pos.weights, "session": s})
     return CalibrationResult(
         gyro_bias=val("gyro_bias", pos.gyro_bias_mean),
         accel_bias=val("accel_bias", pos.accel_bias_mean),

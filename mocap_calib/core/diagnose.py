@@ -35,6 +35,7 @@ from mocap_calib.core.session import PreparedSession
 from mocap_calib.core.stage_position import PositionInit, PositionResult, run_position_stage
 from mocap_calib.core.timesync import coarse_offset_arrays
 from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]
 
@@ -223,9 +224,7 @@ def _sensor_of(effect: str) -> str:
 
 
 def _state(pos: PositionResult, model: Model, t_mid: float) -> ModelState:
-    return ModelState(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
-                      model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
-                      bias=pos.knots.copy(), t_mid=t_mid, bias_sigma=pos.knot_sigma.copy())
+    return ModelState.from_position(pos, model, t_mid)
 
 
 def _drop(before: Residuals, after: Residuals, sensor: str) -> float:
@@ -253,10 +252,8 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     say(f"fitting the starting model {model}")
     try:
         start = calibrate(imu, mocap, cal_opts)
-    except Exception as err:  # the streams may not even overlap without the offset
-        from mocap_calib.errors import InputError
-
-        if not isinstance(err, InputError) or model.has("time_offset"):
+    except InputError:  # the streams may not even overlap without the offset
+        if model.has("time_offset"):
             raise
         model = model.with_effect("time_offset")
         notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
@@ -265,7 +262,7 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     ex = start.diagnostics.extras
     s: PreparedSession = ex["session"]
     noise: NoiseModel = ex["noise_used"]
-    t_mid = float(ex["t_mid"])
+    t_mid = float(ex["model_state"].t_mid)
     windows = ex["windows"]
     weights = ex["weights"]
     coarse_delta = None
@@ -283,11 +280,13 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
 
     # The current fit, as a PositionResult (refit the start model with frozen weights so every
     # later comparison uses exactly the same cost).
+    # From the model state, not the public result: that holds None for what is unobservable.
+    st0: ModelState = ex["model_state"]
+    g_mag0 = float(np.linalg.norm(st0.g_W))
     init0 = PositionInit(
-        R_MI=start.R_marker_imu, p_MI=start.translation, g_dir=start.gravity_in_mocap,
-        g_mag=start.gravity_magnitude, delta=float(ex["delta"]),
-        gyro_bias=start.gyro_bias, accel_bias=start.accel_bias,
-        effects=dict(ex["effects_theta"]), knots=ex["knots"])
+        R_MI=st0.R_MI, p_MI=st0.p_MI, g_dir=st0.g_W / g_mag0, g_mag=g_mag0, delta=st0.delta,
+        gyro_bias=st0.bias[:, 0:3].mean(axis=0), accel_bias=st0.bias[:, 3:6].mean(axis=0),
+        effects=dict(st0.effects), knots=st0.bias)
     # Every step first re-estimates the mocap noise level with the current model (rarely known
     # well; a missing effect inflates it, so it is redone after each effect is added); the
     # candidates of the step are then fitted with that noise level frozen.
@@ -310,14 +309,16 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             say(f"step {len(steps) + 1}: trying {cand}")
             m = model.with_effect(cand)
             extra: dict[str, Array] = {}
-            if cand == "time_offset":
-                if coarse_delta is None:
-                    coarse_delta = coarse_offset_arrays(s.u, s.gyro, s.tau, s.R_WM,
-                                                        s.clock_shift).time_offset + s.clock_shift
-                extra["time_offset"] = np.array([coarse_delta])
             try:
+                if cand == "time_offset":
+                    if coarse_delta is None:
+                        coarse_delta = coarse_offset_arrays(
+                            s.u, s.gyro, s.tau, s.R_WM, s.clock_shift).time_offset + s.clock_shift
+                    extra["time_offset"] = np.array([coarse_delta])
                 f = fit(m, current, extra, noise)
-            except Exception as err:  # a candidate that cannot be fitted is not the answer
+            except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
+                # A candidate that cannot be fitted (GTSAM raises RuntimeError on an
+                # indeterminate system) is not the answer.
                 notes.append(f"step {len(steps) + 1}: {cand} could not be fitted ({err})")
                 continue
             k = EFFECTS[cand].dim

@@ -1,4 +1,4 @@
-"""GTSAM plumbing: batched Python factors, key helpers, the LM run and marginals.
+"""GTSAM plumbing: batched Python factors, the LM run, and covariances of combinations.
 
 A GTSAM ``CustomFactor`` calls back into Python once per factor, and the calibration has
 thousands of factors of the same kind. :class:`BatchFactors` makes each of them a real

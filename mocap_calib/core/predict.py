@@ -55,6 +55,13 @@ class ModelState:
     t_mid: float
     bias_sigma: Array | None = None
 
+    @classmethod
+    def from_position(cls, pos, model: Model, t_mid: float) -> ModelState:
+        """The state a position-stage result (``stage_position.PositionResult``) describes."""
+        return cls(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
+                   model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
+                   bias=pos.knots.copy(), t_mid=t_mid, bias_sigma=pos.knot_sigma.copy())
+
     def bias_at(self, tau: Array) -> Array:
         """(n, 6) bias at mocap times ``tau`` (linear between knots, constant outside)."""
         if len(self.bias_t) == 1:
@@ -282,10 +289,8 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
         # Around removed mocap spikes the neighbouring poses are suspect too, and the splines
         # bridge the hole: leave a filter time constant on each side out of the comparison.
         t_m = pred.u + st.delta
-        j = np.clip(np.searchsorted(s.removed_tau, t_m), 1, len(s.removed_tau) - 1)
-        near = np.minimum(np.abs(t_m - s.removed_tau[j - 1]), np.abs(t_m - s.removed_tau[j]))
-        if len(s.removed_tau) == 1:
-            near = np.abs(t_m - s.removed_tau[0])
+        near = np.abs(t_m[:, None] - s.removed_tau[None, :]).min(axis=1) if len(
+            s.removed_tau) < 64 else _nearest_distance(t_m, s.removed_tau)
         keep &= near > 1.0 / cutoff
 
     def rms(x: Array) -> Array:
@@ -295,6 +300,7 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
                                     else pred.u[-1] - pred.u[0])
     parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
     floor2 = np.zeros(6)
+    psd_floor = 0.0
     draws = 4
     for _ in range(draws):
         white = np.concatenate([
@@ -311,15 +317,16 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
         pn = predict_imu(s, st, mocap=(R_noisy, p_noisy))
         moc = -np.concatenate([pn.gyro_pred - pred.gyro_pred, pn.accel_pred - pred.accel_pred],
                               axis=1)
+        total = 0.0
         for name, x in (("white", white), ("bias_walk", walk), ("mocap", moc)):
-            parts[name] += rms(lowpass(x, rate, cutoff, pred.segments)) ** 2 / draws
-        floor2 += rms(lowpass(white + walk + moc, rate, cutoff, pred.segments)) ** 2 / draws
-    fg = white[:, 0:3] + walk[:, 0:3] + moc[:, 0:3]
-    fa = white[:, 3:6] + walk[:, 3:6] + moc[:, 3:6]
+            lp = lowpass(x, rate, cutoff, pred.segments)  # linear: the parts add up
+            parts[name] += rms(lp) ** 2 / draws
+            total = total + lp
+        floor2 += rms(total) ** 2 / draws
+        psd_floor = psd_floor + _welch(white + walk + moc, rate, pred.segments)[1] / draws
     freq, pg = _welch(rg, rate, pred.segments)
     _, pa = _welch(ra, rate, pred.segments)
-    _, pgf = _welch(fg, rate, pred.segments)
-    _, paf = _welch(fa, rate, pred.segments)
+    pgf, paf = psd_floor[:, 0:3], psd_floor[:, 3:6]
     return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
                             np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
                             {k: np.sqrt(v) for k, v in parts.items()}, pred.u + st.delta, keep)
@@ -340,3 +347,9 @@ def _bias_walk_residual(rng: np.random.Generator, pred: ImuPrediction, noise: No
                         for i in range(6)], axis=1)
         out[seg] = walk - lin
     return out
+
+
+def _nearest_distance(t: Array, ref: Array) -> Array:
+    """Distance from every ``t`` to the nearest of the sorted times ``ref``."""
+    j = np.clip(np.searchsorted(ref, t), 1, len(ref) - 1)
+    return np.minimum(np.abs(t - ref[j - 1]), np.abs(t - ref[j]))

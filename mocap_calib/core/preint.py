@@ -161,8 +161,7 @@ def integrate_pieces(w_nodes: Array, f_nodes: Array, hs_all: Array) -> StepIncre
 
 
 def preintegrate_spans(u: Array, gyro: Array, accel: Array, tau0: Array, tau1: Array,
-                       delta: float, correct_fn, node_spacing: float | None = None,
-                       ) -> StepIncrements:
+                       delta: float, correct_fn) -> StepIncrements:
     """Preintegrate the IMU over mocap-time spans ``[tau0, tau1]`` (one "step" each).
 
     Args:
@@ -170,7 +169,6 @@ def preintegrate_spans(u: Array, gyro: Array, accel: Array, tau0: Array, tau1: A
         tau0, tau1: (n,) span ends on the mocap clock.
         delta: mocap time minus IMU time.
         correct_fn: ``(gyro, accel, u) -> (w, f)`` applying the measurement model backwards.
-        node_spacing: unused (pieces follow the IMU samples); kept for callers.
     """
     pc = pieces(u, tau0, tau1, delta)
     w, f = correct_fn(pc(gyro), pc(accel), pc.nodes - delta)

@@ -118,11 +118,10 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
                                  "the session is too short or the mocap has too many gaps")
     dRM = np.einsum("nji,njk->nik", s.R_WM[i0], s.R_WM[i1])
     dt = s.tau[i1] - s.tau[i0]
-    node = 0.5 / s.imu_rate
 
     def preint(b: Array) -> tuple[Array, Array]:
         inc = preintegrate_spans(s.u, s.gyro, s.accel, s.tau[i0], s.tau[i1], delta,
-                                 lambda g, a, u: correct_fn(g, a, u, b), node)
+                                 lambda g, a, u: correct_fn(g, a, u, b))
         return inc.dR, -np.einsum("nji,njk->nik", inc.dR, inc.A)
 
     sig = np.sqrt(2 * noise.mocap_rotation_sigma**2 + noise.gyroscope_noise_density**2 * dt

@@ -6,7 +6,7 @@ velocity at a keyframe is the marker's (a local quadratic fit of the mocap posit
 lever-arm term ``R_WM [w_M]x p_MI`` with ``w_M = R_MI w`` from the corrected gyro. Between
 keyframes ``i, j``
 
-    e = v_WI,j - v_WI,i - g |g_W| dt - R_WI,i (dv - A (b_a - b0)).
+    e = v_WI,j - v_WI,i - g_W dt - R_WI,i (dv - A (b_a - b0)).
 
 The initial guess is the linear least-squares solution with ``g_W`` as a free 3-vector.
 """
@@ -102,11 +102,10 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     j0 = np.array([pos[k] for k in i0])
     j1 = np.array([pos[k] for k in i1])
     R_i = s.R_WM[i0] @ R_MI
-    node = 0.5 / s.imu_rate
 
     def preint(b: Array) -> tuple[Array, Array]:
         inc = preintegrate_spans(s.u, s.gyro, s.accel, s.tau[i0], s.tau[i1], delta,
-                                 lambda g, a, u: correct_fn(g, a, u, b), node)
+                                 lambda g, a, u: correct_fn(g, a, u, b))
         return inc.dv, inc.A
 
     b_lin = np.zeros(3)

@@ -329,26 +329,32 @@ class PositionProblem:
         g_in[..., 0:3, :] = 0.5 * (h**2)[..., None, None] * dg
         g_in[..., 3:6, :] = h[..., None, None] * dg
 
+        # A frozen whitening (see freeze_whitening) needs no noise model here.
+        frozen = self._ops.get(ci) if self.freeze else None
+        need_noise = frozen is None or store
         # Process noise per step (isotropic densities, so frame rotations drop out).
-        sg2 = nz.gyroscope_noise_density**2
-        sa2 = nz.accelerometer_noise_density**2
-        q_diag = np.empty((W, m, 15))
-        q_diag[..., 0:3] = (sg2 * h)[..., None]
-        q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
-        q_diag[..., 6:9] = (sa2 * h)[..., None]
-        q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
-        q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
-        q_pv = sa2 * h**2 / 2.0
+        if need_noise:
+            sg2 = nz.gyroscope_noise_density**2
+            sa2 = nz.accelerometer_noise_density**2
+            q_diag = np.empty((W, m, 15))
+            q_diag[..., 0:3] = (sg2 * h)[..., None]
+            q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
+            q_diag[..., 6:9] = (sa2 * h)[..., None]
+            q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
+            q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
+            q_pv = sa2 * h**2 / 2.0
 
-        # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
-        sr2 = nz.mocap_rotation_sigma**2
-        lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
-        Rn = np.empty((W, m + 1, 6, 6))
-        Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
-        Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
-        Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
-        Rn[..., 3:6, 3:6] = (nz.mocap_position_sigma**2 * np.eye(3)
-                             + sr2 * lev @ np.swapaxes(lev, -1, -2))
+            # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
+            sr2 = nz.mocap_rotation_sigma**2
+            lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
+            Rn = np.empty((W, m + 1, 6, 6))
+            Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
+            Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
+            Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
+            Rn[..., 3:6, 3:6] = (nz.mocap_position_sigma**2 * np.eye(3)
+                                 + sr2 * lev @ np.swapaxes(lev, -1, -2))
+        else:
+            q_diag = q_pv = Rn = None
         wts = self.weights[c]
         weighted = wts < 1.0
 
@@ -364,7 +370,6 @@ class PositionProblem:
         X = np.zeros((W, 15, p + 1))
         # A frozen whitening operator (transition for the filter mean, gains, whitening) makes
         # the cost an exact weighted least squares in the parameters while LM runs on it.
-        frozen = self._ops.get(ci) if self.freeze else None
         record = self.freeze and frozen is None
         if record:
             rec_F = F.copy()

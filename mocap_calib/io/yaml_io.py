@@ -6,6 +6,7 @@ clear message instead of misreading it.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -47,13 +48,44 @@ _Dumper.add_representer(list, _represent_list)
 def save_yaml(path: str | Path, data: dict[str, Any], header: str | None = None) -> Path:
     """Write ``data`` as YAML (keys in insertion order), with an optional comment header."""
     path = Path(path)
-    if path.parent and not path.parent.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
     text = yaml.dump(_plain(data), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=100)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text
-    path.write_text(text)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    except OSError as err:
+        raise InputError(f"{path}: cannot write ({err.strerror or err}); choose another "
+                         "output path") from None
     return path
+
+
+def save_text(path: str | Path, text: str) -> Path:
+    """Write a text file, or raise a one-line :class:`InputError`."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    except OSError as err:
+        raise InputError(f"{path}: cannot write ({err.strerror or err}); choose another "
+                         "output path") from None
+    return path
+
+
+def check_writable(*paths: str | Path | None) -> None:
+    """Fail early (before a long computation) if an output path cannot be written."""
+    for p in paths:
+        if p is None:
+            continue
+        path = Path(p)
+        if path.is_dir():
+            raise InputError(f"{path}: is a folder; give a file name")
+        parent = path.parent if str(path.parent) else Path(".")
+        probe = parent
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if not os.access(probe, os.W_OK):
+            raise InputError(f"{path}: the folder is not writable; choose another output path")
 
 
 def load_yaml(path: str | Path, what: str = "YAML file") -> dict[str, Any]:

@@ -251,6 +251,9 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
     if "mocap_outliers" in effects:
         v = eff("mocap_outliers")
         count = int(DEFAULT_MAGNITUDE["mocap_outliers"] if v is None else v[0])
+        if count > (n_moc - 20) // 10:
+            raise InputError(f"mocap_outliers={count}: too many for {n_moc} mocap samples; "
+                             f"use at most {(n_moc - 20) // 10}")
         for start in np.sort(rng.choice(np.arange(10, n_moc - 10), size=count, replace=False)):
             length = int(rng.integers(1, 5))
             jump = rng.normal(size=3)

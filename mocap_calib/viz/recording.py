@@ -17,7 +17,7 @@ Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 - ``solver/<cost|time_offset|gravity_tilt>``, ``solver/<p_MI|R_MI|gyro_bias|accel_bias>/<x|y|z>``:
   position-stage iterates on ``iteration``.
 - ``diagnose/<step>/<stage>/...``: optional extra residual series, laid out like ``residuals``.
-- ``summary`` (:func:`mocap_calib.report.summary_table`), ``guide``: text documents.
+- ``summary`` (:func:`mocap_calib.core.report.summary_table`), ``guide``: text documents.
 
 The 3D poses are decimated to at most :data:`POSE_RATE_HZ` (by picking samples) and the IMU
 signals to :data:`IMU_RATE_HZ` (by block means, which also low-pass their noise), which keeps a
@@ -41,11 +41,11 @@ from mocap_calib.core.effects import Model
 from mocap_calib.core.imu_model import Intrinsics, correct
 from mocap_calib.core.predict import ModelState, predict_imu
 from mocap_calib.core.preint import StepIncrements, integrate_pieces, pieces
+from mocap_calib.core.report import summary_table
 from mocap_calib.core.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
-from mocap_calib.report import summary_table
 from mocap_calib.viz._rerun import AXIS_RGB, GRAY, ITERATION, TIMELINE, Logger, default_blueprint
 
 Array = NDArray[np.float64]

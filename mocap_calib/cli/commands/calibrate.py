@@ -22,6 +22,9 @@ from mocap_calib.cli.common import (
     Progress,
 )
 from mocap_calib.cli.main import app
+from mocap_calib.core.effects import EFFECTS
+
+_EFFECTS_HELP = "; ".join(f"{e.name} ({e.description})" for e in EFFECTS.values())
 
 
 @app.command(
@@ -43,9 +46,8 @@ def calibrate(
         "report.", show_default=False)] = None,
     model: Annotated[str, typer.Option(
         help="Measurement model: base plus effects joined by '+', e.g. "
-        "base+time_offset+gyro_scale_misalignment. Effects: time_offset, "
-        "gyro_scale_misalignment, accel_scale_misalignment, gyro_g_sensitivity, "
-        "gyro_bias_drift, accel_bias_drift, gravity_magnitude.")] = "base+time_offset",
+        "base+time_offset+gyro_scale_misalignment. Effects: " + _EFFECTS_HELP)]
+    = "base+time_offset",
     gravity: Annotated[float, typer.Option(help="Assumed |g| in m/s^2.")] = 9.81,
     noise: Annotated[Path | None, typer.Option(
         help="Noise model YAML (Kalibr imu.yaml keys, e.g. from 'mocap-calib allan'). Default: "
@@ -90,8 +92,8 @@ def calibrate(
 ) -> None:
     from mocap_calib.core.calibrate import CalibrationOptions
     from mocap_calib.core.effects import Model
-    from mocap_calib.io.yaml_io import save_result
-    from mocap_calib.report import summary_table
+    from mocap_calib.core.report import summary_table
+    from mocap_calib.io.yaml_io import check_writable, save_result
     from mocap_calib.workflows import InputSpec, run_calibration
 
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
@@ -107,6 +109,7 @@ def calibrate(
         "mocap_rotation_sigma": (None if mocap_noise_deg is None
                                  else float(np.radians(mocap_noise_deg))),
     }
+    check_writable(out, report, rrd)
     progress = Progress(quiet)
     result, session = run_calibration(spec, opts, noise, overrides, prior or [], progress)
     save_result(out, result)
@@ -114,8 +117,9 @@ def calibrate(
     typer.echo(table)
     typer.echo(f"\nwrote {out}")
     if report is not None:
-        report.parent.mkdir(parents=True, exist_ok=True)
-        report.write_text(f"mocap-calib calibration report\n\n{table}\n")
+        from mocap_calib.io.yaml_io import save_text
+
+        save_text(report, f"mocap-calib calibration report\n\n{table}\n")
         typer.echo(f"wrote {report}")
     if rrd is not None:
         from mocap_calib.viz.recording import write_calibration_recording

@@ -62,9 +62,9 @@ def diagnose(
     from mocap_calib.core.calibrate import CalibrationOptions
     from mocap_calib.core.diagnose import DiagnoseOptions
     from mocap_calib.core.effects import CANONICAL_EFFECTS, Model
+    from mocap_calib.core.report import diagnose_table
     from mocap_calib.errors import InputError
-    from mocap_calib.io.yaml_io import save_yaml
-    from mocap_calib.report import diagnose_table
+    from mocap_calib.io.yaml_io import check_writable, save_yaml
     from mocap_calib.workflows import InputSpec, diagnose_series, run_diagnosis
 
     if not 0.0 < alpha < 0.5:
@@ -77,6 +77,7 @@ def diagnose(
     opts = DiagnoseOptions(start=Model.parse(start), candidates=tuple(cands), alpha=alpha,
                            max_steps=max_steps,
                            calibration=CalibrationOptions(gravity=gravity, window=window))
+    check_writable(out, rrd)
     progress = Progress(quiet)
     report, session = run_diagnosis(spec, opts, noise, None, progress)
     save_yaml(out, report.to_dict(), "mocap-calib model diagnosis report (see docs/diagnosis.md)")
