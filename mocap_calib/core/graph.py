@@ -195,3 +195,19 @@ def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gts
         Ct[offsets[k]:offsets[k] + Ck.shape[1]] = Ck.T
     Z = splu(H).solve(Ct)
     return Ct.T @ Z
+
+
+def huber_isotropic(sigmas: Array, k: float, dim: int = 3) -> list[gtsam.noiseModel.Base]:
+    """One Huber-robust isotropic noise model per factor (threshold ``k`` on the whitened
+    error norm)."""
+    return [gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k),
+                                           gtsam.noiseModel.Isotropic.Sigma(dim, float(x)))
+            for x in sigmas]
+
+
+def robust_weights_and_chi2(noises: Sequence[gtsam.noiseModel.Base], errors: Array,
+                            sigmas: Array) -> tuple[Array, float]:
+    """Robust weight of every factor at ``errors`` (n, d) and the weighted whitened cost."""
+    w = np.array([nm.robust().weight(float(np.linalg.norm(e) / x))
+                  for nm, e, x in zip(noises, errors, sigmas, strict=True)])
+    return w, float(np.sum((errors / sigmas[:, None]) ** 2 * w[:, None]))

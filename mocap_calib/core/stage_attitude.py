@@ -20,7 +20,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import so3
-from mocap_calib.core.graph import BatchFactors, BatchOutput, run_lm
+from mocap_calib.core.graph import (
+    BatchFactors,
+    BatchOutput,
+    huber_isotropic,
+    robust_weights_and_chi2,
+    run_lm,
+)
 from mocap_calib.core.preint import hermite, preintegrate_spans
 from mocap_calib.core.ranges import RANGE_SIGMA
 from mocap_calib.core.result import ResidualSeries, StageStats
@@ -126,9 +132,7 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
 
     sig = np.sqrt(2 * noise.mocap_rotation_sigma**2 + noise.gyroscope_noise_density**2 * dt
                   + noise.gyroscope_random_walk**2 * dt**3 / 3.0)
-    noises = [gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k),
-                                             gtsam.noiseModel.Isotropic.Sigma(3, float(x)))
-              for x in sig]
+    noises = huber_isotropic(sig, huber_k)
 
     b_lin = bg0.copy()
     dRI, J = preint(b_lin)
@@ -168,9 +172,7 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
 
     marg = gtsam.Marginals(graph, sol)
     e_after, _, _ = attitude_errors(R_est, b_est, dRM, dRI, J, b_lin, jacobians=False)
-    w = np.array([nm.robust().weight(float(np.linalg.norm(e) / x))
-                  for nm, e, x in zip(noises, e_after, sig, strict=True)])
-    chi2 = float(np.sum((e_after / sig[:, None]) ** 2 * w[:, None]))
+    w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     t_mid = 0.5 * (s.tau[i0] + s.tau[i1])
     stats = StageStats(
         name="attitude", unit="deg",

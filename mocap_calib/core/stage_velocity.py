@@ -21,7 +21,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import so3
-from mocap_calib.core.graph import BatchFactors, BatchOutput, run_lm
+from mocap_calib.core.graph import (
+    BatchFactors,
+    BatchOutput,
+    huber_isotropic,
+    robust_weights_and_chi2,
+    run_lm,
+)
 from mocap_calib.core.preint import hermite, preintegrate_spans
 from mocap_calib.core.ranges import RANGE_SIGMA
 from mocap_calib.core.result import ResidualSeries, StageStats
@@ -144,9 +150,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     sig = np.sqrt(2 * sv2 + noise.accelerometer_noise_density**2 * dt
                   + noise.accelerometer_random_walk**2 * dt**3 / 3.0
                   + noise.mocap_rotation_sigma**2 * np.sum(dv**2, axis=1) / 2.0)
-    noises = [gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k),
-                                             gtsam.noiseModel.Isotropic.Sigma(3, float(x)))
-              for x in sig]
+    noises = huber_isotropic(sig, huber_k)
     e_before = velocity_errors(data, b0, p0, g_free, b_lin)
 
     p_est, b_est = p0, b0
@@ -193,9 +197,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
 
     marg = gtsam.Marginals(graph, sol)
     e_after = velocity_errors(data, b_est, p_est, gravity * g_dir, b_lin)
-    w = np.array([nm.robust().weight(float(np.linalg.norm(e) / x))
-                  for nm, e, x in zip(noises, e_after, sig, strict=True)])
-    chi2 = float(np.sum((e_after / sig[:, None]) ** 2 * w[:, None]))
+    w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     stats = StageStats(
         name="velocity", unit="m/s",
         rms_before=np.sqrt(np.mean(e_before**2, axis=0)).tolist(),

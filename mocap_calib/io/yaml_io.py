@@ -47,17 +47,10 @@ _Dumper.add_representer(list, _represent_list)
 
 def save_yaml(path: str | Path, data: dict[str, Any], header: str | None = None) -> Path:
     """Write ``data`` as YAML (keys in insertion order), with an optional comment header."""
-    path = Path(path)
     text = yaml.dump(_plain(data), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=100)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
-    except OSError as err:
-        raise InputError(f"{path}: cannot write ({err.strerror or err}); choose another "
-                         "output path") from None
-    return path
+    return save_text(path, text)
 
 
 def save_text(path: str | Path, text: str) -> Path:
