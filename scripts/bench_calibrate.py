@@ -19,10 +19,10 @@ import time
 def run_one(minutes: float, seed: int = 1) -> dict:
     import numpy as np
 
-    from mocap_calib.compare import compare
-    from mocap_calib.core.calibrate import CalibrationOptions, calibrate
-    from mocap_calib.core.result import CalibrationResult
+    from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
+    from mocap_calib.core.calib.result import CalibrationResult
     from mocap_calib.sim.flight import SimConfig, simulate_flight
+    from mocap_calib.workflows.compare import compare
 
     sim = simulate_flight(SimConfig(seed=seed, duration=60.0 * minutes,
                                     effects={"time_offset": [0.004]}))

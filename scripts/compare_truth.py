@@ -5,8 +5,8 @@ Usage: python scripts/compare_truth.py calib.yaml truth.yaml
 
 import sys
 
-from mocap_calib.compare import compare, format_rows
 from mocap_calib.io.yaml_io import load_result
+from mocap_calib.workflows.compare import compare, format_rows
 
 
 def main() -> None:

@@ -16,14 +16,14 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-from mocap_calib.core.effects import CANONICAL_EFFECTS
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 
 PAIR = ("gyro_scale_misalignment", "accel_scale_misalignment")
 
 
 def run_case(args: tuple[tuple[str, ...], int, float]) -> dict:
     hidden, seed, duration = args
-    from mocap_calib.core.diagnose import DiagnoseOptions, diagnose
+    from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose
     from mocap_calib.sim.flight import SimConfig, simulate_flight
 
     sim = simulate_flight(SimConfig(seed=seed, duration=duration,

@@ -7,8 +7,8 @@ from functools import cache
 import numpy as np
 import pytest
 
-from mocap_calib.core.allan import characterise_noise
-from mocap_calib.core.types import ImuSamples, NoiseModel
+from mocap_calib.core.intrinsics.allan import characterise_noise
+from mocap_calib.core.model.types import ImuSamples, NoiseModel
 from mocap_calib.errors import InputError, ObservabilityError
 from mocap_calib.sim.static import simulate_static
 

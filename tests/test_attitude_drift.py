@@ -5,10 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocap_calib.core import so3
-from mocap_calib.core.attitude_drift import GyroCalibration, attitude_drift_check, roll_pitch
-from mocap_calib.core.multipos import calibrate_multipos
-from mocap_calib.core.types import ImuSamples, NoiseModel
+from mocap_calib.core.intrinsics.attitude_drift import (
+    GyroCalibration,
+    attitude_drift_check,
+    roll_pitch,
+)
+from mocap_calib.core.intrinsics.multipos import calibrate_multipos
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples, NoiseModel
 from mocap_calib.errors import InputError, ObservabilityError
 from mocap_calib.sim.multipos import simulate_multipos
 from mocap_calib.sim.static import simulate_static

@@ -19,7 +19,7 @@ import yaml
 # ``drift`` is not in the commands package's auto-import list yet: register it explicitly.
 import mocap_calib.cli.commands.drift  # noqa: F401
 from mocap_calib.cli.main import main
-from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.io.euroc import write_euroc_imu
 from mocap_calib.io.yaml_io import load_noise
 from mocap_calib.sim.multipos import simulate_multipos

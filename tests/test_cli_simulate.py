@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from mocap_calib.cli.main import main
-from mocap_calib.core.effects import CANONICAL_EFFECTS
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.sim.flight import MOCAP_FAULTS, SimConfig, simulate_flight
 
 ENTRY_POINT = Path(sys.executable).parent / "mocap-calib"
@@ -241,7 +241,7 @@ def test_usage_errors_exit_2_without_traceback(tmp_path: Path,
 def test_unexpected_exception_is_internal_error_70(tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str],
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
-    import mocap_calib.workflows as workflows
+    import mocap_calib.workflows.calibrate as workflows
 
     def boom(*args: object, **kwargs: object) -> None:
         raise RuntimeError("simulated bug")

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocap_calib.core.diagnose import DiagnoseOptions, diagnose
-from mocap_calib.core.effects import CANONICAL_EFFECTS, EFFECTS
+from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 
@@ -77,7 +77,7 @@ def test_report_round_trips_through_yaml(tmp_path) -> None:
 
 def test_cli_diagnose_bad_options_exit_2(capsys, tmp_path) -> None:
     from mocap_calib.cli.main import main
-    from mocap_calib.workflows import simulate_to_folder
+    from mocap_calib.workflows.calibrate import simulate_to_folder
 
     simulate_to_folder(tmp_path / "s", seed=1, duration=20.0)
     for args in (["--alpha", "2"], ["--start", "base+warp_drive"], ["--max-steps", "0"]):

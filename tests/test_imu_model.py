@@ -9,8 +9,8 @@ import itertools
 import numpy as np
 import pytest
 
-from mocap_calib.core.effects import CANONICAL_EFFECTS, EFFECTS, Model
-from mocap_calib.core.imu_model import Intrinsics, correct, forward
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
+from mocap_calib.core.model.imu_model import Intrinsics, correct, forward
 
 IMU_EFFECTS = ("gyro_scale_misalignment", "accel_scale_misalignment", "gyro_g_sensitivity",
                "gyro_bias_drift", "accel_bias_drift")

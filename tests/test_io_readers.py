@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocap_calib.core import so3
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
 from mocap_calib.io.checks import check_overlap
 from mocap_calib.io.euroc import (

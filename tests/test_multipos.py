@@ -7,8 +7,7 @@ from functools import cache
 import numpy as np
 import pytest
 
-from mocap_calib.core import so3
-from mocap_calib.core.multipos import (
+from mocap_calib.core.intrinsics.multipos import (
     MultiposPrior,
     MultiposResult,
     calibrate_multipos,
@@ -17,7 +16,8 @@ from mocap_calib.core.multipos import (
     quat_product,
     rk4_increments,
 )
-from mocap_calib.core.types import ImuSamples, NoiseModel
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples, NoiseModel
 from mocap_calib.errors import InputError, ObservabilityError
 from mocap_calib.sim.multipos import simulate_multipos
 

@@ -12,7 +12,7 @@ import pytest
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline
 
-from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.errors import InputError
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, parse_effect, simulate_flight
 from mocap_calib.sim.trajectory import random_trajectory

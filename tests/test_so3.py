@@ -8,7 +8,7 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from mocap_calib.core import so3
+from mocap_calib.core.model import so3
 
 
 def skew(v: np.ndarray) -> np.ndarray:

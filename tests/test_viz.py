@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from mocap_calib.cli.main import main
-from mocap_calib.core.calibrate import calibrate
-from mocap_calib.core.report import summary_table
-from mocap_calib.core.result import CalibrationResult
+from mocap_calib.core.calib.pipeline import calibrate
+from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.errors import InputError
+from mocap_calib.report.text import summary_table
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight
 from mocap_calib.viz.recording import dead_reckoning, write_calibration_recording
 

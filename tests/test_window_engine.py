@@ -7,11 +7,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from mocap_calib.core import so3
-from mocap_calib.core.effects import Model
-from mocap_calib.core.session import local_derivative, prepare
-from mocap_calib.core.types import NoiseModel
-from mocap_calib.core.window_engine import PositionProblem, Theta, compress, make_windows
+from mocap_calib.core.calib.session import local_derivative, prepare
+from mocap_calib.core.calib.window_engine import PositionProblem, Theta, compress, make_windows
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 ALL_IMU_EFFECTS = ("base+time_offset+gravity_magnitude+gyro_scale_misalignment+"

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError, input_error
 
 Array = NDArray[np.float64]

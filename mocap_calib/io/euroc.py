@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
 from mocap_calib.io.generic import Layout, name_key, read_indexed, sniff_layout, write_table
 

@@ -43,7 +43,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
 from mocap_calib.io.checks import (
     ACCEL_UNITS,

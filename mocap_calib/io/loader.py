@@ -19,7 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
 from mocap_calib.io.euroc import (
     POSE_FOLDERS,

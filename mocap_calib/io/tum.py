@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap_calib.core.types import MocapPoses
+from mocap_calib.core.model.types import MocapPoses
 from mocap_calib.errors import input_error
 from mocap_calib.io.generic import read_indexed, sniff_layout, write_table
 

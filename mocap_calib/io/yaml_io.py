@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mocap_calib.core.result import RESULT_VERSION, CalibrationResult
-from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.calib.result import RESULT_VERSION, CalibrationResult
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.errors import InputError
 
 

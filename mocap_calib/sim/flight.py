@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.effects import CANONICAL_EFFECTS
-from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS
+from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import InputError
 from mocap_calib.sim.trajectory import random_trajectory
 

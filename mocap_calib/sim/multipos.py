@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.types import ImuSamples, NoiseModel
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples, NoiseModel
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]

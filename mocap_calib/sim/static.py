@@ -21,8 +21,8 @@ import numpy as np
 import scipy.fft
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.types import ImuSamples, NoiseModel
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples, NoiseModel
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.allan import AllanResult, SensorNoise
+from mocap_calib.core.intrinsics.allan import AllanResult, SensorNoise
 
 Array = NDArray[np.float64]
 
@@ -105,7 +105,7 @@ def write_allan_recording(path: Path | str, result: AllanResult) -> Path:
 
     Args:
         path: ``.rrd`` file to write (parent folders are created).
-        result: output of :func:`mocap_calib.core.allan.characterise_noise`.
+        result: output of :func:`mocap_calib.core.intrinsics.allan.characterise_noise`.
 
     Returns:
         The path written.

@@ -1,7 +1,7 @@
 """A rerun recording (``.rrd``) of a calibration, for judging it by eye.
 
 Everything is on the timeline ``t``: mocap time in seconds since the mocap origin (``tau`` in
-:mod:`mocap_calib.core.session`; an IMU sample at IMU time ``u`` is shown at ``u + delta``).
+:mod:`mocap_calib.core.calib.session`; an IMU sample at IMU time ``u`` is shown at ``u + delta``).
 Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 
 - ``world/mocap/trajectory``: marker path ``p_WM`` (static strips, split at mocap gaps).
@@ -17,7 +17,7 @@ Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 - ``solver/<cost|time_offset|gravity_tilt>``, ``solver/<p_MI|R_MI|gyro_bias|accel_bias>/<x|y|z>``:
   position-stage iterates on ``iteration``.
 - ``diagnose/<step>/<stage>/...``: optional extra residual series, laid out like ``residuals``.
-- ``summary`` (:func:`mocap_calib.core.report.summary_table`), ``guide``: text documents.
+- ``summary`` (:func:`mocap_calib.report.text.summary_table`), ``guide``: text documents.
 
 The 3D poses are decimated to at most :data:`POSE_RATE_HZ` (by picking samples) and the IMU
 signals to :data:`IMU_RATE_HZ` (by block means, which also low-pass their noise), which keeps a
@@ -36,16 +36,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.effects import Model
-from mocap_calib.core.imu_model import Intrinsics, correct
-from mocap_calib.core.predict import ModelState, predict_imu
-from mocap_calib.core.preint import StepIncrements, integrate_pieces, pieces
-from mocap_calib.core.report import summary_table
-from mocap_calib.core.result import CalibrationResult, ResidualSeries
-from mocap_calib.core.session import PreparedSession, local_derivative, prepare
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
+from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
+from mocap_calib.core.diagnosis.predict import ModelState, predict_imu
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.imu_model import Intrinsics, correct
+from mocap_calib.core.model.preint import StepIncrements, integrate_pieces, pieces
+from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
+from mocap_calib.report.text import summary_table
 from mocap_calib.viz._rerun import AXIS_RGB, GRAY, ITERATION, TIMELINE, Logger, default_blueprint
 
 Array = NDArray[np.float64]

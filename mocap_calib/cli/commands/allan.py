@@ -44,7 +44,7 @@ def allan(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.io.yaml_io import save_yaml
-    from mocap_calib.workflows_imu import ImuSpec, run_allan
+    from mocap_calib.workflows.imu import ImuSpec, run_allan
 
     progress = Progress(quiet)
     run = run_allan(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit),

@@ -22,7 +22,7 @@ from mocap_calib.cli.common import (
     Progress,
 )
 from mocap_calib.cli.main import app
-from mocap_calib.core.effects import EFFECTS
+from mocap_calib.core.model.effects import EFFECTS
 
 _EFFECTS_HELP = "; ".join(f"{e.name} ({e.description})" for e in EFFECTS.values())
 
@@ -90,11 +90,11 @@ def calibrate(
     position_unit: POSITION_UNIT = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.core.calibrate import CalibrationOptions
-    from mocap_calib.core.effects import Model
-    from mocap_calib.core.report import summary_table
+    from mocap_calib.core.calib.pipeline import CalibrationOptions
+    from mocap_calib.core.model.effects import Model
     from mocap_calib.io.yaml_io import check_writable, save_result
-    from mocap_calib.workflows import InputSpec, run_calibration
+    from mocap_calib.report.text import summary_table
+    from mocap_calib.workflows.calibrate import InputSpec, run_calibration
 
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
                      quat_order, position_unit)

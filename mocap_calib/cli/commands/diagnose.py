@@ -59,13 +59,13 @@ def diagnose(
     position_unit: POSITION_UNIT = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.core.calibrate import CalibrationOptions
-    from mocap_calib.core.diagnose import DiagnoseOptions
-    from mocap_calib.core.effects import CANONICAL_EFFECTS, Model
-    from mocap_calib.core.report import diagnose_table
+    from mocap_calib.core.calib.pipeline import CalibrationOptions
+    from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions
+    from mocap_calib.core.model.effects import CANONICAL_EFFECTS, Model
     from mocap_calib.errors import InputError
     from mocap_calib.io.yaml_io import check_writable, save_yaml
-    from mocap_calib.workflows import InputSpec, diagnose_series, run_diagnosis
+    from mocap_calib.report.text import diagnose_table
+    from mocap_calib.workflows.calibrate import InputSpec, diagnose_series, run_diagnosis
 
     if not 0.0 < alpha < 0.5:
         raise InputError(f"--alpha {alpha}: must be between 0 and 0.5, e.g. 0.01")

@@ -56,7 +56,7 @@ def drift(
     position_unit: POSITION_UNIT = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.workflows_imu import ImuSpec, run_drift
+    from mocap_calib.workflows.imu import ImuSpec, run_drift
 
     run = run_drift(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit), calibration,
                     start, end, mocap=mocap, quat_order=quat_order,

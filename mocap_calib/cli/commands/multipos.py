@@ -49,7 +49,7 @@ def multipos(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.io.yaml_io import save_yaml
-    from mocap_calib.workflows_imu import ImuSpec, run_multipos
+    from mocap_calib.workflows.imu import ImuSpec, run_multipos
 
     run = run_multipos(
         ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit), init_static_s=init_static,

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from mocap_calib.cli.main import app
-from mocap_calib.core.effects import CANONICAL_EFFECTS
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
 
 _EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
@@ -37,7 +37,7 @@ def simulate(
         "'mocap-calib multipos' (no mocap); static: a still IMU for 'mocap-calib allan'.")]
     = "flight",
 ) -> None:
-    from mocap_calib.workflows import simulate_to_folder
+    from mocap_calib.workflows.calibrate import simulate_to_folder
 
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
                                  imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [])

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap_calib.core.calibrate import CalibrationOptions, IterationFn, ProgressFn, calibrate
-from mocap_calib.core.priors import priors_from_results
-from mocap_calib.core.result import CalibrationResult
-from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.calib.pipeline import CalibrationOptions, IterationFn, ProgressFn, calibrate
+from mocap_calib.core.calib.priors import priors_from_results
+from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import InputError
 from mocap_calib.io.loader import load_inputs
 from mocap_calib.io.yaml_io import load_noise, load_result
@@ -155,7 +155,7 @@ def run_diagnosis(spec: InputSpec, options, noise_file: Path | None = None,
                   noise_overrides: dict[str, float | None] | None = None,
                   progress: ProgressFn | None = None):
     """Read the inputs and run the model diagnosis; returns the report and what was read."""
-    from mocap_calib.core.diagnose import diagnose
+    from mocap_calib.core.diagnosis.diagnose import diagnose
 
     session = load_session(spec)
     for note in session.notes:
@@ -171,7 +171,7 @@ def run_diagnosis(spec: InputSpec, options, noise_file: Path | None = None,
 def diagnose_series(report) -> list[tuple[str, dict]]:
     """Residual series of every diagnosis step, for the rerun recording: the low-band
     measured-minus-predicted gyro and accel, and the position-factor innovations."""
-    from mocap_calib.core.result import ResidualSeries
+    from mocap_calib.core.calib.result import ResidualSeries
 
     out = []
     for i, step in enumerate(report.steps):

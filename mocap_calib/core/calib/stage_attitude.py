@@ -19,19 +19,19 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.graph import (
+from mocap_calib.core.calib.graph import (
     BatchFactors,
     BatchOutput,
     huber_isotropic,
     robust_weights_and_chi2,
     run_lm,
 )
-from mocap_calib.core.preint import hermite, preintegrate_spans
-from mocap_calib.core.ranges import RANGE_SIGMA
-from mocap_calib.core.result import ResidualSeries, StageStats
-from mocap_calib.core.session import PreparedSession, local_derivative
-from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.calib.result import ResidualSeries, StageStats
+from mocap_calib.core.calib.session import PreparedSession, local_derivative
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.preint import hermite, preintegrate_spans
+from mocap_calib.core.model.ranges import RANGE_SIGMA
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]

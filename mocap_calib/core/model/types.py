@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
+from mocap_calib.core.model import so3
 
 Array = NDArray[np.float64]
 

@@ -37,8 +37,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from mocap_calib.core import so3
-from mocap_calib.core.types import ImuSamples
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import ConvergenceError, InputError, ObservabilityError
 
 Array = NDArray[np.float64]

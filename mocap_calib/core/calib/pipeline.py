@@ -19,18 +19,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.effects import EFFECTS, Model
-from mocap_calib.core.imu_model import Intrinsics, correct
-from mocap_calib.core.predict import ModelState
-from mocap_calib.core.result import CalibrationResult, Diagnostics
-from mocap_calib.core.session import PreparedSession, local_derivative, prepare
-from mocap_calib.core.stage_attitude import run_attitude_stage
-from mocap_calib.core.stage_position import PositionInit, Prior, run_position_stage
-from mocap_calib.core.stage_velocity import run_velocity_stage
-from mocap_calib.core.timesync import coarse_offset_arrays
-from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.window_engine import make_windows
+from mocap_calib.core.calib.clock import coarse_offset_arrays
+from mocap_calib.core.calib.result import CalibrationResult, Diagnostics
+from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
+from mocap_calib.core.calib.stage_attitude import run_attitude_stage
+from mocap_calib.core.calib.stage_position import PositionInit, Prior, run_position_stage
+from mocap_calib.core.calib.stage_velocity import run_velocity_stage
+from mocap_calib.core.calib.window_engine import make_windows
+from mocap_calib.core.diagnosis.predict import ModelState
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.core.model.imu_model import Intrinsics, correct
+from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]

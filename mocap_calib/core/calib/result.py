@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
 
@@ -137,7 +137,7 @@ class CalibrationResult:
 
     @property
     def R_marker_imu(self) -> Array | None:
-        from mocap_calib.core import so3
+        from mocap_calib.core.model import so3
 
         return None if self.rotation_wxyz is None else so3.quat_to_rotmat(self.rotation_wxyz)
 

@@ -2,8 +2,8 @@
 
 1. Calibrate the starting model (default: the base model, no time offset).
 2. Simulate what the IMU should have measured from the mocap through the calibrated model and
-   compare with what it measured (:mod:`mocap_calib.core.predict`): residual RMS per sensor and
-   axis in a low band, against the noise floor that noise alone gives through the same
+   compare with what it measured (:mod:`mocap_calib.core.diagnosis.predict`): residual RMS per
+   sensor and axis in a low band, against the noise floor that noise alone gives through the same
    processing, and residual spectra.
 3. For every candidate effect (the canonical ones), refit with the effect added and score it
    with a likelihood-ratio test: ``T = (chi2_M - chi2_M+e) / s^2`` against ``chi2_k``
@@ -27,14 +27,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
-from mocap_calib.core.calibrate import CalibrationOptions, calibrate
-from mocap_calib.core.effects import CANONICAL_EFFECTS, EFFECTS, Model
-from mocap_calib.core.predict import ModelState, ResidualAnalysis, analyse_residuals
-from mocap_calib.core.result import CalibrationResult, ResidualSeries
-from mocap_calib.core.session import PreparedSession
-from mocap_calib.core.stage_position import PositionInit, PositionResult, run_position_stage
-from mocap_calib.core.timesync import coarse_offset_arrays
-from mocap_calib.core.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.calib.clock import coarse_offset_arrays
+from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
+from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
+from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, run_position_stage
+from mocap_calib.core.diagnosis.predict import ModelState, ResidualAnalysis, analyse_residuals
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
+from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]

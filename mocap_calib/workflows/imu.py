@@ -18,20 +18,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.allan import AllanResult, SensorNoise, characterise_noise
-from mocap_calib.core.attitude_drift import (
+from mocap_calib.core.intrinsics.allan import AllanResult, SensorNoise, characterise_noise
+from mocap_calib.core.intrinsics.attitude_drift import (
     AttitudeDriftResult,
     GyroCalibration,
     attitude_drift_check,
 )
-from mocap_calib.core.multipos import (
+from mocap_calib.core.intrinsics.multipos import (
     PARAMETERS,
     MultiposPrior,
     MultiposResult,
     calibrate_multipos,
 )
-from mocap_calib.core.types import ImuSamples
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import CalibrationError, InputError, input_error
 from mocap_calib.io.loader import FORMAT_NAMES, load_inputs, sniff_format
 from mocap_calib.io.yaml_io import NOISE_KEYS, load_yaml

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap_calib.core import so3
-from mocap_calib.core.result import CalibrationResult
+from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.model import so3
 
 
 def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:

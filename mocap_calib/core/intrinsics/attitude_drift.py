@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.multipos import quat_cumprod, rk4_increments
-from mocap_calib.core.types import ImuSamples
+from mocap_calib.core.intrinsics.multipos import quat_cumprod, rk4_increments
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]

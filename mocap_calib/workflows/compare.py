@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from mocap_calib.core import so3
-from mocap_calib.core.result import CalibrationResult
+from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.model import so3
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """The measurement model, both ways: raw IMU samples <-> true rate ``w`` and specific force ``f``.
 
-The model (``docs/conventions.md`` plus the effects in :mod:`mocap_calib.core.effects`) is
+The model (``docs/conventions.md`` plus the effects in :mod:`mocap_calib.core.model.effects`) is
 
     a_m = (I + E_a) f + b_a + r_a (u - t_mid)
     w_m = (I + E_g) w + G f + b_g + r_g (u - t_mid)
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.effects import EFFECTS, Model
+from mocap_calib.core.model.effects import EFFECTS, Model
 
 Array = NDArray[np.float64]
 

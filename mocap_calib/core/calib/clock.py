@@ -14,8 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
-from mocap_calib.core import so3
-from mocap_calib.core.types import ImuSamples, MocapPoses
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]

@@ -2,7 +2,7 @@
 
 A window is a gap-free stretch of mocap samples (a few seconds). From the window's first mocap
 pose the IMU, corrected by the current model, is integrated forward (RK4 between samples, see
-:mod:`mocap_calib.core.preint`) and compared with every mocap pose in the window:
+:mod:`mocap_calib.core.model.preint`) and compared with every mocap pose in the window:
 
     r_k = [ Log(R_bar_k^T R_WM,k R_MI) ;  p_WM,k + R_WM,k p_MI - p_bar_k ]
 
@@ -26,12 +26,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
-from mocap_calib.core import so3
-from mocap_calib.core.effects import Model
-from mocap_calib.core.imu_model import Intrinsics, correct
-from mocap_calib.core.preint import hermite, integrate_pieces, pieces
-from mocap_calib.core.session import PreparedSession
-from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.imu_model import Intrinsics, correct
+from mocap_calib.core.model.preint import hermite, integrate_pieces, pieces
+from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
 

@@ -21,11 +21,11 @@ from numpy.typing import NDArray
 from scipy import signal
 from scipy.interpolate import CubicSpline
 
-from mocap_calib.core import so3
-from mocap_calib.core.effects import Model
-from mocap_calib.core.imu_model import Intrinsics, forward
-from mocap_calib.core.session import PreparedSession
-from mocap_calib.core.types import NoiseModel
+from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.imu_model import Intrinsics, forward
+from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
 

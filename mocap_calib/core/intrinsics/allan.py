@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import nnls
 
-from mocap_calib.core.types import ImuSamples
+from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]

@@ -3,7 +3,7 @@
 Variables: ``R_MI`` (Rot3), ``p_MI`` (Point3), the gravity direction (Unit3), the clock offset
 and ``|g|`` when the model estimates them, one vector per IMU-side effect, and one bias knot
 (gyro + accel, Vector6) at the start of every window. Factors: one window factor per window
-(:mod:`mocap_calib.core.window_engine`, evaluated together), a random-walk between-factor for
+(:mod:`mocap_calib.core.calib.window_engine`, evaluated together), a random-walk between-factor for
 consecutive knots, weak range priors that keep the system well posed (a parameter whose
 uncertainty they dominate is reported as unobservable), and user priors. Mocap outliers are
 handled per sample by a redescending kernel on the whitened innovation (iteratively
@@ -21,23 +21,23 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.effects import EFFECTS, Model
-from mocap_calib.core.graph import (
+from mocap_calib.core.calib.graph import (
     BatchFactors,
     BatchOutput,
     linear_combination_covariance,
     run_lm,
 )
-from mocap_calib.core.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
-from mocap_calib.core.result import ResidualSeries, StageStats
-from mocap_calib.core.session import PreparedSession
-from mocap_calib.core.types import NoiseModel
-from mocap_calib.core.window_engine import (
+from mocap_calib.core.calib.result import ResidualSeries, StageStats
+from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.calib.window_engine import (
     PositionProblem,
     Theta,
     Windows,
     compress,
 )
+from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.core.model.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
+from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
 
@@ -291,7 +291,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
 
     Args:
         s: prepared session; model: active effects; noise: noise densities.
-        windows: from :func:`~mocap_calib.core.window_engine.make_windows`.
+        windows: from :func:`~mocap_calib.core.calib.window_engine.make_windows`.
         init: starting values.
         priors: user priors (earlier calibrations), added as prior factors.
         robust: down-weight mocap outliers.

@@ -15,10 +15,10 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import so3
-from mocap_calib.core.effects import EFFECTS
-from mocap_calib.core.result import CalibrationResult
-from mocap_calib.core.stage_position import Prior
+from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.calib.stage_position import Prior
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]

@@ -1,0 +1,2 @@
+"""The calibration engine:
+session preparation, clock search, the three factor-graph stages, results."""

@@ -1,0 +1,2 @@
+"""Model diagnosis:
+IMU prediction through the calibrated model, residual tests, candidate effects."""

@@ -1,0 +1,1 @@
+"""Mocap-free tools: multi-position calibration, Allan variance, attitude-drift check."""

@@ -1,0 +1,1 @@
+"""Shared maths: rotations, data types, the effect ladder and measurement model, IMU integration."""
