@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from mocap_calib.cli.main import main
-from mocap_calib.workflows.calibrate import simulate_to_folder
+from mocap_calib.workflows.simulate import simulate_to_folder
 
 
 @pytest.fixture(scope="module")

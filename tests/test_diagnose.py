@@ -77,7 +77,7 @@ def test_report_round_trips_through_yaml(tmp_path) -> None:
 
 def test_cli_diagnose_bad_options_exit_2(capsys, tmp_path) -> None:
     from mocap_calib.cli.main import main
-    from mocap_calib.workflows.calibrate import simulate_to_folder
+    from mocap_calib.workflows.simulate import simulate_to_folder
 
     simulate_to_folder(tmp_path / "s", seed=1, duration=20.0)
     for args in (["--alpha", "2"], ["--start", "base+warp_drive"], ["--max-steps", "0"]):

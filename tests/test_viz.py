@@ -193,7 +193,7 @@ def test_without_diagnostics(calibrated: tuple[SimulatedSession, CalibrationResu
 
 def test_view_without_display_prints_instruction(rrd: Path, monkeypatch: pytest.MonkeyPatch,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    from mocap_calib.cli.commands import view
+    from mocap_calib.workflows import view
 
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
@@ -227,7 +227,7 @@ def test_importing_viz_does_not_import_rerun() -> None:
 
 def test_view_spawns_viewer_with_display(rrd: Path, monkeypatch: pytest.MonkeyPatch,
                                          capsys: pytest.CaptureFixture[str]) -> None:
-    from mocap_calib.cli.commands import view
+    from mocap_calib.workflows import view
 
     calls: list[list[str]] = []
     monkeypatch.setattr(view, "has_display", lambda: True)

@@ -207,7 +207,7 @@ def test_structurally_wrong_results_are_input_error(tmp_path: Path, text: str) -
 
 
 def test_truth_file_loads_as_result(tmp_path: Path) -> None:
-    from mocap_calib.workflows.calibrate import simulate_to_folder
+    from mocap_calib.workflows.simulate import simulate_to_folder
 
     simulate_to_folder(tmp_path / "sim", seed=3, duration=3.0, effects=["time_offset=0.01"])
     truth_path = tmp_path / "sim" / "truth.yaml"

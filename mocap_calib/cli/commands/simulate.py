@@ -8,10 +8,9 @@ from typing import Annotated
 import typer
 
 from mocap_calib.cli.main import app
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS
-from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
+from mocap_calib.workflows.simulate import effects_doc, simulate_to_folder
 
-_EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
+_EFFECTS_DOC = effects_doc()
 
 
 @app.command(
@@ -37,8 +36,6 @@ def simulate(
         "'mocap-calib multipos' (no mocap); static: a still IMU for 'mocap-calib allan'.")]
     = "flight",
 ) -> None:
-    from mocap_calib.workflows.calibrate import simulate_to_folder
-
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
                                  imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [])
     for path, what in written:
