@@ -25,8 +25,8 @@ from mocap_calib.core.calib.session import PreparedSession, local_derivative, pr
 from mocap_calib.core.calib.stage_attitude import run_attitude_stage
 from mocap_calib.core.calib.stage_position import PositionInit, Prior, run_position_stage
 from mocap_calib.core.calib.stage_velocity import run_velocity_stage
+from mocap_calib.core.calib.state import CalibrationTrace, ModelState
 from mocap_calib.core.calib.window_engine import make_windows
-from mocap_calib.core.diagnosis.predict import ModelState
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.imu_model import Intrinsics, correct
@@ -252,8 +252,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     diag = Diagnostics(
         residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
         iterations=pos.history,
-        extras={"model_state": state, "noise_used": pos.noise, "windows": pos.windows,
-                "weights": pos.weights, "session": s})
+        trace=CalibrationTrace(session=s, model_state=state, noise_used=pos.noise,
+                               windows=pos.windows, weights=pos.weights))
     return CalibrationResult(
         gyro_bias=val("gyro_bias", pos.gyro_bias_mean),
         accel_bias=val("accel_bias", pos.accel_bias_mean),

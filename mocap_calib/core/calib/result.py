@@ -7,12 +7,15 @@ plain-data form that ``io`` writes as YAML; a round trip restores the same objec
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import NoiseModel
+
+if TYPE_CHECKING:
+    from mocap_calib.core.calib.state import CalibrationTrace
 
 Array = NDArray[np.float64]
 
@@ -101,7 +104,7 @@ class Diagnostics:
 
     residuals: dict[str, ResidualSeries] = field(default_factory=dict)
     iterations: list[dict[str, Any]] = field(default_factory=list)
-    extras: dict[str, Any] = field(default_factory=dict)
+    trace: CalibrationTrace | None = None
 
 
 @dataclass

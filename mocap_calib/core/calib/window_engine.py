@@ -30,7 +30,7 @@ from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.imu_model import Intrinsics, correct
-from mocap_calib.core.model.preint import hermite, integrate_pieces, pieces
+from mocap_calib.core.model.preint import compose, hermite, integrate_pieces, pieces
 from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
@@ -280,20 +280,9 @@ class PositionProblem:
                 df[:, :, :, sl] = cm.df[name]
 
         # --- Nominal trajectory (sequential composition of the step increments).
-        g_W = th.g_mag * th.g_dir
-        Rbar = np.empty((W, m + 1, 3, 3))
-        pbar = np.empty((W, m + 1, 3))
-        vbar = np.empty((W, m + 1, 3))
-        Rbar[:, 0] = R_WM[:, 0] @ th.R_MI
-        pbar[:, 0] = p_WM[:, 0] + R_WM[:, 0] @ th.p_MI
-        vbar[:, 0] = win.v0[c]  # fixed guess: the start velocity is a diffuse nuisance
-        for k in range(m):
-            hk = h[:, k, None]
-            Rk = Rbar[:, k]
-            pbar[:, k + 1] = (pbar[:, k] + vbar[:, k] * hk + 0.5 * g_W * hk**2
-                              + np.einsum("wij,wj->wi", Rk, inc.dp[:, k]))
-            vbar[:, k + 1] = vbar[:, k] + g_W * hk + np.einsum("wij,wj->wi", Rk, inc.dv[:, k])
-            Rbar[:, k + 1] = Rk @ inc.dR[:, k]
+        # The start velocity is a fixed guess: it is a diffuse nuisance of the filter.
+        Rbar, pbar, vbar = compose(inc, h, R_WM[:, 0] @ th.R_MI, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI,
+                                   win.v0[c], th.g_mag * th.g_dir)
 
         # --- Residuals at every sample and the parts of their Jacobians not through S.
         R_meas = R_WM @ th.R_MI

@@ -32,7 +32,8 @@ from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, run_position_stage
-from mocap_calib.core.diagnosis.predict import ModelState, ResidualAnalysis, analyse_residuals
+from mocap_calib.core.calib.state import ModelState
+from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import CalibrationError, InputError
@@ -259,12 +260,12 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
         notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
         cal_opts = replace(cal_opts, model=model)
         start = calibrate(imu, mocap, cal_opts)
-    ex = start.diagnostics.extras
-    s: PreparedSession = ex["session"]
-    noise: NoiseModel = ex["noise_used"]
-    t_mid = float(ex["model_state"].t_mid)
-    windows = ex["windows"]
-    weights = ex["weights"]
+    ex = start.diagnostics.trace
+    s: PreparedSession = ex.session
+    noise: NoiseModel = ex.noise_used
+    t_mid = float(ex.model_state.t_mid)
+    windows = ex.windows
+    weights = ex.weights
     coarse_delta = None
 
     def fit(m: Model, base: PositionResult, extra: dict[str, Array], nz: NoiseModel,
@@ -281,7 +282,7 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     # The current fit, as a PositionResult (refit the start model with frozen weights so every
     # later comparison uses exactly the same cost).
     # From the model state, not the public result: that holds None for what is unobservable.
-    st0: ModelState = ex["model_state"]
+    st0: ModelState = ex.model_state
     g_mag0 = float(np.linalg.norm(st0.g_W))
     init0 = PositionInit(
         R_MI=st0.R_MI, p_MI=st0.p_MI, g_dir=st0.g_W / g_mag0, g_mag=g_mag0, delta=st0.delta,
@@ -374,8 +375,8 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
 
     say(f"final calibration with {model}")
     final = calibrate(imu, mocap, replace(opts.calibration, model=model))
-    fx = final.diagnostics.extras
-    final_res = Residuals.of(analyse_residuals(fx["session"], fx["model_state"], fx["noise_used"],
+    fx = final.diagnostics.trace
+    final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, fx.noise_used,
                                                cutoff_hz=opts.cutoff_hz))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
