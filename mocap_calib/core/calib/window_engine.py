@@ -20,17 +20,31 @@ over the steps of one window, not over the session.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
 from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.calib.windows import (  # noqa: F401  (re-exported)
+    EvalOut,
+    Layout,
+    Theta,
+    Windows,
+    layout_for,
+    make_windows,
+)
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
-from mocap_calib.core.model.imu_model import Intrinsics, correct
-from mocap_calib.core.model.preint import compose, hermite, integrate_pieces, pieces
+from mocap_calib.core.model.imu_model import Corrected, Intrinsics, correct
+from mocap_calib.core.model.preint import (
+    StepIncrements,
+    compose,
+    hermite,
+    integrate_pieces,
+    pieces,
+)
 from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
@@ -42,152 +56,18 @@ DIFFUSE = (1.0, 1.0, 0.5)
 
 
 @dataclass(frozen=True)
-class Windows:
-    """Padded window arrays (W windows, up to m steps each)."""
-
-    idx: NDArray[np.int64]  # (W, m+1) mocap sample index
-    mask: NDArray[np.bool_]  # (W, m+1) real sample
-    tau: Array  # (W, m+1)
+class _Residuals:
+    r: Array  # (W, m+1, 6) attitude and position residuals
+    Jinv: Array  # (W, m+1, 3, 3) right-Jacobian inverse of the attitude residual
+    Pm_rot: Array  # (W, m+1, 3, 3) d r_rot / d (nominal attitude perturbation)
     R_WM: Array  # (W, m+1, 3, 3)
-    p_WM: Array  # (W, m+1, 3)
-    v0: Array  # (W, 3) IMU velocity guess at the window start (diffuse prior's mean)
-
-    @property
-    def count(self) -> int:
-        return self.idx.shape[0]
-
-    @property
-    def steps(self) -> int:
-        return self.idx.shape[1] - 1
-
-    @property
-    def start(self) -> Array:
-        return self.tau[:, 0]
-
-    @property
-    def end(self) -> Array:
-        last = self.mask.sum(axis=1) - 1
-        return self.tau[np.arange(self.count), last]
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.mask.sum())
-
-
-def make_windows(s: PreparedSession, delta: float, length: float, max_rate: float,
-                 v_imu: Array, min_samples: int = 20, margin: float = 0.1) -> Windows:
-    """Cut the mocap stream into gap-free windows of at most ``length`` seconds.
-
-    Args:
-        s: prepared session.
-        delta: current mocap-minus-IMU time (windows stay ``margin`` inside the IMU span).
-        length: window length (s).
-        max_rate: mocap samples above this rate are decimated (consecutive mocap noise is rarely
-            independent beyond ~100-200 Hz, and the cost is linear in the samples).
-        v_imu: (M, 3) IMU velocity guess at every mocap sample (for window starts).
-    """
-    step = max(1, int(round(s.mocap_rate / max_rate)))
-    sel = np.arange(0, len(s.tau), step)
-    tau = s.tau[sel]
-    inside = (tau - delta > s.u[0] + margin) & (tau - delta < s.u[-1] - margin)
-    gap = max(s.gap, 3.0 * step / s.mocap_rate)
-    breaks = np.flatnonzero((np.diff(tau) > gap) | (inside[1:] != inside[:-1])) + 1
-    segments = [seg for seg in np.split(np.arange(len(sel)), breaks) if inside[seg[0]]]
-    windows: list[NDArray[np.int64]] = []
-    for seg in segments:
-        dur = tau[seg[-1]] - tau[seg[0]]
-        n = max(1, int(np.ceil(dur / length)))
-        for part in np.array_split(seg, n):
-            if len(part) >= min_samples:
-                windows.append(sel[part])
-    if not windows:
-        return Windows(np.zeros((0, 2), np.int64), np.zeros((0, 2), bool), np.zeros((0, 2)),
-                       np.zeros((0, 2, 3, 3)), np.zeros((0, 2, 3)), np.zeros((0, 3)))
-    m1 = max(len(w) for w in windows)
-    W = len(windows)
-    idx = np.zeros((W, m1), np.int64)
-    mask = np.zeros((W, m1), bool)
-    for i, w in enumerate(windows):
-        idx[i, : len(w)] = w
-        idx[i, len(w):] = w[-1]
-        mask[i, : len(w)] = True
-    return Windows(idx, mask, s.tau[idx], s.R_WM[idx], s.p_WM[idx], v_imu[idx[:, 0]])
-
-
-@dataclass
-class Theta:
-    """Current values of the position stage's parameters."""
-
-    R_MI: Array
-    p_MI: Array
-    g_dir: Array
-    g_basis: Array  # (3, 2) tangent basis of the gravity direction (GTSAM Unit3's)
-    g_mag: float
-    delta: float
-    effects: dict[str, Array]
-    knots: Array  # (W, 6): gyro bias, accel bias at each window start
-    t_mid: float = 0.0
 
 
 @dataclass(frozen=True)
-class Layout:
-    """Column layout of a window's Jacobian: global blocks, then the window's bias knot."""
-
-    blocks: tuple[tuple[str, int], ...]
-
-    @property
-    def dim(self) -> int:
-        return sum(d for _, d in self.blocks)
-
-    def slice(self, name: str) -> slice:
-        o = 0
-        for n, d in self.blocks:
-            if n == name:
-                return slice(o, o + d)
-            o += d
-        raise KeyError(name)
-
-    def has(self, name: str) -> bool:
-        return any(n == name for n, _ in self.blocks)
-
-
-def layout_for(model: Model) -> Layout:
-    blocks: list[tuple[str, int]] = [("rotation", 3), ("translation", 3), ("gravity", 2)]
-    if model.has("time_offset"):
-        blocks.append(("time_offset", 1))
-    if model.has("gravity_magnitude"):
-        blocks.append(("gravity_magnitude", 1))
-    for eff in model.units:
-        if eff.sensor in ("gyro", "accel"):
-            blocks.append((eff.name, eff.dim))
-    blocks.append(("knot", 6))
-    return Layout(tuple(blocks))
-
-
-@dataclass
-class EvalOut:
-    """One evaluation of all windows.
-
-    Attributes:
-        gram: (W, p+1, p+1) Gram matrix of the whitened ``[J | r]`` per window (r last).
-        innovation: (W, m+1, 6) one-step prediction errors (rad, m) at each sample.
-        d_raw: (W, m+1) whitened innovation norm with unit robust weights.
-        chi2: (W,) whitened cost per window (with the robust weights used).
-        q_rot, q_pos: (W, m+1) squared whitened attitude / position innovation (3 dof each):
-            their typical size tells whether the mocap noise is as modelled.
-        raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
-    """
-
-    gram: Array
-    innovation: Array
-    d_raw: Array
-    chi2: Array
-    q_rot: Array
-    q_pos: Array
-    raw_r: Array | None = None
-    raw_J: Array | None = None
-    whitened: Array | None = None
-    extras: dict[str, Array] = field(default_factory=dict)
+class _Noise:
+    q_diag: Array  # (W, m, 15) diagonal process noise per step
+    q_pv: Array  # (W, m) position-velocity cross term
+    Rn: Array  # (W, m+1, 6, 6) mocap noise of each residual
 
 
 class PositionProblem:
@@ -234,19 +114,30 @@ class PositionProblem:
 
     def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool,
                         ci: int = 0) -> EvalOut:
-        s, win, L = self.s, self.win, self.layout
-        nz = self.noise
-        W = len(c)
-        m = win.steps
-        p = L.dim
-        tau = win.tau[c]
-        mask = win.mask[c]
-        R_WM = win.R_WM[c]
-        p_WM = win.p_WM[c]
+        win = self.win
+        tau, R_WM = win.tau[c], win.R_WM[c]
         h = np.diff(tau, axis=1)  # padded steps have h = 0
+        inc, corr, dwf = self._imu_steps(th, c, tau, h)
+        # Nominal trajectory; the start velocity is a fixed guess (a diffuse nuisance).
+        Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
+                                win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+                                th.g_mag * th.g_dir)
+        res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
+        F = self._transition(inc, Rbar, h)
+        gcols, g_in = self._gravity_inputs(th, h)
+        # A frozen whitening (see freeze_whitening) needs no noise model here.
+        frozen = self._ops.get(ci) if self.freeze else None
+        noise = self._noise(th, h, R_WM) if (frozen is None or store) else None
+        out = self._filter(th, c, ci, res, F, dwf, gcols, g_in, noise, frozen, store)
+        return out
 
-        # --- IMU signals on pieces between IMU samples (see preint.Pieces), corrected with
-        # each window's knot biases.
+    def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
+                   h: Array) -> tuple[StepIncrements, Corrected, Array]:
+        """Step increments of the corrected IMU and ``d(w, f)/dtheta`` at every step."""
+        s, L = self.s, self.layout
+        W, m, p = len(c), self.win.steps, L.dim
+        # IMU signals on pieces between IMU samples (see preint.Pieces), corrected with each
+        # window's knot biases.
         pc = pieces(s.u, tau[:, :-1], tau[:, 1:], th.delta)  # nodes (W, m, 2n+1)
         intr = Intrinsics(th.knots[c, None, None, 0:3], th.knots[c, None, None, 3:6], th.effects,
                           th.t_mid)
@@ -278,13 +169,11 @@ class PositionProblem:
             elif name in cm.dw:
                 dw[:, :, :, sl] = cm.dw[name]
                 df[:, :, :, sl] = cm.df[name]
+        return inc, corr, dwf
 
-        # --- Nominal trajectory (sequential composition of the step increments).
-        # The start velocity is a fixed guess: it is a diffuse nuisance of the filter.
-        Rbar, pbar, vbar = compose(inc, h, R_WM[:, 0] @ th.R_MI, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI,
-                                   win.v0[c], th.g_mag * th.g_dir)
-
-        # --- Residuals at every sample and the parts of their Jacobians not through S.
+    @staticmethod
+    def _residuals(th: Theta, R_WM: Array, p_WM: Array, Rbar: Array, pbar: Array) -> _Residuals:
+        """Residuals at every sample and the parts of their Jacobians not through S."""
         R_meas = R_WM @ th.R_MI
         p_meas = p_WM + np.einsum("wkij,j->wki", R_WM, th.p_MI)
         E = np.einsum("wkji,wkjl->wkil", Rbar, R_meas)
@@ -292,9 +181,12 @@ class PositionProblem:
         r = np.concatenate([r_rot, p_meas - pbar], axis=-1)  # (W, m+1, 6)
         Jinv = so3.right_jacobian_inv(r_rot)
         Pm_rot = Jinv @ np.swapaxes(E, -1, -2)  # d r_rot / d (nominal attitude perturbation)
+        return _Residuals(r, Jinv, Pm_rot, R_WM)
 
-        # --- Error-state transition per step (world-frame blocks need Rbar_k). The big
-        # arrays are reused between evaluations: their zero blocks never change.
+    def _transition(self, inc: StepIncrements, Rbar: Array, h: Array) -> Array:
+        """Error-state transition per step (world-frame blocks need Rbar_k). The big array is
+        reused between evaluations: its zero blocks never change."""
+        W, m = h.shape
         Rk = Rbar[:, :-1]
         F = self._buffer("F", (W, m, 15, 15), identity_blocks=True)
         dRt = np.swapaxes(inc.dR, -1, -2)
@@ -307,6 +199,12 @@ class PositionProblem:
         F[..., 6:9, 0:3] = -Rk @ so3.hat(inc.dv)
         F[..., 6:9, 9:12] = Rk @ inc.B
         F[..., 6:9, 12:15] = -Rk @ inc.A
+        return F
+
+    def _gravity_inputs(self, th: Theta, h: Array) -> tuple[list[int], Array]:
+        """Columns and per-step inputs of the gravity parameters (velocity and position)."""
+        L = self.layout
+        W, m = h.shape
         # Parameter inputs: a parameter acts like a bias of -dw/dtheta, -df/dtheta; gravity
         # enters the velocity and position directly.
         gcols = list(range(L.slice("gravity").start, L.slice("gravity").stop))
@@ -317,33 +215,42 @@ class PositionProblem:
         g_in = np.empty((W, m, 6, len(gcols)))
         g_in[..., 0:3, :] = 0.5 * (h**2)[..., None, None] * dg
         g_in[..., 3:6, :] = h[..., None, None] * dg
+        return gcols, g_in
 
-        # A frozen whitening (see freeze_whitening) needs no noise model here.
-        frozen = self._ops.get(ci) if self.freeze else None
-        need_noise = frozen is None or store
+    def _noise(self, th: Theta, h: Array, R_WM: Array) -> _Noise:
+        """Process noise of every step and mocap noise of every sample."""
+        nz = self.noise
+        W, m = h.shape
         # Process noise per step (isotropic densities, so frame rotations drop out).
-        if need_noise:
-            sg2 = nz.gyroscope_noise_density**2
-            sa2 = nz.accelerometer_noise_density**2
-            q_diag = np.empty((W, m, 15))
-            q_diag[..., 0:3] = (sg2 * h)[..., None]
-            q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
-            q_diag[..., 6:9] = (sa2 * h)[..., None]
-            q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
-            q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
-            q_pv = sa2 * h**2 / 2.0
+        sg2 = nz.gyroscope_noise_density**2
+        sa2 = nz.accelerometer_noise_density**2
+        q_diag = np.empty((W, m, 15))
+        q_diag[..., 0:3] = (sg2 * h)[..., None]
+        q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
+        q_diag[..., 6:9] = (sa2 * h)[..., None]
+        q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
+        q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
+        q_pv = sa2 * h**2 / 2.0
 
-            # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
-            sr2 = nz.mocap_rotation_sigma**2
-            lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
-            Rn = np.empty((W, m + 1, 6, 6))
-            Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
-            Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
-            Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
-            Rn[..., 3:6, 3:6] = (nz.mocap_position_sigma**2 * np.eye(3)
-                                 + sr2 * lev @ np.swapaxes(lev, -1, -2))
-        else:
-            q_diag = q_pv = Rn = None
+        # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
+        sr2 = nz.mocap_rotation_sigma**2
+        lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
+        Rn = np.empty((W, m + 1, 6, 6))
+        Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
+        Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
+        Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
+        Rn[..., 3:6, 3:6] = (nz.mocap_position_sigma**2 * np.eye(3)
+                             + sr2 * lev @ np.swapaxes(lev, -1, -2))
+        return _Noise(q_diag, q_pv, Rn)
+
+    def _filter(self, th: Theta, c: NDArray[np.int64], ci: int, res: _Residuals, F: Array,
+                dwf: Array, gcols: list[int], g_in: Array, noise: _Noise | None,
+                frozen: dict[str, Array] | None, store: bool) -> EvalOut:
+        """Sequential pass over the steps: sensitivities S, Kalman whitening, Gram matrix."""
+        L, mask = self.layout, self.win.mask[c]
+        W, m, p = len(c), self.win.steps, L.dim
+        r, Jinv, Pm_rot, R_WM = res.r, res.Jinv, res.Pm_rot, res.R_WM
+        q_diag, q_pv, Rn = (noise.q_diag, noise.q_pv, noise.Rn) if noise else (None, None, None)
         wts = self.weights[c]
         weighted = wts < 1.0
 
