@@ -73,6 +73,16 @@ def test_report_round_trips_through_yaml(tmp_path) -> None:
     after = step["residuals_after"]["power_over_floor_by_band"]["gyro"]
     assert max(after["0.5-2 Hz"]) < 2.0
     assert d["final_calibration"]["time_offset"] == pytest.approx(0.006, abs=2e-4)
+    # Typed and versioned: the file reads back into a report that writes the same data.
+    from mocap_calib.core.diagnosis.diagnose import DiagnoseReport
+    from mocap_calib.core.model.versioned import KindError
+
+    assert (d["kind"], d["version"]) == ("diagnosis", 1)
+    back = DiagnoseReport.from_dict(d)
+    assert back.found == ["time_offset"]
+    assert load_yaml(save_yaml(tmp_path / "r2.yaml", back.to_dict())) == d
+    with pytest.raises(KindError, match="newer"):
+        DiagnoseReport.from_dict({**d, "version": 2})
 
 
 def test_cli_diagnose_bad_options_exit_2(capsys, tmp_path) -> None:

@@ -85,7 +85,8 @@ def test_result_round_trip_is_exact(tmp_path: Path) -> None:
 def test_result_file_has_conventions_keys(tmp_path: Path) -> None:
     res = make_result()
     data = yaml.safe_load(save_result(tmp_path / "calib.yaml", res).read_text())
-    assert list(data)[:6] == ["gyro_bias", "accel_bias", "T_marker_imu", "gravity_in_mocap",
+    assert list(data)[:8] == ["kind", "version", "gyro_bias", "accel_bias", "T_marker_imu",
+                              "gravity_in_mocap",
                               "time_offset", "sigma"]
     assert set(data["T_marker_imu"]) == {"rotation_wxyz", "translation"}
     assert set(data["sigma"]) == {"gyro_bias", "accel_bias", "rotation", "translation",
@@ -290,3 +291,22 @@ def test_load_noise_rejects_bad_values(tmp_path: Path, value: str, fragment: str
 def test_load_noise_rejects_files_without_noise_keys(tmp_path: Path, text: str) -> None:
     with pytest.raises(InputError, match="no noise keys"):
         load_noise(write(tmp_path, text, "imu.yaml"))
+
+
+def test_result_kind_and_version_are_checked() -> None:
+    from mocap_calib.core.model.versioned import KindError
+
+    d = make_result().to_dict()
+    assert (d["kind"], d["version"]) == ("calibration", 1)
+    assert CalibrationResult.from_dict(d).to_dict() == d
+    with pytest.raises(KindError, match="newer"):
+        CalibrationResult.from_dict({**d, "version": 99})
+    with pytest.raises(KindError, match="diagnosis file"):
+        CalibrationResult.from_dict({**d, "kind": "diagnosis"})
+
+
+def test_other_kind_of_file_is_named(tmp_path: Path) -> None:
+    p = tmp_path / "noise.yaml"
+    p.write_text("kind: noise\nversion: 1\ngyroscope_noise_density: 1e-4\n")
+    with pytest.raises(InputError, match="noise file, not a calibration file"):
+        load_result(p)

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
 from mocap_calib.sim.trajectory import random_trajectory
 
@@ -279,6 +280,7 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
                        cfg.mocap_time_origin_ns, "simulated mocap")
 
     truth: dict[str, Any] = {
+        **header("calibration", 1),
         "gyro_bias": b_g.mean(axis=0).tolist(),
         "accel_bias": b_a.mean(axis=0).tolist(),
         "T_marker_imu": {

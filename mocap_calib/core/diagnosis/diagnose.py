@@ -36,9 +36,14 @@ from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]
+
+
+REPORT_KIND = "diagnosis"
+REPORT_VERSION = 1
 
 
 @dataclass
@@ -83,6 +88,12 @@ class CandidateScore:
                 "log10_p": round(self.log10_p, 3), "significant": self.significant,
                 "residual_drop": round(self.residual_drop, 4)}
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CandidateScore:
+        return cls(str(d["effect"]), int(d["dof"]), float(d["delta_chi2"]),
+                   float(d["noise_scale"]), float(d["statistic"]), float(d["log10_p"]),
+                   bool(d["significant"]), float(d["residual_drop"]))
+
 
 @dataclass
 class Residuals:
@@ -93,6 +104,7 @@ class Residuals:
     accel_rms: Array
     accel_floor: Array
     analysis: ResidualAnalysis | None = None
+    stored: dict[str, Any] | None = field(default=None, repr=False)  # as read from a file
 
     @classmethod
     def of(cls, ra: ResidualAnalysis) -> Residuals:
@@ -113,7 +125,16 @@ class Residuals:
         if self.analysis is not None:
             d["cutoff_hz"] = self.analysis.cutoff_hz
             d["power_over_floor_by_band"] = self.analysis.band_ratios()
+        elif self.stored is not None:
+            d.update({k: v for k, v in self.stored.items() if k not in d})
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Residuals:
+        """The figures of :meth:`to_dict` (the residual series themselves are not stored)."""
+        return cls(*(np.asarray(d[k], dtype=float)
+                     for k in ("gyro_rms", "gyro_floor", "accel_rms", "accel_floor")),
+                   stored=d)
 
 
 @dataclass
@@ -144,6 +165,17 @@ class DiagnoseStep:
                 d["residuals_after"] = self.residuals_after.to_dict()
         return d
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DiagnoseStep:
+        added = d.get("added") or {}
+        name = added.get("effect")
+        after = d.get("residuals_after")
+        return cls(str(d["model"]), Residuals.from_dict(d["residuals"]), float(d["chi2"]),
+                   int(d["dof"]), [CandidateScore.from_dict(c) for c in d["candidates"]],
+                   added=name, added_params=added.get(EFFECTS[name].param) if name else None,
+                   added_sigma=added.get("sigma"),
+                   residuals_after=None if after is None else Residuals.from_dict(after))
+
 
 @dataclass
 class DiagnoseReport:
@@ -165,6 +197,7 @@ class DiagnoseReport:
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            **header(REPORT_KIND, REPORT_VERSION),
             "found": list(self.found),
             "verdict": self.verdict,
             "start_model": self.start_model,
@@ -177,6 +210,22 @@ class DiagnoseReport:
             "notes": list(self.notes),
             "seconds": round(self.seconds, 2),
         }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DiagnoseReport:
+        """Inverse of :meth:`to_dict` (figures only: no residual series).
+
+        Raises:
+            KindError: not a diagnosis report, or a newer version.
+            KeyError, ValueError, TypeError: a malformed report.
+        """
+        check_kind(d, REPORT_KIND, REPORT_VERSION)
+        return cls(list(d["found"]), str(d["start_model"]), str(d["final_model"]),
+                   [DiagnoseStep.from_dict(x) for x in d["steps"]],
+                   CalibrationResult.from_dict(d["final_calibration"]),
+                   Residuals.from_dict(d["final_residuals"]),
+                   float(d["test"]["threshold_log10_p"]), list(d.get("notes") or []),
+                   float(d.get("seconds", 0.0)))
 
 
 #: Beyond these, a named effect is implausible for a MEMS IMU: it most likely absorbs something
