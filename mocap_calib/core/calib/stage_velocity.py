@@ -94,6 +94,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     kf = kf[valid[kf]]
     i0, i1 = kf[:-1], kf[1:]
     ok = (s.segments_without_gaps(i0, i1) & s.imu_covers(s.tau[i0], s.tau[i1], delta)
+          # a keyframe dropped (invalid derivative) leaves a longer interval: keep it short
           & (s.tau[i1] - s.tau[i0] < 2.5 * spacing))
     i0, i1 = i0[ok], i1[ok]
     if len(i0) < 10:
