@@ -57,12 +57,17 @@ def save_yaml(path: str | Path, data: dict[str, Any], header: str | None = None)
 def save_text(path: str | Path, text: str) -> Path:
     """Write a text file, or raise a one-line :class:`InputError`."""
     path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
+        # Atomic: a reader (or an interrupted run) sees the old file or the new one, never half.
+        tmp.write_text(text)
+        os.replace(tmp, path)
     except OSError as err:
         raise InputError(f"{path}: cannot write ({err.strerror or err}); choose another "
                          "output path") from None
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 

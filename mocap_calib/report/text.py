@@ -19,6 +19,17 @@ def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:
     return "[" + ", ".join(f"{x:.{digits}g}" for x in a) + "]"
 
 
+def _fmt_time_ms(t: float | None, sigma: float | None) -> str:
+    """A clock offset in ms with as many decimals as its sigma needs (two significant digits
+    of the sigma; microseconds without one), however large the offset (clocks of different
+    epochs differ by years)."""
+    if t is None:
+        return "unobservable"
+    s_ms = 1e-3 if sigma is None or not sigma > 0 else sigma * 1e3
+    decimals = int(np.clip(1 - np.floor(np.log10(s_ms)), 0, 9))
+    return f"{t * 1e3:.{decimals}f}"
+
+
 def table(header: Sequence[str], rows: Sequence[Sequence[str]],
           right: Sequence[bool] | None = None) -> str:
     """The one text-table layout: columns padded to their widest cell, a rule under the header;
@@ -51,7 +62,7 @@ def summary_table(r: CalibrationResult) -> str:
         tilt = np.degrees(np.arccos(np.clip(-r.gravity_in_mocap[2], -1, 1)))
         rows.append(("mocap z tilt from vertical", f"{tilt:.4g}", "", "deg"))
     sto = None if r.sigma_time_offset is None else r.sigma_time_offset * 1e3
-    rows.append(("time_offset", _fmt(None if r.time_offset is None else r.time_offset * 1e3),
+    rows.append(("time_offset", _fmt_time_ms(r.time_offset, r.sigma_time_offset),
                  "fixed" if sto is None and r.time_offset is not None else _fmt(sto, digits=2),
                  "ms"))
     for name, rec in r.effects.items():

@@ -33,12 +33,12 @@ def calibration_options(*, model: str = "base+time_offset", gravity: float = 9.8
                         keyframe_spacing: float = 0.5, window: float = 5.0,
                         time_offset: float | None = None, robust: bool = True,
                         start: float | None = None, end: float | None = None,
-                        ) -> CalibrationOptions:
+                        max_iterations: int = 30) -> CalibrationOptions:
     """Calibration options from the command line's values."""
     return CalibrationOptions(
         model=Model.parse(model), gravity=gravity, attitude_spacing=keyframe_spacing,
         velocity_spacing=keyframe_spacing, window=window, time_offset=time_offset,
-        robust=robust, start=start, end=end)
+        robust=robust, start=start, end=end, max_iterations=max_iterations)
 
 
 def noise_overrides(*, gyro_noise: float | None = None, gyro_walk: float | None = None,
@@ -101,12 +101,9 @@ def calibrate_to_files(spec: InputSpec, options: CalibrationOptions, outputs: Ca
     check_writable(outputs.out, outputs.report, outputs.rrd)
     result, session = run_calibration(spec, options, noise_file, overrides, prior_files or [],
                                       progress)
-    save_result(outputs.out, result)
+    # The result file is written last, so that an interrupted run leaves no result behind.
     table = summary_table(result)
-    run = CalibrateRun(result, table, [f"wrote {outputs.out}"])
-    if outputs.report is not None:
-        save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")
-        run.written.append(f"wrote {outputs.report}")
+    run = CalibrateRun(result, table, [])
     if outputs.rrd is not None:
         from mocap_calib.viz.recording import write_calibration_recording
 
@@ -114,4 +111,9 @@ def calibrate_to_files(spec: InputSpec, options: CalibrationOptions, outputs: Ca
             progress("writing rerun recording")
         path = write_calibration_recording(outputs.rrd, result, session.imu, session.mocap)
         run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
+    if outputs.report is not None:
+        save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")
+        run.written.append(f"wrote {outputs.report}")
+    save_result(outputs.out, result)
+    run.written.insert(0, f"wrote {outputs.out}")
     return run

@@ -85,6 +85,9 @@ def calibrate(
     end: Annotated[float | None, typer.Option(
         help="Use the session up to this many seconds after the IMU start.",
         show_default=False)] = None,
+    max_iterations: Annotated[int, typer.Option(
+        help="Most Levenberg-Marquardt iterations per solve (a solve still improving at the "
+        "limit is retried once from where it stopped; then the command exits 4).")] = 30,
     no_robust: Annotated[bool, typer.Option(
         "--no-robust", help="Do not down-weight mocap outliers.")] = False,
     pose_source: POSE_SOURCE = "auto",
@@ -100,7 +103,7 @@ def calibrate(
                      quat_order, position_unit)
     opts = calibration_options(model=model, gravity=gravity, keyframe_spacing=keyframe_spacing,
                                window=window, time_offset=time_offset, robust=not no_robust,
-                               start=start, end=end)
+                               start=start, end=end, max_iterations=max_iterations)
     overrides = noise_overrides(gyro_noise=gyro_noise, gyro_walk=gyro_walk,
                                 accel_noise=accel_noise, accel_walk=accel_walk,
                                 mocap_noise_mm=mocap_noise_mm, mocap_noise_deg=mocap_noise_deg)

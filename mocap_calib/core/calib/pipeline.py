@@ -87,6 +87,9 @@ class CalibrationOptions:
                                 ("--window", self.window, 0.5, 60.0)):
             if not lo <= v <= hi:
                 raise InputError(f"{name} {v}: must be between {lo} and {hi} s")
+        if not 1 <= self.max_iterations <= 10_000:
+            raise InputError(f"--max-iterations {self.max_iterations}: must be between 1 and "
+                             "10000")
         nz = self.noise
         for k, v in nz.to_dict().items():
             if not (np.isfinite(v) and v > 0):
@@ -95,17 +98,22 @@ class CalibrationOptions:
 
 def _crop(imu: ImuSamples, mocap: MocapPoses,
           opts: CalibrationOptions) -> tuple[ImuSamples, MocapPoses]:
+    """``--start``/``--end`` (s from the IMU start) select IMU samples; the mocap is cut to
+    match (with a margin for the clock offset) only when the raw stamps share an epoch. From
+    clocks of different epochs it stays whole: the clock search finds the matching stretch."""
     if opts.start is None and opts.end is None:
         return imu, mocap
     lo = imu.t[0] + (opts.start or 0.0)
     hi = imu.t[0] + opts.end if opts.end is not None else np.inf
     if not hi > lo:
         raise InputError("--end must be after --start")
-    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
     imu_c = imu.select((imu.t >= lo) & (imu.t <= hi))
+    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
     tm = mocap.t - shift  # mocap times on the IMU clock (before the fine offset)
-    moc_c = mocap.select((tm >= lo - 1.0) & (tm <= hi + 1.0))
-    return imu_c, moc_c
+    if tm[-1] < imu.t[0] or tm[0] > imu.t[-1]:  # different epochs
+        return imu_c, mocap
+    margin = 1.0 if opts.time_offset is None else 1.0 + abs(opts.time_offset)
+    return imu_c, mocap.select((tm >= lo - margin) & (tm <= hi + margin))
 
 
 def _corrector(model: Model, effects: dict[str, Array], t_mid: float, gyro_bias: Array,
@@ -159,12 +167,12 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     att = run_attitude_stage(
         s, delta0, opts.noise, opts.attitude_spacing,
         _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
-        on_iteration=_stage_hook(on_iteration, "attitude"))
+        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "attitude"))
     say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
     vel = run_velocity_stage(
         s, delta0, opts.noise, opts.velocity_spacing, att.R_MI,
         _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
-        on_iteration=_stage_hook(on_iteration, "velocity"))
+        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "velocity"))
 
     say("stage 3/3: position factors (all parameters jointly)")
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)

@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.graph import BatchFactors, BatchOutput, run_lm
+from mocap_calib.core.calib.graph import BatchFactors, BatchOutput, require_converged, run_lm
 from mocap_calib.core.calib.result import ResidualSeries, StageStats
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.uncertainty import (
@@ -318,6 +318,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         pp.freeze_whitening(True)
         batch.invalidate()
         sol, rep = run_lm(graph, sol, max_iterations, hook)
+        last_report = rep
         if out0 is None:
             out0 = hook.first_eval
         iterations += rep.iterations
@@ -345,6 +346,8 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         if not changed:
             break
         batch.invalidate()
+    # Earlier rounds may stop early: the next round goes on from there. The last must converge.
+    require_converged("position", last_report, max_iterations)
     return _Fit(sol, iterations, noise_scale, out0)
 
 
