@@ -31,12 +31,16 @@ def simulate(
         "--effect", "-e", metavar="NAME[=VALUE]",
         help="Inject an effect (repeatable). Without a value a realistic magnitude is drawn. "
         + _EFFECTS_DOC)] = None,
+    mocap_noise_corr: Annotated[float, typer.Option(
+        help="Mocap noise correlated over this time constant in s (AR(1) with the same "
+        "per-sample sigma), as real mocap noise is; 0: white.")] = 0.0,
     protocol: Annotated[str, typer.Option(
         help="flight: a drone flight in a mocap room; multipos: static orientations for "
         "'mocap-calib multipos' (no mocap); static: a still IMU for 'mocap-calib allan'.")]
     = "flight",
 ) -> None:
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
-                                 imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [])
+                                 imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [],
+                                 mocap_noise_corr=mocap_noise_corr)
     for path, what in written:
         typer.echo(f"wrote {path}  ({what})")

@@ -92,8 +92,14 @@ class CalibrationOptions:
                              "10000")
         nz = self.noise
         for k, v in nz.to_dict().items():
+            if k.startswith("mocap_noise_corr"):
+                continue
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"noise model: {k} = {v} must be a positive number")
+        if not (0.0 <= nz.mocap_noise_corr_time <= 10.0
+                and 0.0 <= nz.mocap_noise_corr_fraction < 1.0):
+            raise InputError("noise model: mocap_noise_corr_time must be 0-10 s and "
+                             "mocap_noise_corr_fraction in [0, 1)")
 
 
 def _crop(imu: ImuSamples, mocap: MocapPoses,

@@ -53,6 +53,77 @@ Array = NDArray[np.float64]
 ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
 #: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
 DIFFUSE = (1.0, 1.0, 0.5)
+#: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
+#: longer than the correlation of real mocap noise, short enough for many blocks per session.
+SCORE_BLOCK_S = 1.0
+
+
+def _mocap_cov(L: Array, sr2: float, sp2: float) -> Array:
+    """(..., 6, 6) covariance of a residual's mocap noise: attitude noise ``sr2`` per axis
+    (I frame), position noise ``sp2``, and the position error ``-L`` times the attitude noise."""
+    out = np.empty(L.shape[:-2] + (6, 6))
+    Lt = np.swapaxes(L, -1, -2)
+    out[..., 0:3, 0:3] = sr2 * np.eye(3)
+    out[..., 0:3, 3:6] = -sr2 * Lt
+    out[..., 3:6, 0:3] = -sr2 * L
+    out[..., 3:6, 3:6] = sp2 * np.eye(3) + sr2 * L @ Lt
+    return out
+
+
+def _predict_covariance(P: Array, Phi: Array, noise: _Noise, k: int) -> Array:
+    """Filter covariance through step ``k``: transition plus process noise."""
+    P = Phi @ P @ np.swapaxes(Phi, 1, 2)
+    i15, i3 = np.arange(15), np.arange(3)
+    P[:, i15, i15] += noise.q_diag[:, k]
+    P[:, 3 + i3, 6 + i3] += noise.q_pv[:, k, None]
+    P[:, 6 + i3, 3 + i3] += noise.q_pv[:, k, None]
+    if noise.Qm is not None:
+        P[:, 15:, 15:] += noise.Qm[:, k]
+    return P
+
+
+class _Accumulator:
+    """What a filter pass collects per sample and window (Gram matrix, innovations, scores)."""
+
+    def __init__(self, W: int, m: int, p: int, store: bool,
+                 blocks: NDArray[np.int64] | None) -> None:
+        self.p = p
+        self.gram = np.zeros((W, p + 1, p + 1))
+        self.innov = np.zeros((W, m + 1, 6))
+        self.d_raw = np.zeros((W, m + 1))
+        self.q_rot = np.zeros((W, m + 1))
+        self.q_pos = np.zeros((W, m + 1))
+        self.chi2 = np.zeros(W)
+        self.logdet = np.zeros(W)
+        self.raw_J = np.zeros((W, m + 1, 6, p)) if store else None
+        self.whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
+        self.blocks = blocks
+        self.scores = None if blocks is None else np.zeros((W, int(blocks[-1]) + 1, p))
+
+    def add(self, k: int, N: Array, Nw: Array, Li: Array, ok: NDArray[np.bool_]) -> None:
+        p = self.p
+        self.gram += np.swapaxes(Nw, 1, 2) @ Nw
+        e = Nw[:, :, p]
+        self.chi2 += np.sum(e**2, axis=1)
+        self.logdet -= np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)),
+                                                 axis=1), 0.0)
+        self.innov[:, k] = N[:, :, p]
+        self.d_raw[:, k] = np.linalg.norm(e, axis=1)
+        # Li is lower-triangular: the first three whitened components involve only the
+        # attitude innovation and its own covariance block.
+        self.q_rot[:, k] = np.sum(e[:, 0:3] ** 2, axis=1)
+        self.q_pos[:, k] = np.sum(e[:, 3:6] ** 2, axis=1)
+        if self.whitened is not None:
+            self.whitened[:, k] = Nw
+        if self.scores is not None:
+            self.scores[:, self.blocks[k]] += np.einsum("wrp,wr->wp", Nw[:, :, :p], e)
+
+    def result(self, mask: NDArray[np.bool_], raw_r: Array | None,
+               extras: dict[str, Array]) -> EvalOut:
+        self.d_raw[~mask] = 0.0
+        self.innov[~mask] = 0.0
+        return EvalOut(self.gram, self.innov, self.d_raw, self.chi2, self.q_rot, self.q_pos,
+                       self.logdet, self.scores, raw_r, self.raw_J, self.whitened, extras)
 
 
 @dataclass(frozen=True)
@@ -67,7 +138,11 @@ class _Residuals:
 class _Noise:
     q_diag: Array  # (W, m, 15) diagonal process noise per step
     q_pv: Array  # (W, m) position-velocity cross term
-    Rn: Array  # (W, m+1, 6, 6) mocap noise of each residual
+    Rn: Array  # (W, m+1, 6, 6) white mocap noise of each residual
+    # Correlated mocap noise (states 15:21, in residual coordinates), when modelled:
+    Fm: Array | None = None  # (W, m, 6, 6) its transition per step
+    Qm: Array | None = None  # (W, m, 6, 6) its process noise per step
+    Pm0: Array | None = None  # (W, 6, 6) its stationary covariance at the first sample
 
 
 class PositionProblem:
@@ -94,6 +169,7 @@ class PositionProblem:
         self.weights = np.ones(windows.idx.shape)
         self._buffers: dict[str, Array] = {}
         self.freeze = False
+        self.collect_scores = False  # per-block scores in unfrozen evaluations (sandwich)
         self._ops: dict[int, dict[str, Array]] = {}
 
     # ------------------------------------------------------------------ evaluation
@@ -101,7 +177,7 @@ class PositionProblem:
         outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
         cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
                    else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
-                                        "raw_r", "raw_J", "whitened")}
+                                        "logdet", "scores", "raw_r", "raw_J", "whitened")}
         extras = {k: np.concatenate([o.extras[k] for o in outs]) for k in outs[0].extras}
         return EvalOut(**cat, extras=extras)
 
@@ -218,7 +294,14 @@ class PositionProblem:
         return gcols, g_in
 
     def _noise(self, th: Theta, h: Array, R_WM: Array) -> _Noise:
-        """Process noise of every step and mocap noise of every sample."""
+        """Process noise of every step and mocap noise of every sample.
+
+        Mocap noise: per-sample attitude noise (marker frame) and position noise; the attitude
+        noise also moves ``p_meas`` through the lever arm. A fraction of its variance is white,
+        the rest an AR(1) process with time constant ``mocap_noise_corr_time``, carried as six
+        filter states in residual coordinates (``m = H_k n``, so the measurement is simply
+        state + state; ``H_k`` changes with the marker attitude, hence ``Fm``).
+        """
         nz = self.noise
         W, m = h.shape
         # Process noise per step (isotropic densities, so frame rotations drop out).
@@ -232,69 +315,63 @@ class PositionProblem:
         q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
         q_pv = sa2 * h**2 / 2.0
 
-        # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
-        sr2 = nz.mocap_rotation_sigma**2
-        lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
-        Rn = np.empty((W, m + 1, 6, 6))
-        Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
-        Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
-        Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
-        Rn[..., 3:6, 3:6] = (nz.mocap_position_sigma**2 * np.eye(3)
-                             + sr2 * lev @ np.swapaxes(lev, -1, -2))
-        return _Noise(q_diag, q_pv, Rn)
+        L = R_WM @ so3.hat(th.p_MI) @ th.R_MI  # d p_meas / d (attitude noise in the I frame)
+        full = _mocap_cov(L, nz.mocap_rotation_sigma**2, nz.mocap_position_sigma**2)
+        if not nz.mocap_correlated:
+            return _Noise(q_diag, q_pv, full)
+        rho = nz.mocap_noise_corr_fraction
+        a = np.exp(-h / nz.mocap_noise_corr_time)[..., None, None]  # (W, m, 1, 1)
+        Fm = np.zeros((W, m, 6, 6))
+        Fm[..., 0:3, 0:3] = np.eye(3)
+        Fm[..., 3:6, 3:6] = np.eye(3)
+        Fm[..., 3:6, 0:3] = L[:, :-1] - L[:, 1:]  # H_{k+1} H_k^-1
+        Fm *= a
+        Qm = rho * (1.0 - a * a) * full[:, 1:]
+        return _Noise(q_diag, q_pv, (1.0 - rho) * full, Fm, Qm, rho * full[:, 0])
 
     def _filter(self, th: Theta, c: NDArray[np.int64], ci: int, res: _Residuals, F: Array,
                 dwf: Array, gcols: list[int], g_in: Array, noise: _Noise | None,
                 frozen: dict[str, Array] | None, store: bool) -> EvalOut:
-        """Sequential pass over the steps: sensitivities S, Kalman whitening, Gram matrix."""
+        """Sequential pass over the steps: sensitivities S, Kalman whitening, Gram matrix.
+
+        The filter state is the error state (attitude, position, velocity, bias deviations:
+        15) plus, with correlated mocap noise, its six states; ``X`` carries the filter's
+        estimate of the state for every column of ``[J | r]`` at once.
+        """
         L, mask = self.layout, self.win.mask[c]
         W, m, p = len(c), self.win.steps, L.dim
         r, Jinv, Pm_rot, R_WM = res.r, res.Jinv, res.Pm_rot, res.R_WM
-        q_diag, q_pv, Rn = (noise.q_diag, noise.q_pv, noise.Rn) if noise else (None, None, None)
+        corr = self.noise.mocap_correlated
+        ns = 21 if corr else 15
         wts = self.weights[c]
         weighted = wts < 1.0
-
-        # --- Sequential pass: sensitivities S, Kalman whitening, Gram accumulation.
         rs, ts = L.slice("rotation"), L.slice("translation")
         S = np.zeros((W, 9, p))
         S[:, 0:3, rs] = np.eye(3)
         S[:, 3:6, ts] = R_WM[:, 0]
-        P = np.zeros((W, 15, 15))
-        P[:, 0:3, 0:3] = DIFFUSE[0] ** 2 * np.eye(3)
-        P[:, 3:6, 3:6] = DIFFUSE[1] ** 2 * np.eye(3)
-        P[:, 6:9, 6:9] = DIFFUSE[2] ** 2 * np.eye(3)
-        X = np.zeros((W, 15, p + 1))
+        P = np.zeros((W, ns, ns))
+        for i, d in enumerate(DIFFUSE):
+            P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
+        if corr and noise is not None:
+            P[:, 15:, 15:] = noise.Pm0
+        Phi = self._transition_full(F, noise) if frozen is None else frozen["F"]
+        X = np.zeros((W, ns, p + 1))
         # A frozen whitening operator (transition for the filter mean, gains, whitening) makes
         # the cost an exact weighted least squares in the parameters while LM runs on it.
         record = self.freeze and frozen is None
         if record:
-            rec_F = F.copy()
             rec_Li = np.zeros((W, m + 1, 6, 6))
-            rec_K = np.zeros((W, m + 1, 15, 6))
-        gram = np.zeros((W, p + 1, p + 1))
-        innov = np.zeros((W, m + 1, 6))
-        d_raw = np.zeros((W, m + 1))
-        q_rot = np.zeros((W, m + 1))
-        q_pos = np.zeros((W, m + 1))
-        chi2 = np.zeros(W)
-        raw_J = np.zeros((W, m + 1, 6, p)) if store else None
-        whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
+            rec_K = np.zeros((W, m + 1, ns, 6))
+        acc = _Accumulator(W, m, p, store, self._score_blocks(m) if self.collect_scores else None)
         N = np.zeros((W, 6, p + 1))
-        i15 = np.arange(15)
-        i3 = np.arange(3)
         for k in range(m + 1):
             if k > 0:
                 Fk = F[:, k - 1]
                 S = Fk[:, 0:9, 0:9] @ S - Fk[:, 0:9, 9:15] @ dwf[:, k - 1]
                 S[:, 3:9, gcols] += g_in[:, k - 1]
-                if frozen is not None:
-                    X = frozen["F"][:, k - 1] @ X
-                else:
-                    X = Fk @ X
-                    P = Fk @ P @ np.swapaxes(Fk, 1, 2)
-                    P[:, i15, i15] += q_diag[:, k - 1]
-                    P[:, 3 + i3, 6 + i3] += q_pv[:, k - 1, None]
-                    P[:, 6 + i3, 3 + i3] += q_pv[:, k - 1, None]
+                X = Phi[:, k - 1] @ X
+                if frozen is None:
+                    P = _predict_covariance(P, Phi[:, k - 1], noise, k - 1)
             # Residual Jacobian: direct part minus the nominal's sensitivity.
             N[:, 0:3, :p] = -(Pm_rot[:, k] @ S[:, 0:3, :])
             N[:, 0:3, rs] += Jinv[:, k]
@@ -302,53 +379,61 @@ class PositionProblem:
             N[:, 3:6, ts] += R_WM[:, k]
             N[:, :, p] = r[:, k]
             if store:
-                raw_J[:, k] = N[:, :, :p]
-            N -= X[:, 0:6, :]
+                acc.raw_J[:, k] = N[:, :, :p]
+            N -= X[:, 0:6, :] + X[:, 15:21, :] if corr else X[:, 0:6, :]
             ok = mask[:, k]
             if frozen is not None:
                 Li = frozen["Li"][:, k]
             else:
-                Sinn = P[:, 0:6, 0:6] + Rn[:, k] / wts[:, k, None, None]
-                Li = np.linalg.inv(np.linalg.cholesky(Sinn))
+                PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]  # (W, ns, 6)
+                HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
+                Sk = HPHt + noise.Rn[:, k] / wts[:, k, None, None]
+                Li = np.linalg.inv(np.linalg.cholesky(Sk))
             Nw = Li @ N
             Nw[~ok] = 0.0
-            gram += np.swapaxes(Nw, 1, 2) @ Nw
-            chi2 += np.sum(Nw[:, :, p] ** 2, axis=1)
-            innov[:, k] = N[:, :, p]
-            d_raw[:, k] = np.linalg.norm(Nw[:, :, p], axis=1)
-            # L is lower-triangular: the first three whitened components involve only the
-            # attitude innovation and its own covariance block.
-            q_rot[:, k] = np.sum(Nw[:, 0:3, p] ** 2, axis=1)
-            q_pos[:, k] = np.sum(Nw[:, 3:6, p] ** 2, axis=1)
+            acc.add(k, N, Nw, Li, ok)
             wk = weighted[:, k]
             if frozen is None and np.any(wk):
                 # The robust weight's own test needs the innovation against the unweighted noise.
-                Sraw = P[wk, 0:6, 0:6] + Rn[wk, k]
-                d_raw[wk, k] = np.linalg.norm(
+                Sraw = HPHt[wk] + noise.Rn[wk, k]
+                acc.d_raw[wk, k] = np.linalg.norm(
                     np.linalg.solve(np.linalg.cholesky(Sraw), N[wk, :, p:]), axis=(1, 2))
-            if store:
-                whitened[:, k] = Nw
             if frozen is not None:
                 X += frozen["K"][:, k] @ N
                 continue
-            K = P[:, :, 0:6] @ (np.swapaxes(Li, 1, 2) @ Li)  # (W, 15, 6)
+            K = PHt @ (np.swapaxes(Li, 1, 2) @ Li)  # (W, ns, 6)
             K[~ok] = 0.0
             X += K @ N
-            P -= K @ P[:, 0:6, :]
+            P -= K @ np.swapaxes(PHt, 1, 2)
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
             if record:
                 rec_Li[:, k] = Li
                 rec_K[:, k] = K
         if record:
-            self._ops[ci] = {"F": rec_F, "Li": rec_Li, "K": rec_K}
-        d_raw[~mask] = 0.0
-        innov[~mask] = 0.0
+            self._ops[ci] = {"F": Phi.copy(), "Li": rec_Li, "K": rec_K}
         extras = {}
         if store:  # the state-space model itself, for tests against a dense covariance
-            extras = {"F": F.copy(), "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn,
+            extras = {"F": F.copy(), "q_diag": noise.q_diag, "q_pv": noise.q_pv, "Rn": noise.Rn,
                       "weights": wts.copy()}
-        return EvalOut(gram, innov, d_raw, chi2, q_rot, q_pos, r if store else None, raw_J,
-                       whitened, extras)
+            if corr:
+                extras.update(Fm=noise.Fm, Qm=noise.Qm, Pm0=noise.Pm0)
+        return acc.result(mask, r if store else None, extras)
+
+    def _transition_full(self, F: Array, noise: _Noise | None) -> Array:
+        """The filter's transition: the error state's, and the correlated mocap noise's."""
+        if noise is None or noise.Fm is None:
+            return F
+        W, m = F.shape[:2]
+        Phi = self._buffer("Phi", (W, m, 21, 21))
+        Phi[..., 0:15, 0:15] = F
+        Phi[..., 15:21, 15:21] = noise.Fm
+        return Phi
+
+    def _score_blocks(self, m: int) -> NDArray[np.int64]:
+        """Block index of every sample of a window: blocks of about ``SCORE_BLOCK_S``."""
+        rate = 1.0 / float(np.median(np.diff(self.win.tau[0][self.win.mask[0]])))
+        per = max(1, int(round(SCORE_BLOCK_S * rate)))
+        return np.arange(m + 1) // per
 
     def _buffer(self, name: str, shape: tuple[int, ...], identity_blocks: bool = False) -> Array:
         """A reusable array: blocks not written by the caller keep their initial values."""

@@ -151,6 +151,10 @@ class EvalOut:
         chi2: (W,) whitened cost per window (with the robust weights used).
         q_rot, q_pos: (W, m+1) squared whitened attitude / position innovation (3 dof each):
             their typical size tells whether the mocap noise is as modelled.
+        logdet: (W,) sum of log det of the innovation covariances (the likelihood's other part).
+        scores: (W, B, p) per window and block of consecutive samples, the whitened score
+            ``sum J_w^T r_w`` (only when the problem collects them, for the sandwich
+            covariance).
         raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
     """
 
@@ -160,6 +164,8 @@ class EvalOut:
     chi2: Array
     q_rot: Array
     q_pos: Array
+    logdet: Array
+    scores: Array | None = None
     raw_r: Array | None = None
     raw_J: Array | None = None
     whitened: Array | None = None

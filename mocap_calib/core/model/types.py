@@ -143,9 +143,17 @@ class NoiseModel:
     accelerometer_random_walk: float = 3.0e-3  # m/s^3/sqrt(Hz)
     mocap_position_sigma: float = 0.5e-3  # m, per axis and sample
     mocap_rotation_sigma: float = float(np.radians(0.05))  # rad, per axis and sample
+    # Real mocap noise is correlated over time (marker sets change, the pose solver and its
+    # filters smooth): a fraction of its variance is an AR(1) process with this time constant.
+    mocap_noise_corr_time: float = 0.0  # s; 0: white
+    mocap_noise_corr_fraction: float = 0.0  # fraction of the variance that is correlated
 
     def to_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in self.__dict__.items()}
+
+    @property
+    def mocap_correlated(self) -> bool:
+        return self.mocap_noise_corr_time > 0.0 and self.mocap_noise_corr_fraction > 0.0
 
     @classmethod
     def from_dict(cls, d: dict[str, float]) -> NoiseModel:
