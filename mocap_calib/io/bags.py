@@ -171,11 +171,11 @@ def open_bag(path: Path | str) -> Iterator[_Bag]:
     try:
         bag = _Bag(path, kind)
     except errors as err:
-        raise _damaged(path, err) from None
+        raise _damaged(path, kind, err) from None
     try:
         yield bag
     except errors as err:
-        raise _damaged(path, err) from None
+        raise _damaged(path, kind, err) from None
     finally:
         try:
             bag.close()
@@ -183,13 +183,15 @@ def open_bag(path: Path | str) -> Iterator[_Bag]:
             pass
 
 
-def _damaged(path: Path, err: BaseException) -> InputError:
+def _damaged(path: Path, kind: str, err: BaseException) -> InputError:
     if isinstance(err, InputError):
         return err
     detail = " ".join(str(err).split()) or type(err).__name__
+    fix = "copy the complete recording again"
+    if kind == "rosbag1":
+        fix += " (a bag whose recorder was killed needs 'rosbag reindex' first)"
     return input_error(f"cannot read the bag ({detail[:160]}): it is truncated, damaged or not "
-                       "a bag", "copy the complete recording again (a ROS 1 bag that was not "
-                       "closed needs 'rosbag reindex' first)", str(path))
+                       "a bag", fix, str(path))
 
 
 def _describe_topics(bag: _Bag) -> str:
@@ -221,8 +223,8 @@ def pick_topic(bag: _Bag, wanted: str | None, types: tuple[str, ...] | dict[str,
                               f"{_describe_topics(bag)})",
                               f"pass {option} with a {what} topic ({listed})", src)
         if bag.topics[topic] not in types:
-            raise input_error(f"topic '{topic}' is {bag.topics[topic].replace('/msg/', '/')}, "
-                              f"not a {what} type ({names})",
+            raise input_error(f"topic '{topic}' is {bag.topics[topic].replace('/msg/', '/')}; "
+                              f"the {what} stream must be {names}",
                               f"pass {option} with one of: {listed}", src)
         return topic
     if what == "mocap" and len(candidates) > 1:

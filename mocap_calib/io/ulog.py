@@ -133,7 +133,9 @@ def read_ulog_imu(path: Path | str, topic: str | None, notes: list[str]) -> ImuS
         if ok.sum() < 2 or np.any(np.diff(t_acc) <= 0):
             raise input_error("the accelerometer stamps are not increasing",
                               "pass a log whose sensor_combined is intact", label)
-        accel = np.stack([np.interp(ns, t_acc, accel[ok, k]) for k in range(3)], axis=1)
+        # Relative to the first stamp: float64 cannot hold epoch nanoseconds exactly.
+        x, xp = (ns - ns[0]).astype(float), (t_acc - ns[0]).astype(float)
+        accel = np.stack([np.interp(x, xp, accel[ok, k]) for k in range(3)], axis=1)
         notes.append(f"{label}: accelerometer samples are logged "
                      f"{np.median(rel[ok]):.0f} us from the gyro's; interpolated onto the gyro "
                      "stamps")

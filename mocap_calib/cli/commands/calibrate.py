@@ -13,11 +13,19 @@ from mocap_calib.cli.common import (
     COLUMNS,
     GYRO_UNIT,
     IMU,
+    IMU_TOPIC,
     MAV0,
     MOCAP,
+    MOCAP_FORMAT,
+    MOCAP_FRAME,
+    MOCAP_RATE,
+    MOCAP_TOPIC,
     POSE_SOURCE,
     POSITION_UNIT,
     QUAT_ORDER,
+    RIGID_BODY,
+    ROTATION,
+    STAMP,
     TIME_UNIT,
     Progress,
 )
@@ -88,6 +96,14 @@ def calibrate(
     accel_unit: ACCEL_UNIT = None,
     quat_order: QUAT_ORDER = None,
     position_unit: POSITION_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    mocap_topic: MOCAP_TOPIC = None,
+    mocap_frame: MOCAP_FRAME = None,
+    stamp: STAMP = "header",
+    mocap_format: MOCAP_FORMAT = None,
+    rigid_body: RIGID_BODY = None,
+    rotation: ROTATION = None,
+    mocap_rate: MOCAP_RATE = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.core.calib.pipeline import CalibrationOptions
@@ -97,7 +113,9 @@ def calibrate(
     from mocap_calib.workflows.calibrate import InputSpec, run_calibration
 
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
-                     quat_order, position_unit)
+                     quat_order, position_unit, imu_topic=imu_topic, mocap_topic=mocap_topic,
+                     mocap_frame=mocap_frame, stamp=stamp, mocap_format=mocap_format,
+                     rigid_body=rigid_body, rotation=rotation, mocap_rate=mocap_rate)
     opts = CalibrationOptions(
         model=Model.parse(model), gravity=gravity, attitude_spacing=keyframe_spacing,
         velocity_spacing=keyframe_spacing, window=window, time_offset=time_offset,

@@ -12,11 +12,19 @@ from mocap_calib.cli.common import (
     COLUMNS,
     GYRO_UNIT,
     IMU,
+    IMU_TOPIC,
     MAV0,
     MOCAP,
+    MOCAP_FORMAT,
+    MOCAP_FRAME,
+    MOCAP_RATE,
+    MOCAP_TOPIC,
     POSE_SOURCE,
     POSITION_UNIT,
     QUAT_ORDER,
+    RIGID_BODY,
+    ROTATION,
+    STAMP,
     TIME_UNIT,
     Progress,
 )
@@ -57,6 +65,14 @@ def diagnose(
     accel_unit: ACCEL_UNIT = None,
     quat_order: QUAT_ORDER = None,
     position_unit: POSITION_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    mocap_topic: MOCAP_TOPIC = None,
+    mocap_frame: MOCAP_FRAME = None,
+    stamp: STAMP = "header",
+    mocap_format: MOCAP_FORMAT = None,
+    rigid_body: RIGID_BODY = None,
+    rotation: ROTATION = None,
+    mocap_rate: MOCAP_RATE = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.core.calib.pipeline import CalibrationOptions
@@ -73,7 +89,9 @@ def diagnose(
         raise InputError(f"--max-steps {max_steps}: must be at least 1")
     cands = CANONICAL_EFFECTS if candidates is None else Model.parse(candidates).effects
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
-                     quat_order, position_unit)
+                     quat_order, position_unit, imu_topic=imu_topic, mocap_topic=mocap_topic,
+                     mocap_frame=mocap_frame, stamp=stamp, mocap_format=mocap_format,
+                     rigid_body=rigid_body, rotation=rotation, mocap_rate=mocap_rate)
     opts = DiagnoseOptions(start=Model.parse(start), candidates=tuple(cands), alpha=alpha,
                            max_steps=max_steps,
                            calibration=CalibrationOptions(gravity=gravity, window=window))
