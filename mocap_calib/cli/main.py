@@ -20,7 +20,8 @@ from mocap_calib.errors import CalibrationError, Interrupted
 
 app = typer.Typer(
     name="mocap-calib",
-    help="Calibrate an IMU from motion-capture sessions (EuRoC/ASL CSVs, TUM, generic CSV).",
+    help="Calibrate an IMU from motion-capture sessions (EuRoC/ASL CSVs, TUM, generic CSV, ROS "
+    "bags, MCAP, PX4 ULog, Motive and Vicon exports).",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,

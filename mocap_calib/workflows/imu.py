@@ -33,7 +33,13 @@ from mocap_calib.core.intrinsics.multipos import (
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import CalibrationError, InputError, input_error
-from mocap_calib.io.loader import FORMAT_NAMES, load_inputs, sniff_format
+from mocap_calib.io.loader import (
+    FORMAT_NAMES,
+    is_recording,
+    load_imu_file,
+    load_inputs,
+    sniff_format,
+)
 from mocap_calib.io.yaml_io import NOISE_KEYS, load_yaml
 
 Array = NDArray[np.float64]
@@ -93,6 +99,8 @@ class ImuSpec:
     time_unit: str | None = None
     gyro_unit: str | None = None
     accel_unit: str | None = None
+    imu_topic: str | None = None  # bags and ULogs (io.loader.load_imu_file)
+    stamp: str = "header"
 
     def units(self) -> dict[str, str]:
         """The unit options that were given (the reader's defaults stand for the rest)."""
@@ -118,6 +126,8 @@ def load_imu(spec: ImuSpec) -> tuple[ImuSamples, list[str]]:
     if spec.imu is None:
         raise input_error("no --imu given", "pass the IMU log with --imu FILE")
     path = Path(spec.imu)
+    if is_recording(path):  # bags and ULogs
+        return load_imu_file(path, topic=spec.imu_topic, stamp=spec.stamp)
     fmt = sniff_format(path)
     notes: list[str] = []
     if fmt in ("mav0", "euroc_imu"):

@@ -10,7 +10,9 @@ import numpy as np
 from mocap_calib.core.calib.priors import priors_from_results
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.errors import InputError
+from mocap_calib.io.bags import RecordingOptions
 from mocap_calib.io.loader import load_inputs
+from mocap_calib.io.mocap_exports import ExportOptions
 from mocap_calib.io.yaml_io import load_noise, load_result
 
 
@@ -28,6 +30,22 @@ class InputSpec:
     accel_unit: str | None = None
     quat_order: str | None = None
     position_unit: str | None = None
+    # Bags and ULogs (io.bags / io.ulog).
+    imu_topic: str | None = None
+    mocap_topic: str | None = None
+    mocap_frame: str | None = None
+    stamp: str = "header"
+    # Motive / Vicon exports (io.mocap_exports).
+    mocap_format: str | None = None
+    rigid_body: str | None = None
+    rotation: str | None = None
+    mocap_rate: float | None = None
+
+    def recording(self) -> RecordingOptions:
+        return RecordingOptions(self.imu_topic, self.mocap_topic, self.mocap_frame, self.stamp)
+
+    def export(self) -> ExportOptions:
+        return ExportOptions(self.mocap_format, self.rigid_body, self.rotation, self.mocap_rate)
 
 
 @dataclass
@@ -47,7 +65,8 @@ def load_session(spec: InputSpec) -> LoadedSession:
     imu, mocap, notes = load_inputs(
         spec.imu, spec.mocap, spec.path, pose_source=spec.pose_source, columns=spec.columns,
         time_unit=spec.time_unit, gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit,
-        quat_order=spec.quat_order, position_unit=spec.position_unit)
+        quat_order=spec.quat_order, position_unit=spec.position_unit,
+        recording=spec.recording(), export=spec.export())
     sensor_noise = None
     if spec.path is not None:
         from mocap_calib.io.euroc import find_mav0

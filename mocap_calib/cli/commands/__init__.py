@@ -2,7 +2,8 @@
 
 import importlib
 
-COMMANDS = ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift")
+COMMANDS = ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift", "export",
+            "groundtruth")
 
 for _name in COMMANDS:
     importlib.import_module(f"{__name__}.{_name}")

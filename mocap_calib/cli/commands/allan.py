@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from mocap_calib.cli.common import ACCEL_UNIT, COLUMNS, GYRO_UNIT, IMU, TIME_UNIT, Progress
+from mocap_calib.cli.common import (
+    ACCEL_UNIT,
+    COLUMNS,
+    GYRO_UNIT,
+    IMU,
+    IMU_TOPIC,
+    STAMP,
+    TIME_UNIT,
+    Progress,
+)
 from mocap_calib.cli.main import app
 
 
@@ -41,13 +50,15 @@ def allan(
     time_unit: TIME_UNIT = None,
     gyro_unit: GYRO_UNIT = None,
     accel_unit: ACCEL_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.io.yaml_io import save_yaml
     from mocap_calib.workflows.imu import ImuSpec, run_allan
 
     progress = Progress(quiet)
-    run = run_allan(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit),
+    run = run_allan(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp),
                     aggregate=aggregate, tau_min_s=tau_min,
                     require_random_walk=not allow_unresolved, progress=progress)
     save_yaml(out, run.to_dict(), "mocap-calib allan noise model (Kalibr imu.yaml keys, SI "

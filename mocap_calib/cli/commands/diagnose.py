@@ -12,11 +12,19 @@ from mocap_calib.cli.common import (
     COLUMNS,
     GYRO_UNIT,
     IMU,
+    IMU_TOPIC,
     MAV0,
     MOCAP,
+    MOCAP_FORMAT,
+    MOCAP_FRAME,
+    MOCAP_RATE,
+    MOCAP_TOPIC,
     POSE_SOURCE,
     POSITION_UNIT,
     QUAT_ORDER,
+    RIGID_BODY,
+    ROTATION,
+    STAMP,
     TIME_UNIT,
     Progress,
 )
@@ -58,12 +66,22 @@ def diagnose(
     accel_unit: ACCEL_UNIT = None,
     quat_order: QUAT_ORDER = None,
     position_unit: POSITION_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    mocap_topic: MOCAP_TOPIC = None,
+    mocap_frame: MOCAP_FRAME = None,
+    stamp: STAMP = "header",
+    mocap_format: MOCAP_FORMAT = None,
+    rigid_body: RIGID_BODY = None,
+    rotation: ROTATION = None,
+    mocap_rate: MOCAP_RATE = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     opts = diagnose_options(start=start, candidates=candidates, alpha=alpha,
                             max_steps=max_steps, gravity=gravity, window=window)
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
-                     quat_order, position_unit)
+                     quat_order, position_unit, imu_topic=imu_topic, mocap_topic=mocap_topic,
+                     mocap_frame=mocap_frame, stamp=stamp, mocap_format=mocap_format,
+                     rigid_body=rigid_body, rotation=rotation, mocap_rate=mocap_rate)
     run = diagnose_to_files(spec, opts, out, rrd, noise, Progress(quiet))
     typer.echo(run.summary)
     typer.echo("")

@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from mocap_calib.cli.common import ACCEL_UNIT, COLUMNS, GYRO_UNIT, IMU, TIME_UNIT, Progress
+from mocap_calib.cli.common import (
+    ACCEL_UNIT,
+    COLUMNS,
+    GYRO_UNIT,
+    IMU,
+    IMU_TOPIC,
+    STAMP,
+    TIME_UNIT,
+    Progress,
+)
 from mocap_calib.cli.main import app
 
 
@@ -46,13 +55,16 @@ def multipos(
     time_unit: TIME_UNIT = None,
     gyro_unit: GYRO_UNIT = None,
     accel_unit: ACCEL_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.io.yaml_io import save_yaml
     from mocap_calib.workflows.imu import ImuSpec, run_multipos
 
     run = run_multipos(
-        ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit), init_static_s=init_static,
+        ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp),
+        init_static_s=init_static,
         window_s=window, min_interval_s=min_interval, gravity=gravity,
         min_orientations=min_orientations, prior_files=prior or [], prior_biases=prior_biases,
         prior_sigma_scale=prior_sigma_scale, progress=Progress(quiet))
