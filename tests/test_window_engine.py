@@ -169,3 +169,22 @@ def test_noise_model_is_consistent_at_the_truth(length):
     dof = float(np.sum(6 * win.mask.sum(axis=1) - 9))
     ratio = out.chi2.sum() / dof
     assert abs(ratio - 1.0) < 4.0 * np.sqrt(2.0 / dof) + 0.01
+
+
+@pytest.mark.parametrize("noise", [
+    NoiseModel(),
+    NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+               mocap_noise_corr_fraction=0.7)], ids=["white", "correlated"])
+def test_likelihood_pass_equals_the_full_evaluation(short_session, noise):
+    """The noise-model choice uses a filter pass without Jacobian columns: it must give the
+    full evaluation's chi2 + log det, window by window."""
+    sim, s, v = short_session
+    win = make_windows(s, s.clock_shift + 0.003, 0.5, 200.0, v, min_samples=10)
+    pp = PositionProblem(s, Model.parse("base+time_offset"), noise, win)
+    pp.weights[1, 7] = 0.2
+    tr = sim.truth
+    knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1)) + 1e-3
+    th = _theta(sim, s, win.count, None, eff={}, knots=knots)
+    full = pp.evaluate(th)
+    (light,) = pp.likelihoods(th, [noise])
+    np.testing.assert_allclose(light, full.chi2 + full.logdet, rtol=1e-8)

@@ -29,8 +29,8 @@ from mocap_calib.cli.common import (
     Progress,
 )
 from mocap_calib.cli.main import app
-from mocap_calib.workflows.session import InputSpec
 from mocap_calib.workflows.groundtruth import run_groundtruth
+from mocap_calib.workflows.session import InputSpec
 
 
 @app.command(

@@ -209,6 +209,45 @@ def require_converged(stage: str, report: SolveReport, max_iterations: int) -> N
         f"--max-iterations (now {max_iterations}) or check the inputs' units and conventions")
 
 
+def information_matrix(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                       offsets: dict[int, int] | None = None, n: int | None = None):
+    """Gauss-Newton information ``A^T A`` of the linearised graph as a sparse matrix.
+
+    Returns ``(H, offsets, n)``: ``offsets[key]`` is the first row of the key's tangent block
+    (keys in GTSAM's order), ``n`` the dimension. Given ``offsets`` and ``n`` (of a larger graph
+    over the same values), the matrix uses that layout.
+    """
+    import scipy.sparse as sp
+
+    gfg = graph.linearize(values)
+    if offsets is None:
+        grad = gfg.gradientAtZero()  # one vector per key: gives each key's tangent dimension
+        offsets, n = {}, 0
+        for k in sorted(gfg.keys()):  # sparseJacobian_ orders columns by key
+            offsets[k] = n
+            n += int(np.asarray(grad.at(k)).shape[0])
+        local = offsets
+    else:
+        # This graph's own column order: its keys, sorted, packed.
+        grad = gfg.gradientAtZero()
+        local, o = {}, 0
+        for k in sorted(gfg.keys()):
+            local[k] = o
+            o += int(np.asarray(grad.at(k)).shape[0])
+    ijs = np.asarray(gfg.sparseJacobian_())
+    rows = ijs[0].astype(int) - 1
+    cols = ijs[1].astype(int) - 1
+    n_local = sum(int(np.asarray(grad.at(k)).shape[0]) for k in local)
+    keep = cols < n_local  # the last column is the right-hand side
+    remap = np.zeros(n_local, dtype=int)
+    for k, o in local.items():
+        d = int(np.asarray(grad.at(k)).shape[0])
+        remap[o:o + d] = offsets[k] + np.arange(d)
+    A = sp.csc_matrix((ijs[2][keep], (rows[keep], remap[cols[keep]])),
+                      shape=(int(rows.max()) + 1, n))
+    return (A.T @ A).tocsc(), offsets, n
+
+
 def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                                   combo: dict[int, Array]) -> Array:
     """Covariance of ``y = sum_k C_k dx_k`` (tangent-space increments of several keys).
@@ -216,22 +255,9 @@ def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gts
     A joint marginal over many keys is dense and cubic in their number; this solves the sparse
     information system ``H z = C^T`` instead, linear in the length of a chain of keys.
     """
-    import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
-    gfg = graph.linearize(values)
-    grad = gfg.gradientAtZero()  # one vector per key: gives each key's tangent dimension
-    offsets: dict[int, int] = {}
-    n = 0
-    for k in sorted(gfg.keys()):  # sparseJacobian_ orders columns by key
-        offsets[k] = n
-        n += int(np.asarray(grad.at(k)).shape[0])
-    ijs = np.asarray(gfg.sparseJacobian_())
-    rows = ijs[0].astype(int) - 1
-    cols = ijs[1].astype(int) - 1
-    keep = cols < n  # the last column is the right-hand side
-    A = sp.csc_matrix((ijs[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n))
-    H = (A.T @ A).tocsc()
+    H, offsets, n = information_matrix(graph, values)
     m = next(iter(combo.values())).shape[0]
     Ct = np.zeros((n, m))
     for k, Ck in combo.items():

@@ -139,6 +139,10 @@ class CalibrationResult:
     noise: NoiseModel = field(default_factory=NoiseModel)
     notes: list[str] = field(default_factory=list)
     session: dict[str, Any] = field(default_factory=dict)
+    clock: dict[str, Any] = field(default_factory=dict)  # the clock search and its verdict
+    consistency: dict[str, Any] = field(default_factory=dict)  # independent segments
+    sensitivity: dict[str, Any] = field(default_factory=dict)  # under scaled noise densities
+    plausibility: dict[str, Any] = field(default_factory=dict)  # the physical checks
     version: int = RESULT_VERSION
     diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
 
@@ -177,6 +181,10 @@ class CalibrationResult:
             "solver": self.solver,
             "noise": self.noise.to_dict(),
             "session": self.session,
+            "clock": self.clock,
+            "consistency": self.consistency,
+            "sensitivity": self.sensitivity,
+            "plausibility": self.plausibility,
             "notes": list(self.notes),
         }
 
@@ -223,5 +231,9 @@ class CalibrationResult:
             noise=NoiseModel.from_dict(d.get("noise") or {}),
             notes=list(d.get("notes") or []),
             session=dict(d.get("session") or {}),
+            clock=dict(d.get("clock") or {}),
+            consistency=dict(d.get("consistency") or {}),
+            sensitivity=dict(d.get("sensitivity") or {}),
+            plausibility=dict(d.get("plausibility") or {}),
             version=version,
         )

@@ -22,10 +22,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.graph import BatchFactors, BatchOutput, require_converged, run_lm
+from mocap_calib.core.calib.noise_fit import CorrelationFit, fit_mocap_correlation
 from mocap_calib.core.calib.result import ResidualSeries, StageStats
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.uncertainty import (
+    PositionUncertainty,
     key_knot,
+    mean_bias_weights,
     position_covariances,
     unobservable_blocks,
 )
@@ -232,7 +235,8 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
                        robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
                        adapt_noise: bool = True, weights: Array | None = None,
                        on_iteration: IterationHook | None = None,
-                       progress: Callable[[str], None] | None = None) -> PositionResult:
+                       progress: Callable[[str], None] | None = None,
+                       covariance: bool = True) -> PositionResult:
     """Refine all parameters on the window factors.
 
     Args:
@@ -246,9 +250,11 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
             fits of different models minimise costs of the same family (model comparison).
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
         progress: called with a short message at every IRLS round.
+        covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
     """
     t_start = time.perf_counter()
     pg = build_position_graph(s, model, noise, windows, init, priors)
+    pg.problem.collect_scores = covariance
     if weights is not None:
         pg.problem.weights = np.asarray(weights, dtype=float).copy()
         robust = False
@@ -257,17 +263,24 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
                         robust, adapt_noise, history, progress)
     sol, out = fit.values, pg.evals[-1]
     th = pg.theta(sol)
-    unc = position_covariances(pg.graph, sol, pg.block_keys, windows, th.knots, pg.problem.noise)
+    blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
+    unc = (position_covariances(pg.graph, sol, pg.block_keys, windows, th.knots, pg.problem.noise,
+                                out.scores, blocks, windows.count) if covariance
+           else PositionUncertainty({}, np.zeros((windows.count, 6)), _mean_bias(windows, th)))
     stats, series, chi2, dof = _figures(pg, fit, out, time.perf_counter() - t_start)
     solver = {"position_batch_seconds": round(pg.batch.seconds, 3),
               "position_evaluations": pg.batch.evaluations, "windows": windows.count,
               "window_steps": windows.steps,
-              "mocap_noise_variance_scale": [round(float(x), 4) for x in fit.noise_scale]}
+              "mocap_noise_variance_scale": [round(float(x), 4) for x in fit.noise_scale],
+              "sandwich_over_model_sigma": unc.robust_ratio}
+    if fit.correlation is not None:
+        solver["mocap_noise_correlation_fit"] = [
+            {k: round(v, 4) for k, v in row.items()} for row in fit.correlation.candidates]
     return PositionResult(
         R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
         effects=th.effects, gyro_bias_mean=unc.bias_mean[0:3], accel_bias_mean=unc.bias_mean[3:6],
         knots=th.knots, knot_sigma=unc.knot_sigma, cov=unc.cov,
-        unobservable=unobservable_blocks(unc.cov), stats=stats, series=series,
+        unobservable=unobservable_blocks(unc.cov_model), stats=stats, series=series,
         chi2_per_dof=chi2, windows=windows, weights=pg.problem.weights, noise=pg.problem.noise,
         cost=2.0 * pg.graph.error(sol), dof=int(dof), solver=solver, history=history.records)
 
@@ -300,6 +313,7 @@ class _Fit:
     iterations: int
     noise_scale: Array
     out0: Any  # the evaluation at the start values (unit weights): the "before" figures
+    correlation: CorrelationFit | None = None
 
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
@@ -312,6 +326,9 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     sol = pg.values
     out0 = None
     noise_scale = np.ones(2)
+    correlation = None
+    # The mocap noise's correlation is chosen once, after the first solve (unless given).
+    fit_corr = adapt_noise and not pp.noise.mocap_correlated
     for rnd in range(rounds):
         if progress is not None:
             progress(f"position factors: solve {rnd + 1} ({pp.win.count} windows)")
@@ -330,7 +347,12 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
             break
         last_out = evals[-1]
         changed = False
-        if adapt_noise:
+        if fit_corr and correlation is None:
+            correlation = fit_mocap_correlation(pp, pg.theta(sol))
+            old, pp.noise = pp.noise, correlation.noise
+            noise_scale *= _variance_ratio(pp.noise, old)
+            changed = True
+        elif adapt_noise:
             s_rot, s_pos = pp.mocap_noise_scale(last_out)
             if max(abs(np.log(s_rot)), abs(np.log(s_pos))) > np.log(1.05):
                 s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
@@ -348,7 +370,17 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         batch.invalidate()
     # Earlier rounds may stop early: the next round goes on from there. The last must converge.
     require_converged("position", last_report, max_iterations)
-    return _Fit(sol, iterations, noise_scale, out0)
+    return _Fit(sol, iterations, noise_scale, out0, correlation)
+
+
+def _mean_bias(windows: Windows, th: Theta) -> Array:
+    return np.kron(mean_bias_weights(windows)[None, :], np.eye(6)) @ th.knots.reshape(-1)
+
+
+def _variance_ratio(new: NoiseModel, old: NoiseModel) -> Array:
+    """Mocap noise variances (attitude, position) of ``new`` over ``old``."""
+    return np.array([(new.mocap_rotation_sigma / old.mocap_rotation_sigma) ** 2,
+                     (new.mocap_position_sigma / old.mocap_position_sigma) ** 2])
 
 
 def _figures(pg: PositionGraph, fit: _Fit, out: Any,

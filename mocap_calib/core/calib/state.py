@@ -19,6 +19,7 @@ from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.errors import InputError
 
 if TYPE_CHECKING:
+    from mocap_calib.core.calib.clock import ClockSearch
     from mocap_calib.core.calib.result import CalibrationResult
     from mocap_calib.core.calib.session import PreparedSession
     from mocap_calib.core.calib.window_engine import Windows
@@ -75,6 +76,7 @@ class CalibrationTrace:
         noise_used: the noise model at the solution (mocap levels re-estimated).
         windows: the position-stage windows.
         weights: (W, m+1) robust weights of the window samples at the solution.
+        clock: the coarse clock search with its correlation curve.
     """
 
     session: PreparedSession
@@ -82,6 +84,7 @@ class CalibrationTrace:
     noise_used: NoiseModel
     windows: Windows
     weights: Array
+    clock: ClockSearch | None = None  # the coarse clock search (None: offset given)
 
 
 def state_from_result(result: CalibrationResult, s: PreparedSession) -> ModelState:

@@ -82,6 +82,42 @@ def _predict_covariance(P: Array, Phi: Array, noise: _Noise, k: int) -> Array:
     return P
 
 
+def _likelihood_pass(r: Array, Phi: Array, noise: _Noise, wts: Array,
+                     mask: NDArray[np.bool_]) -> Array:
+    """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (no Jacobian)."""
+    W, m1 = mask.shape
+    ns = Phi.shape[-1]
+    corr = ns == 21
+    P = np.zeros((W, ns, ns))
+    for i, d in enumerate(DIFFUSE):
+        P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
+    if corr:
+        P[:, 15:, 15:] = noise.Pm0
+    x = np.zeros((W, ns, 1))
+    chi2 = np.zeros(W)
+    logdet = np.zeros(W)
+    for k in range(m1):
+        if k > 0:
+            x = Phi[:, k - 1] @ x
+            P = _predict_covariance(P, Phi[:, k - 1], noise, k - 1)
+        e = r[:, k, :, None] - (x[:, 0:6] + x[:, 15:21] if corr else x[:, 0:6])
+        PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]
+        HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
+        Lc = np.linalg.cholesky(HPHt + noise.Rn[:, k] / wts[:, k, None, None])
+        z = np.linalg.solve(Lc, e)
+        ok = mask[:, k]
+        chi2 += np.where(ok, np.sum(z[..., 0] ** 2, axis=1), 0.0)
+        logdet += np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Lc, axis1=1, axis2=2)), axis=1),
+                           0.0)
+        K = np.linalg.solve(np.swapaxes(Lc, 1, 2), np.linalg.solve(Lc, np.swapaxes(PHt, 1, 2)))
+        K = np.swapaxes(K, 1, 2)  # P H^T S^-1
+        K[~ok] = 0.0
+        x += K @ e
+        P -= K @ np.swapaxes(PHt, 1, 2)
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    return chi2, logdet
+
+
 class _Accumulator:
     """What a filter pass collects per sample and window (Gram matrix, innovations, scores)."""
 
@@ -207,8 +243,36 @@ class PositionProblem:
         out = self._filter(th, c, ci, res, F, dwf, gcols, g_in, noise, frozen, store)
         return out
 
+    def likelihoods(self, th: Theta, noises: list[NoiseModel], part: str = "both") -> list[Array]:
+        """-2 log-likelihood of every window (chi2 + log det; ``part`` "chi2" for the first
+        only) under each noise model, at the same parameters: the trajectory is integrated
+        once, only the filter runs per model (without the Jacobian columns)."""
+        win = self.win
+        out = [np.zeros(win.count) for _ in noises]
+        keep = self.noise
+        try:
+            for c in self.chunks:
+                tau, R_WM = win.tau[c], win.R_WM[c]
+                h = np.diff(tau, axis=1)
+                inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
+                Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
+                                        win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+                                        th.g_mag * th.g_dir)
+                res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
+                F = self._transition(inc, Rbar, h).copy()
+                for i, nz in enumerate(noises):
+                    self.noise = nz
+                    noise = self._noise(th, h, R_WM)
+                    chi2, logdet = _likelihood_pass(res.r, self._transition_full(F, noise),
+                                                    noise, self.weights[c], win.mask[c])
+                    out[i][c] = chi2 if part == "chi2" else chi2 + logdet
+        finally:
+            self.noise = keep
+        return out
+
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
-                   h: Array) -> tuple[StepIncrements, Corrected, Array]:
+                   h: Array, sensitivities: bool = True
+                   ) -> tuple[StepIncrements, Corrected, Array | None]:
         """Step increments of the corrected IMU and ``d(w, f)/dtheta`` at every step."""
         s, L = self.s, self.layout
         W, m, p = len(c), self.win.steps, L.dim
@@ -220,6 +284,8 @@ class PositionProblem:
         corr = correct(self.model, intr, pc(s.gyro), pc(s.accel), pc.nodes - th.delta,
                        sensitivities=False)
         inc = integrate_pieces(corr.w, corr.f, pc.hs)
+        if not sensitivities:
+            return inc, corr, None
 
         # Sensitivities at step midpoints.
         u_mid = 0.5 * (tau[:, :-1] + tau[:, 1:]) - th.delta

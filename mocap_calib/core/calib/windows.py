@@ -32,6 +32,21 @@ class Windows:
     def count(self) -> int:
         return self.idx.shape[0]
 
+    def decimate(self, k: int) -> Windows:
+        """Every ``k``-th sample of every window (the last real sample kept)."""
+        if k <= 1:
+            return self
+        W, m1 = self.idx.shape
+        cols = np.arange(0, m1, k)
+        mask = self.mask[:, cols]
+        return Windows(self.idx[:, cols], mask, self.tau[:, cols], self.R_WM[:, cols],
+                       self.p_WM[:, cols], self.v0)
+
+    def subset(self, which: NDArray[np.int64]) -> Windows:
+        """The windows ``which`` (indices), in that order."""
+        return Windows(self.idx[which], self.mask[which], self.tau[which], self.R_WM[which],
+                       self.p_WM[which], self.v0[which])
+
     @property
     def steps(self) -> int:
         return self.idx.shape[1] - 1

@@ -35,6 +35,7 @@ from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, 
 from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
+from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.errors import CalibrationError, InputError
@@ -228,34 +229,9 @@ class DiagnoseReport:
                    float(d.get("seconds", 0.0)))
 
 
-#: Beyond these, a named effect is implausible for a MEMS IMU: it most likely absorbs something
-#: outside the candidate list (a non-rigid mount, mocap processing lag, ...).
-PLAUSIBLE = {"scale": 0.03, "misalignment_rad": float(np.radians(2.0)),
-             "g_sensitivity": 1e-3, "gyro_bias_rate": 1e-3, "accel_bias_rate": 0.05,
-             "gravity_magnitude": (9.76, 9.84)}
-
-
 def plausibility(effect: str, value: object) -> str | None:
-    """A one-line warning when an effect's estimate is outside typical MEMS ranges."""
-    v = np.asarray(value, dtype=float)
-    if effect.endswith("scale_misalignment"):
-        scale = np.abs(np.diag(v) - 1.0).max()
-        mis = np.abs(v - np.diag(np.diag(v))).max()
-        if scale > PLAUSIBLE["scale"] or mis > PLAUSIBLE["misalignment_rad"]:
-            return (f"{effect}: scale error up to {100 * scale:.1f} %, misalignment up to "
-                    f"{np.degrees(mis):.1f} deg: implausible for a MEMS IMU")
-    elif effect == "gyro_g_sensitivity" and np.abs(v).max() > PLAUSIBLE["g_sensitivity"]:
-        return (f"{effect}: up to {np.abs(v).max():.2g} rad/s per m/s^2: implausible for a "
-                "MEMS gyro (typical < 2e-4)")
-    elif effect in ("gyro_bias_drift", "accel_bias_drift"):
-        key = "gyro_bias_rate" if effect.startswith("gyro") else "accel_bias_rate"
-        if np.abs(v).max() > PLAUSIBLE[key]:
-            return f"{effect}: trend {np.abs(v).max():.2g} per s: implausibly fast"
-    elif effect == "gravity_magnitude":
-        lo, hi = PLAUSIBLE["gravity_magnitude"]
-        if not lo <= float(v) <= hi:
-            return f"{effect}: |g| = {float(v):.4f} m/s^2 is outside Earth's {lo}-{hi}"
-    return None
+    """A one-line warning when an effect's estimate is outside its plausible range."""
+    return effect_problem(effect, value, PlausibleLimits())
 
 
 def _log10_sf(t: float, k: int) -> float:
