@@ -26,8 +26,6 @@ from mocap_calib.errors import CalibrationError
 from mocap_calib.workflows.calibrate import InputSpec, load_session, resolve_noise
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-# EuRoC reference: what the dataset's own ground truth implies (scripts/euroc_reference.py).
-EUROC_R_REF = np.array([0.00242, -0.80650, -0.01199, -0.59111])
 
 RECORDINGS = {
     "euroc": ("EuRoC V2_03", InputSpec(path=DATA / "euroc_V2_03_difficult" / "mav0")),
@@ -69,6 +67,21 @@ def run(session, opts: CalibrationOptions) -> dict:
     return out
 
 
+def reference(key: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """R_MI (and p_MI) to compare with: what EuRoC's own ground truth implies
+    (scripts/euroc_reference.py); identity for BROAD, whose optical data were rotated into the
+    IMU frame by the dataset's authors (no lever-arm reference)."""
+    if key != "euroc":
+        return np.eye(3), None
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from euroc_reference import gt_implied
+
+    gt = gt_implied(DATA / "euroc_V2_03_difficult" / "mav0")
+    return gt["R_MI"], gt["p_MI"]
+
+
 def z_pair(a: dict, b: dict) -> dict[str, float]:
     """Largest per-axis |difference| / combined sigma of two runs."""
     z = {}
@@ -94,17 +107,19 @@ def moved(base: dict, other: dict) -> dict[str, float]:
     return z
 
 
-def describe(key: str, r: dict) -> dict:
+def describe(key: str, r: dict, ref: tuple[np.ndarray, np.ndarray | None]) -> dict:
     if r["exit"] != 0:
         return {"exit": r["exit"], "error": r["error"]}
-    ref = so3.quat_to_rotmat(EUROC_R_REF) if key == "euroc" else np.eye(3)
+    R_ref, p_ref = ref
     out = {"exit": 0, "seconds": round(r["seconds"], 1)}
     if r["R"] is not None:
-        out["R_MI_vs_ref_deg"] = float(np.degrees(np.linalg.norm(so3.log(ref.T @ r["R"]))))
+        out["R_MI_vs_ref_deg"] = float(np.degrees(np.linalg.norm(so3.log(R_ref.T @ r["R"]))))
         out["sigma_R_deg"] = np.degrees(r["sR"]).round(4).tolist()
     if r["p"] is not None:
         out["p_MI_mm"] = (1e3 * r["p"]).round(2).tolist()
         out["sigma_p_mm"] = (1e3 * r["sp"]).round(3).tolist()
+        if p_ref is not None:
+            out["p_MI_vs_ref_mm"] = (1e3 * (r["p"] - p_ref)).round(2).tolist()
     if r["td"] is not None:
         out["t_d_ms"] = round(1e3 * r["td"], 3)
         out["sigma_t_d_ms"] = round(1e3 * r["std"], 4)
@@ -112,6 +127,11 @@ def describe(key: str, r: dict) -> dict:
         out["tilt_deg"] = float(np.degrees(np.arccos(min(1.0, abs(r["g"][2])))))
     if r["ba"] is not None:
         out["accel_bias"] = np.round(r["ba"], 4).tolist()
+    res = r["result"]
+    for section in ("consistency", "sensitivity", "plausibility", "clock"):
+        if getattr(res, section, None):
+            out[section] = getattr(res, section)
+    out.get("consistency", {}).pop("segments", None)
     return out
 
 
@@ -121,12 +141,13 @@ def study(key: str, thirds: bool, sensitivity: bool) -> dict:
     noise = resolve_noise(session, None, {})
     opts = CalibrationOptions(noise=noise)
     full = run(session, opts)
-    rep: dict = {"recording": label, "full": describe(key, full)}
+    ref = reference(key)
+    rep: dict = {"recording": label, "full": describe(key, full, ref)}
     dur = session.imu.duration
     if thirds:
         parts = [run(session, replace(opts, start=k * dur / 3, end=(k + 1) * dur / 3))
                  for k in range(3)]
-        rep["thirds"] = [describe(key, p) for p in parts]
+        rep["thirds"] = [describe(key, p, ref) for p in parts]
         ok = [p for p in parts if p["exit"] == 0]
         zs = [z_pair(a, b) for a, b in itertools.combinations(ok, 2)]
         rep["thirds_max_z"] = {k: round(max(z[k] for z in zs), 2)

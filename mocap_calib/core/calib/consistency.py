@@ -168,19 +168,56 @@ def _birge(segs: list[SegmentEstimate]) -> dict[str, float]:
 
 @dataclass
 class Sensitivity:
-    """How far (in the result's sigmas) the answer moves under scaled IMU noise densities."""
+    """How far the answer moves under scaled IMU noise densities.
 
-    moved: dict[str, dict[str, float]] = field(default_factory=dict)  # factor -> param -> sigmas
+    Attributes:
+        shift: factor -> parameter -> |change| per component (parameter units; rotation and
+            gravity in rad).
+        moved: factor -> parameter -> largest |change| / the statistical sigma.
+    """
+
+    shift: dict[str, dict[str, Array]] = field(default_factory=dict)
+    moved: dict[str, dict[str, float]] = field(default_factory=dict)
     note: str = ""
 
-    @property
-    def worst(self) -> float:
-        return max((v for d in self.moved.values() for v in d.values()), default=0.0)
+    def systematic(self, param: str) -> Array | None:
+        """Per component, the largest shift over the factors: the uncertainty the unknown
+        noise densities add (None when not computed)."""
+        shifts = [d[param] for d in self.shift.values() if param in d]
+        return np.max(np.stack(shifts), axis=0) if shifts else None
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"moved_sigmas": {f: {k: round(v, 3) for k, v in d.items()}
-                                 for f, d in self.moved.items()},
-                **({"note": self.note} if self.note else {})}
+    def to_dict(self, total_sigma: dict[str, Array] | None = None) -> dict[str, Any]:
+        d: dict[str, Any] = {"moved_statistical_sigmas": {
+            f: {k: round(v, 3) for k, v in m.items()} for f, m in self.moved.items()}}
+        if total_sigma:
+            d["moved_sigmas"] = {
+                f: {k: round(float(np.max(v / total_sigma[k])), 3) for k, v in sh.items()
+                    if k in total_sigma} for f, sh in self.shift.items()}
+        if self.note:
+            d["note"] = self.note
+        return d
+
+
+def _shifts(alt: PositionResult, pos: PositionResult) -> dict[str, Array]:
+    """|alt - pos| per parameter and component."""
+    out = {"R_MI": np.abs(so3.log(pos.R_MI.T @ alt.R_MI)),
+           "p_MI": np.abs(alt.p_MI - pos.p_MI),
+           "gyro_bias": np.abs(alt.gyro_bias_mean - pos.gyro_bias_mean),
+           "accel_bias": np.abs(alt.accel_bias_mean - pos.accel_bias_mean),
+           # gravity: the change along the two tangent directions of pos's Unit3 basis
+           "gravity": np.abs(_tangent(pos.g_dir) @ (alt.g_dir - pos.g_dir))}
+    if "time_offset" in pos.cov:
+        out["t_d"] = np.array([abs(alt.delta - pos.delta)])
+    return out
+
+
+def _tangent(g: Array) -> Array:
+    """(2, 3) an orthonormal basis of the plane normal to ``g`` (GTSAM's Unit3 convention is
+    not needed for magnitudes)."""
+    a = np.eye(3)[int(np.argmin(np.abs(g)))]
+    b1 = np.cross(g, a)
+    b1 /= np.linalg.norm(b1)
+    return np.stack([b1, np.cross(g, b1)])
 
 
 def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
@@ -203,5 +240,7 @@ def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             out.note = f"noise x{f:.3g}: refit failed ({err})"
             continue
-        out.moved[f"x{f:.3g}"] = _z(alt, pos, sig, None)
+        key = f"x{f:.3g}"
+        out.shift[key] = _shifts(alt, pos)
+        out.moved[key] = _z(alt, pos, sig, None)
     return out

@@ -15,6 +15,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numpy as np
+from numpy.typing import NDArray
+
 from mocap_calib.core.calib.consistency import (
     Consistency,
     Sensitivity,
@@ -26,6 +29,8 @@ from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.stage_position import PositionResult
 from mocap_calib.errors import PlausibilityError
+
+Array = NDArray[np.float64]
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -63,31 +68,45 @@ def judge(r: CalibrationResult, s: PreparedSession, pos: PositionResult,
     if opts.sensitivity:
         say("sensitivity: IMU noise densities x3 and x1/3")
         sens = noise_sensitivity(s, opts.model, pos, max_iterations=opts.max_iterations)
-    _inflate(r, cons, sens)
-    r.consistency, r.sensitivity = cons.to_dict(), sens.to_dict()
+    total = _inflate(r, cons, sens)
+    r.consistency, r.sensitivity = cons.to_dict(), sens.to_dict(total)
 
 
-def _inflate(r: CalibrationResult, cons: Consistency, sens: Sensitivity) -> None:
-    """Raise the sigmas to what the segments' scatter shows (Birge ratio, where significant),
-    and express the sensitivity in the sigmas reported."""
+#: Result field of each sigma and the sensitivity's name for it.
+_SIGMAS = {"R_MI": "sigma_rotation", "p_MI": "sigma_translation", "t_d": "sigma_time_offset",
+           "gyro_bias": "sigma_gyro_bias", "accel_bias": "sigma_accel_bias",
+           "gravity": "sigma_gravity"}
+
+
+def _inflate(r: CalibrationResult, cons: Consistency, sens: Sensitivity) -> dict[str, Array]:
+    """The reported sigmas, from the statistical ones:
+
+    1. times the segments' Birge ratio where they disagree significantly (the others share
+       the model error the segments reveal and take the largest factor);
+    2. with the shift under noise densities x3 / x1/3 added in quadrature: the session cannot
+       tell the densities to better than that, so the answer is not known better either.
+
+    Returns the reported sigma of every parameter (for the sensitivity in those sigmas).
+    """
     f = {k: cons.inflation(k) for k in ("R_MI", "p_MI", "t_d")}
     worst = max(f.values(), default=1.0)
-    if worst <= 1.0:
-        return
-    if r.sigma_rotation is not None:
-        r.sigma_rotation = r.sigma_rotation * f["R_MI"]
-    if r.sigma_translation is not None:
-        r.sigma_translation = r.sigma_translation * f["p_MI"]
-    if r.sigma_time_offset is not None:
-        r.sigma_time_offset = r.sigma_time_offset * f["t_d"]
-    # The rest shares the model error the segments reveal: the largest factor.
-    for name in ("sigma_gyro_bias", "sigma_accel_bias", "sigma_gravity"):
-        v = getattr(r, name)
-        if v is not None:
-            setattr(r, name, v * worst)
-    for moved in sens.moved.values():
-        for k in moved:
-            moved[k] /= f.get(k, 1.0)
-    scaled = ", ".join(f"{k} x{v:.2f}" for k, v in f.items() if v > 1.0)
-    r.notes.append(f"the {len(cons.segments)} segments disagree beyond their own sigmas: sigmas "
-                   f"scaled by their Birge ratio ({scaled}; the others x{worst:.2f})")
+    total: dict[str, Array] = {}
+    for param, attr in _SIGMAS.items():
+        v = getattr(r, attr)
+        if v is None:
+            continue
+        v = np.atleast_1d(np.asarray(v, dtype=float)) * f.get(param, worst)
+        sys = sens.systematic(param)
+        if sys is not None and sys.shape == v.shape:
+            v = np.sqrt(v**2 + sys**2)
+        total[param] = v
+        setattr(r, attr, float(v[0]) if param == "t_d" else v)
+    if worst > 1.0:
+        scaled = ", ".join(f"{k} x{v:.2f}" for k, v in f.items() if v > 1.0)
+        r.notes.append(f"the {len(cons.segments)} segments disagree beyond their own sigmas: "
+                       f"sigmas scaled by their Birge ratio ({scaled}; the others "
+                       f"x{worst:.2f})")
+    if sens.shift:
+        r.notes.append("sigmas include the shift under IMU noise densities x3 and x1/3 "
+                       "(added in quadrature)")
+    return total
