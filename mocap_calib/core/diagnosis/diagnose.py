@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
-from mocap_calib.core.calib.clock import coarse_offset_arrays
+from mocap_calib.core.calib.clock import search_clock
 from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.calib.session import PreparedSession
@@ -273,7 +273,10 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     t0 = time.perf_counter()
     notes: list[str] = []
     model = opts.start
-    cal_opts = replace(opts.calibration, model=model, adapt_noise=False)
+    # The starting fit only seeds the diagnosis: no segment or noise checks, and a model that
+    # misses an effect may well look implausible (that is what the diagnosis is for).
+    cal_opts = replace(opts.calibration, model=model, adapt_noise=False, consistency_segments=0,
+                       sensitivity=False, accept_implausible=True)
 
     say(f"fitting the starting model {model}")
     try:
@@ -338,8 +341,9 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             try:
                 if cand == "time_offset":
                     if coarse_delta is None:
-                        coarse_delta = coarse_offset_arrays(
-                            s.u, s.gyro, s.tau, s.R_WM, s.clock_shift).time_offset + s.clock_shift
+                        coarse_delta = search_clock(
+                            s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM,
+                            s.clock_shift).time_offset + s.clock_shift
                     extra["time_offset"] = np.array([coarse_delta])
                 f = fit(m, current, extra, noise)
             except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
@@ -399,7 +403,7 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             cur_res = res
 
     say(f"final calibration with {model}")
-    final = calibrate(imu, mocap, replace(opts.calibration, model=model))
+    final = calibrate(imu, mocap, replace(opts.calibration, model=model, accept_implausible=True))
     fx = final.diagnostics.trace
     final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, fx.noise_used,
                                                cutoff_hz=opts.cutoff_hz))
