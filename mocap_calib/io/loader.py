@@ -229,3 +229,54 @@ class _Reader:
         _, mocap = self._generic(path, ["mocap"])
         assert mocap is not None
         return self._note_mocap(mocap, "generic", path)
+
+
+def load_imu_file(path: Path | str | None, *, columns: str | None = None,
+                  time_unit: str | None = None, gyro_unit: str | None = None,
+                  accel_unit: str | None = None) -> tuple[ImuSamples, list[str]]:
+    """Read an IMU log without mocap (:func:`load_inputs` needs both streams).
+
+    Format as for :func:`load_inputs`: a folder is an EuRoC ``mav0``; a file with the EuRoC
+    ``imu0`` header is EuRoC; anything else is a generic CSV that needs ``columns``. New
+    formats (and options) are added here, as keywords, so every IMU-only command gets them.
+
+    Args:
+        path: ``--imu`` file or folder.
+        columns: ``--columns`` string for generic CSVs.
+        time_unit: s, ms, us or ns; None for the format's own.
+        gyro_unit: rad/s or deg/s; None for the format's own.
+        accel_unit: m/s^2 or g; None for the format's own.
+
+    Returns:
+        The samples and one-line notes for the user.
+
+    Raises:
+        InputError: no path, missing file, pose file given, unknown format, bad rows.
+    """
+    if path is None:
+        raise input_error("no --imu given", "pass the IMU log with --imu FILE")
+    units: dict[str, str] = {k: v for k, v in (
+        ("time_unit", time_unit), ("gyro_unit", gyro_unit), ("accel_unit", accel_unit))
+        if v is not None}
+    path = Path(path)
+    fmt = sniff_format(path)
+    notes: list[str] = []
+    if fmt in ("mav0", "euroc_imu"):
+        file = find_mav0(path) / "imu0" / "data.csv" if fmt == "mav0" else path
+        if columns is not None:
+            notes.append(f"ignored --columns for {path}: it is an {FORMAT_NAMES[fmt]}")
+        imu = read_euroc_imu(file, **units)
+    elif fmt == "euroc_poses" or (fmt == "tum" and columns is None):
+        raise input_error(f"--imu is given a pose file ({FORMAT_NAMES[fmt]}), not an IMU log",
+                          "pass the IMU file (EuRoC imu0/data.csv layout or a CSV with "
+                          "--columns)", str(path))
+    else:
+        if columns is None:
+            raise input_error("format not recognised (not an EuRoC imu0 CSV)",
+                              "say which columns hold what with --columns, e.g. "
+                              "--columns 't=0,gyro=1:4,accel=4:7'", str(path))
+        read, _ = read_generic(path, columns, streams=["imu"], **units)
+        assert read is not None
+        imu, file = read, path
+    notes.append(_describe("IMU", len(imu), imu.rate_hz, imu.duration, fmt, file))
+    return imu, notes

@@ -48,16 +48,14 @@ def multipos(
     accel_unit: ACCEL_UNIT = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.io.yaml_io import save_yaml
-    from mocap_calib.workflows.imu import ImuSpec, run_multipos
+    from mocap_calib.workflows.imu_input import ImuSpec
+    from mocap_calib.workflows.multipos import run_multipos
 
     run = run_multipos(
-        ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit), init_static_s=init_static,
-        window_s=window, min_interval_s=min_interval, gravity=gravity,
-        min_orientations=min_orientations, prior_files=prior or [], prior_biases=prior_biases,
-        prior_sigma_scale=prior_sigma_scale, progress=Progress(quiet))
-    save_yaml(out, run.to_dict(), "mocap-calib multipos intrinsics (SI units; 1-sigma under "
-              "'sigma').\na_m = M_a f + b_a (accel_matrix lower-triangular), w_m = M_g w + b_g. "
-              "See docs/conventions.md.")
+        ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit), out=out,
+        init_static_s=init_static, window_s=window, min_interval_s=min_interval,
+        gravity=gravity, min_orientations=min_orientations, prior_files=prior or [],
+        prior_biases=prior_biases, prior_sigma_scale=prior_sigma_scale,
+        progress=Progress(quiet))
     typer.echo(run.summary())
     typer.echo(f"\nwrote {out}")
