@@ -1,263 +1,224 @@
 """``calibrate_multipos``: static detector, threshold scan with the accelerometer fit, gyro bias
-from the initial rest, gyroscope fit over the rotations, sigmas and the poorly-determined list."""
+(and g-sensitivity) from the static poses, gyroscope fit over the rotations, sigmas and the
+poorly-determined list; for raw counts, the starting point from the data and the result in
+SI and in imu_tk's form.
+
+The fits run on readings in *start units* (SI input: the readings; raw counts: counts turned
+into nominal SI by the starting point); noise and residuals are compared in calibrated units,
+with the noise re-expressed through the fitted matrices and the fits repeated once with it.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.intrinsics.multipos.detector import Detector, check_timing, make_detector
-from mocap_calib.core.intrinsics.multipos.fit import AccelFit, GyroFit, fit_accel, fit_gyro
-from mocap_calib.core.intrinsics.multipos.params import (
-    DISTINCT_DEG,
-    LOWER,
-    POOR_CONDITION,
-    POOR_SIGMA,
-    option,
-    option_value,
+from mocap_calib.core.intrinsics.multipos.detector import (
+    Detector,
+    check_initial_gyro,
+    make_detector,
 )
-from mocap_calib.core.intrinsics.multipos.prior import MultiposPrior
+from mocap_calib.core.intrinsics.multipos.fit import AccelFit, GyroFit, fit_accel, fit_gyro
+from mocap_calib.core.intrinsics.multipos.gsens import (
+    GSensitivityFit,
+    fit_g_sensitivity,
+    interval_gyro_means,
+)
+from mocap_calib.core.intrinsics.multipos.params import option
+from mocap_calib.core.intrinsics.multipos.prior import MultiposPrior, prior_in_units
+from mocap_calib.core.intrinsics.multipos.quality import (
+    calibrated_norm_sigma,
+    gyro_noise,
+    poorly_determined,
+    sigmas,
+)
 from mocap_calib.core.intrinsics.multipos.result import MultiposResult
+from mocap_calib.core.intrinsics.multipos.scan import (
+    Choice,
+    check_options,
+    interval_moments,
+    scan_thresholds,
+)
+from mocap_calib.core.intrinsics.multipos.start import gyro_start_scale
+from mocap_calib.core.intrinsics.multipos.units import RawConversion, ellipsoid_start, imu_tk_form
 from mocap_calib.core.model.types import ImuSamples
-from mocap_calib.errors import ConvergenceError, InputError, ObservabilityError
+from mocap_calib.errors import ConvergenceError, InputError
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+G_MODES = ("auto", "on", "off")
 
-def interval_stats(accel: Array, iv: IntArray) -> tuple[Array, Array]:
-    """Mean accel of each interval and the 1-sigma of its norm from the in-interval noise."""
-    means = np.empty((len(iv), 3))
-    var_mean = np.empty((len(iv), 3))
-    for k, (a, b) in enumerate(iv):
-        x = accel[a:b + 1]
-        means[k] = x.mean(axis=0)
-        var_mean[k] = x.var(axis=0, ddof=1) / len(x)
-    u = means / np.linalg.norm(means, axis=1, keepdims=True)
-    sig = np.sqrt(np.sum(u * u * var_mean, axis=1))
-    return means, np.maximum(sig, 1e-9)
-
-
-def _distinct(dirs: Array) -> int:
-    """Greedy count of gravity directions more than :data:`DISTINCT_DEG` apart."""
-    cos_lim = np.cos(np.radians(DISTINCT_DEG))
-    centres: list[Array] = []
-    for d in dirs:
-        if not centres or np.max(np.asarray(centres) @ d) < cos_lim:
-            centres.append(d)
-    return len(centres)
-
-
-def _check_spread(dirs: Array, n: int) -> None:
-    """Raise if the gravity directions cannot separate scale from bias on every axis."""
-    fix = ("turn the IMU through orientations spread over the whole sphere, each axis "
-           "pointing up and down in some of them")
-    mean = dirs.mean(axis=0)
-    if np.linalg.norm(mean) > 1e-9:
-        m = mean / np.linalg.norm(mean)
-        cone = float(np.degrees(np.max(np.arccos(np.clip(dirs @ m, -1.0, 1.0)))))
-        if cone < 60.0:
-            raise ObservabilityError(f"all {n} static orientations have gravity within "
-                                     f"{cone:.0f} deg of one direction; {fix}")
-    ev = np.linalg.eigvalsh(dirs.T @ dirs / len(dirs))
-    if ev[0] < 0.02:
-        raise ObservabilityError(f"the {n} static gravity directions lie in one plane (the "
-                                 f"IMU was turned about one axis only); {fix}")
-
-
-def _gyro_bias(gyro: Array, rate: float) -> tuple[Array, Array, float]:
-    """Mean gyro, its 1-sigma and the white-noise density over a static stretch."""
-    n = len(gyro)
-    bias = gyro.mean(axis=0)
-    sd_white = gyro.std(axis=0, ddof=1) / np.sqrt(n)
-    # Block means catch correlated noise (random walk, flicker) the white estimate misses.
-    nb = 10
-    blk = n // nb
-    blocks = gyro[:nb * blk].reshape(nb, blk, 3).mean(axis=1)
-    sd_block = blocks.std(axis=0, ddof=1) / np.sqrt(nb)
-    density = float(np.sqrt(np.mean(gyro.var(axis=0, ddof=1)) / rate))
-    return bias, np.maximum(sd_white, sd_block), density
-
-
-def _poor(name: str, sigma: Array, lower_only: bool = False) -> list[str]:
-    out = []
-    for i in range(3):
-        for j in range(3):
-            if lower_only and j > i:
-                continue
-            lim = POOR_SIGMA["scale"] if i == j else POOR_SIGMA["misalignment"]
-            if not sigma[i, j] <= lim:
-                kind = "scale" if i == j else "misalignment"
-                out.append(f"{name}[{i}][{j}] ({kind}, sigma {sigma[i, j]:.2g})")
-    return out
-
-
-# --------------------------------------------------------------------------------------------
-# Steps of calibrate_multipos
-# --------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class _Choice:
-    """The threshold chosen by the scan and its accelerometer fit."""
+class _Rotations:
+    """The samples of every rotation between consecutive static intervals, padded to one
+    length (padding repeats the last sample with zero steps, i.e. identity increments)."""
 
-    k: float
-    intervals: IntArray
-    fit: AccelFit
-    n_distinct: int
-    scan: list[dict[str, Any]]
+    idx: IntArray  # (m, L+1) sample indices
+    dt: Array  # (m, L) step lengths
+    dur: Array  # (m,) durations
 
-
-def _check_options(imu: ImuSamples, init_static_s: float, window_s: float,
-                   min_interval_s: float, gravity: float, min_orientations: int,
-                   names: Mapping[str, str] | None) -> float:
-    """Checks the options and the log's length; returns the sample rate."""
-    if not 5.0 < gravity < 15.0:
-        raise InputError(f"{option_value(names, 'gravity', gravity)}: give |g| in m/s^2, "
-                         "e.g. 9.81")
-    if not init_static_s > 0 or not window_s > 0 or not min_interval_s > 0:
-        raise InputError(f"{option(names, 'init_static_s')}, {option(names, 'window_s')} and "
-                         f"{option(names, 'min_interval_s')} must be positive")
-    if min_orientations < 3:
-        raise InputError(f"{option_value(names, 'min_orientations', min_orientations)}: must "
-                         "be at least 3")
-    rate = check_timing(imu)
-    need = init_static_s + min_orientations * (min_interval_s + window_s + 1.0)
-    if imu.duration < need:
-        raise ObservabilityError(
-            f"{imu.source}: log is {imu.duration:.0f} s long, too short for a multi-position "
-            f"session (needs >= {need:.0f} s: {init_static_s:.0f} s at rest, then at least "
-            f"{min_orientations} orientations held 2-4 s; Tedaldi recommends 36-50)")
-    return rate
+    @classmethod
+    def between(cls, t: Array, iv: IntArray) -> _Rotations:
+        starts, ends = iv[1:, 0], iv[:-1, 1]
+        steps = starts - ends
+        L = int(steps.max())
+        idx = ends[:, None] + np.minimum(np.arange(L + 1)[None, :], steps[:, None])
+        step_idx = ends[:, None] + np.minimum(np.arange(L)[None, :], steps[:, None] - 1)
+        dt = np.where(np.arange(L)[None, :] < steps[:, None], np.diff(t)[step_idx], 0.0)
+        return cls(idx, dt, t[starts] - t[ends])
 
 
-def _scan(det: Detector, accel: Array, thresholds: Sequence[float], min_orientations: int,
-          gravity: float, prior: MultiposPrior | None) -> _Choice:
-    """One accel fit per threshold multiple on interval sets that can determine it; the
-    multiple whose reduced chi-square is indistinguishable from the best and that finds the
-    most intervals wins."""
-    scan: list[dict[str, Any]] = []
-    fits: list[tuple[float, IntArray, AccelFit, int]] = []
-    most, most_distinct = 0, 0
-    spread_error: ObservabilityError | None = None
-    for k in thresholds:
-        iv = det.intervals(float(k))
-        most = max(most, len(iv))
-        entry: dict[str, Any] = {"k": float(k), "n_intervals": int(len(iv)), "chi2": None}
-        scan.append(entry)
-        if len(iv) < min_orientations:
-            continue
-        means, sig = interval_stats(accel, iv)
-        dirs = means / np.linalg.norm(means, axis=1, keepdims=True)
-        n_distinct = _distinct(dirs)
-        most_distinct = max(most_distinct, n_distinct)
-        if n_distinct < min_orientations:
-            continue
-        try:
-            _check_spread(dirs, len(iv))
-        except ObservabilityError as e:
-            spread_error = e
-            continue
-        fit = fit_accel(means, sig, gravity, prior)
-        if fit.ok:
-            entry["chi2"] = fit.chi2 if fit.dof > 0 else None
-            fits.append((float(k), iv, fit, n_distinct))
-    if not fits:
-        _no_fit(most, most_distinct, min_orientations, spread_error)
-    ranked = [f for f in fits if f[2].dof > 0]
-    if ranked:
-        best = min(ranked, key=lambda f: f[2].chi2)[2]
-        tol = best.chi2 * (1.0 + 2.0 * np.sqrt(2.0 / best.dof))
-        k_best, iv, afit, n_distinct = max((f for f in ranked if f[2].chi2 <= tol),
-                                           key=lambda f: (len(f[1]), -f[2].chi2))
+@dataclass(frozen=True)
+class _Gyro:
+    """What the gyro fit needs besides the rotations: the offset subtracted from the readings
+    (bias, plus ``G f`` with the g-sensitivity) and the noise."""
+
+    bias: Array
+    bias_sd: Array
+    G: Array | None
+
+    def offset(self, f: Array) -> Array:
+        """``b_g + G f`` for specific forces ``f`` (..., 3)."""
+        return self.bias if self.G is None else self.bias + f @ self.G.T
+
+
+def _accel_start(imu: ImuSamples, det: Detector, thresholds: Sequence[float],
+                 gravity: float, nominal: RawConversion | None,
+                 names: Mapping[str, str] | None) -> RawConversion:
+    """Raw counts: the accelerometer part of the starting point (the nominal one if given,
+    else an ellipsoid through the static means of the threshold that finds the most); the
+    gyro part is left as the counts until :func:`_gyro_start`."""
+    if nominal is not None:
+        return RawConversion(nominal.accel_scale, nominal.accel_offset, np.ones(3), np.zeros(3),
+                             "start")
+    best = max((det.intervals(float(k)) for k in thresholds), key=len)
+    means, _ = interval_moments(imu.accel, best) if len(best) else (np.zeros((0, 3)), None)
+    found = ellipsoid_start(means, gravity)
+    if found is None:
+        raise InputError(f"cannot find a starting point for the raw accelerometer counts from "
+                         f"the {len(best)} static intervals; pass its nominal scale and offset "
+                         f"({option(names, 'accel_scale')}, {option(names, 'accel_offset')})")
+    return RawConversion(found[0], found[1], np.ones(3), np.zeros(3), "start")
+
+
+def _accel_refit(accel: Array, choice: Choice, gravity: float,
+                 prior: MultiposPrior | None) -> tuple[AccelFit, Array]:
+    """The chosen accelerometer fit repeated with the noise in calibrated units; returns it and
+    the calibrated 1-sigma of each interval's norm."""
+    means, var_mean = interval_moments(accel, choice.intervals)
+    sig = calibrated_norm_sigma(means, var_mean, choice.fit.M, choice.fit.b)
+    fit = fit_accel(means, sig, gravity, prior, start=choice.fit)
+    if not fit.ok:
+        raise ConvergenceError("multipos: the accelerometer fit did not converge with the noise "
+                               "in calibrated units")
+    return fit, calibrated_norm_sigma(means, var_mean, fit.M, fit.b)
+
+
+def _gyro_start(imu: ImuSamples, start: RawConversion, rot: _Rotations, u: Array,
+                init_mask: NDArray[np.bool_], nominal: RawConversion | None) -> RawConversion:
+    """Raw counts: the gyro scale of the starting point (a scan, or the nominal one if that
+    explains the rotations better)."""
+    bias = imu.gyro[init_mask].mean(axis=0)
+    w = imu.gyro[rot.idx] - bias
+    cands = () if nominal is None else (float(np.mean(nominal.gyro_scale)),)
+    s = gyro_start_scale(w, rot.dt, u[:-1], u[1:], cands)
+    if not np.isfinite(s):
+        raise InputError("the gyro shows no rotation between the static poses; check the gyro "
+                         "columns")
+    if nominal is not None and s == cands[0]:
+        return replace(start, gyro_scale=nominal.gyro_scale, gyro_offset=nominal.gyro_offset)
+    return replace(start, gyro_scale=np.full(3, s), gyro_offset=np.zeros(3))
+
+
+def _g_sensitivity(imu: ImuSamples, iv: IntArray, afit: AccelFit, mode: str
+                   ) -> tuple[GSensitivityFit | None, bool]:
+    """``G`` from the static poses and whether the model keeps it (``mode``: auto decides by
+    the likelihood-ratio test)."""
+    if mode == "off":
+        return None, False
+    gm, gs = interval_gyro_means(imu.gyro, iv)
+    means, _ = interval_moments(imu.accel, iv)
+    f = (means - afit.b) @ np.linalg.inv(afit.M).T
+    fit = fit_g_sensitivity(gm, gs, f)
+    if fit is None:
+        return None, False
+    return fit, mode == "on" or fit.significant
+
+
+def _bias(gyro_init: Array, gfit: GSensitivityFit | None, keep: bool,
+          prior: MultiposPrior | None) -> _Gyro:
+    """Gyro bias: the mean over the initial rest (``w = 0`` there), or with ``G`` the intercept
+    of the static poses; combined with a prior if given."""
+    if keep and gfit is not None:
+        bg, bg_sd, G = gfit.bias, gfit.bias_sigma, gfit.G
     else:
-        # Exactly determined (as many intervals as parameters): nothing to rank by.
-        k_best, iv, afit, n_distinct = fits[0]
-    return _Choice(k_best, iv, afit, n_distinct, scan)
-
-
-def _no_fit(most: int, most_distinct: int, min_orientations: int,
-            spread_error: ObservabilityError | None) -> None:
-    """Raise the reason why no threshold gave a usable accelerometer fit."""
-    if most < min_orientations:
-        raise ObservabilityError(
-            f"found {most} static orientations, need at least {min_orientations} distinct "
-            f"ones (Tedaldi recommends 36-50); hold the IMU still for 2-4 s in more "
-            f"orientations")
-    if most_distinct < min_orientations:
-        raise ObservabilityError(
-            f"found {most} static intervals but only {most_distinct} distinct orientations "
-            f"(gravity directions >{DISTINCT_DEG:.0f} deg apart), need at least "
-            f"{min_orientations} (Tedaldi recommends 36-50); hold the IMU still for 2-4 s "
-            f"in more, different orientations")
-    if spread_error is not None:
-        raise spread_error
-    raise ConvergenceError("multipos: the accelerometer fit failed for every static "
-                           "threshold; check that the accel is in m/s^2 and |g| is right")
-
-
-def _gyro_bias_with_prior(gyro_init: Array, rate: float, prior: MultiposPrior | None
-                          ) -> tuple[Array, Array, float]:
-    """Gyro bias over the initial rest (w = 0 there), combined with a prior if given."""
-    bg, bg_sd, density = _gyro_bias(gyro_init, rate)
+        n = len(gyro_init)
+        bg, G = gyro_init.mean(axis=0), None
+        sd_white = gyro_init.std(axis=0, ddof=1) / np.sqrt(n)
+        # Block means catch correlated noise (random walk, flicker) the white estimate misses.
+        blk = n // 10
+        blocks = gyro_init[:10 * blk].reshape(10, blk, 3).mean(axis=1)
+        bg_sd = np.maximum(sd_white, blocks.std(axis=0, ddof=1) / np.sqrt(10))
     if prior is not None:
         v, s, used = prior.rows("gyro_bias")
         w_d, w_p = 1.0 / bg_sd**2, np.where(used, 1.0 / np.where(used, s, 1.0) ** 2, 0.0)
         bg = (w_d * bg + w_p * np.where(used, v, 0.0)) / (w_d + w_p)
         bg_sd = 1.0 / np.sqrt(w_d + w_p)
-    return bg, bg_sd, density
+    return _Gyro(bg, bg_sd, G)
 
 
-def _fit_rotations(imu: ImuSamples, iv: IntArray, afit: AccelFit, gravity: float,
-                   bg: Array, bg_sd: Array, density: float,
+def _fit_rotations(imu: ImuSamples, rot: _Rotations, u: Array, sig_dir: Array, gyro: _Gyro,
+                   afit: AccelFit, init_mask: NDArray[np.bool_], rate: float,
                    prior: MultiposPrior | None) -> GyroFit:
-    """Gyro matrix from the rotations between consecutive static intervals."""
-    means, sig_int = interval_stats(imu.accel, iv)
-    M_a, b_a = afit.M, afit.b
-    h = (means - b_a) @ np.linalg.inv(M_a).T
-    u = h / np.linalg.norm(h, axis=1, keepdims=True)
-    sig_dir = sig_int / gravity  # per-axis noise of the mean, as an angle
-    starts, ends = iv[1:, 0], iv[:-1, 1]
-    steps = starts - ends
-    L = int(steps.max())
-    idx = ends[:, None] + np.minimum(np.arange(L + 1)[None, :], steps[:, None])
-    gyro_pad = imu.gyro[idx]
-    dt_all = np.diff(imu.t)
-    step_idx = ends[:, None] + np.minimum(np.arange(L)[None, :], steps[:, None] - 1)
-    dt_pad = np.where(np.arange(L)[None, :] < steps[:, None], dt_all[step_idx], 0.0)
-    dur = imu.t[starts] - imu.t[ends]
-    # Residual noise: both gravity directions, angle random walk and bias error over the
-    # rotation.
-    sig_rot = np.sqrt(sig_dir[:-1] ** 2 + sig_dir[1:] ** 2 + density**2 * dur
-                      + float(np.mean(bg_sd**2)) * dur**2)
-    return fit_gyro(gyro_pad, dt_pad, u[:-1], u[1:], sig_rot, bg, prior)
+    """Gyro matrix from the rotations, twice: the second time with the gyro noise (angle
+    random walk, bias error) in the calibrated units of the first."""
+    L_a = np.linalg.inv(afit.M)
+    f_rot = (imu.accel[rot.idx] - afit.b) @ L_a.T
+    f_init = (imu.accel[init_mask] - afit.b) @ L_a.T
+    gyro_pad, offset = imu.gyro[rot.idx], gyro.offset(f_rot)
+    fit: GyroFit | None = None
+    for _ in range(2):
+        M_g = np.eye(3) if fit is None else fit.M
+        density, bg_sd = gyro_noise(imu.gyro[init_mask], gyro.offset(f_init), M_g,
+                                    gyro.bias_sd, rate)
+        # Residual noise: both gravity directions, angle random walk and bias error over the
+        # rotation.
+        sig_rot = np.sqrt(sig_dir[:-1] ** 2 + sig_dir[1:] ** 2 + density**2 * rot.dur
+                          + float(np.mean(bg_sd**2)) * rot.dur**2)
+        fit = fit_gyro(gyro_pad, rot.dt, u[:-1], u[1:], sig_rot, offset, prior,
+                       start=None if fit is None else fit.M)
+    assert fit is not None
+    return fit
 
 
-def _sigmas(afit: AccelFit, gfit: GyroFit) -> tuple[Array, Array, Array]:
-    """1-sigma of ``M_a`` (zero above the diagonal), ``b_a`` and ``M_g``."""
-    a_sig = np.sqrt(np.clip(np.diag(afit.cov), 0.0, None))
-    Ma_sig = np.zeros((3, 3))
-    for k, (i, j) in enumerate(LOWER):
-        Ma_sig[i, j] = a_sig[k]
-    Mg_sig = np.sqrt(np.clip(np.diag(gfit.cov), 0.0, None)).reshape(3, 3)
-    return Ma_sig, a_sig[6:9], Mg_sig
+def _prepare(raw: bool, nominal: RawConversion | None,
+             prior: MultiposPrior | None) -> None:
+    """Checks that the options fit together."""
+    if nominal is not None and not raw:
+        raise InputError("a nominal scale and offset apply to raw counts only (raw=True)")
+    if prior is not None and prior.counts != raw:
+        what = "raw counts" if prior.counts else "SI units"
+        raise InputError(f"the prior is a calibration of {what} and this one is not; give "
+                         "priors calibrated from the same kind of readings")
 
 
-def _poorly_determined(Ma_sig: Array, ba_sig: Array, Mg_sig: Array, bg_sd: Array,
-                       afit: AccelFit, gfit: GyroFit) -> list[str]:
-    poor = _poor("accel_matrix", Ma_sig, lower_only=True)
-    poor += [f"accel_bias[{i}] (sigma {s:.2g} m/s^2)" for i, s in enumerate(ba_sig)
-             if not s <= POOR_SIGMA["accel_bias"]]
-    poor += _poor("gyro_matrix", Mg_sig)
-    poor += [f"gyro_bias[{i}] (sigma {s:.2g} rad/s)" for i, s in enumerate(bg_sd)
-             if not s <= POOR_SIGMA["gyro_bias"]]
-    for name, cond in (("accel", afit.condition), ("gyro", gfit.condition)):
-        if not cond <= POOR_CONDITION:
-            poor.append(f"{name} fit ill-conditioned (condition number {cond:.2g})")
-    return poor
+def _output_units(start: RawConversion, nominal: RawConversion | None, afit: AccelFit,
+                  gfit: GyroFit) -> RawConversion:
+    """Raw counts: the conversion the result is given for (the nominal one, else imu_tk's
+    ``K`` of this calibration with zero offset, so the SI matrices are ``T^-1``)."""
+    if nominal is not None:
+        return nominal
+    K = {}
+    for sensor, M in (("accel", afit.M), ("gyro", gfit.M)):
+        # Counts form M_r = diag(1 / scale) M (the offset does not enter K).
+        _, Kd, _ = imu_tk_form(M / start.scale(sensor)[:, None], np.zeros(3))
+        K[sensor] = np.diag(Kd)
+    return RawConversion(K["accel"], np.zeros(3), K["gyro"], np.zeros(3), "fitted")
 
 
 def calibrate_multipos(
@@ -271,22 +232,30 @@ def calibrate_multipos(
     min_orientations: int = 9,
     prior: MultiposPrior | None = None,
     names: Mapping[str, str] | None = None,
+    raw: bool = False,
+    nominal: RawConversion | None = None,
+    g_sensitivity: str = "auto",
 ) -> MultiposResult:
     """Calibrate accelerometer and gyroscope intrinsics from a multi-position session.
 
     Args:
         imu: the session: ``init_static_s`` at rest, then static orientations (2-4 s each)
-            joined by rotations.
-        init_static_s: length of the initial static period (the session must start with at
-            least this long at rest; 30-50 s recommended).
+            joined by rotations. In rad/s and m/s^2, or raw counts with ``raw``.
+        init_static_s: length of the initial static period (30-50 s recommended).
         window_s: static-detector window ``t_w`` (1-2 s).
-        threshold_multiples: multiples ``k`` of the initial variance magnitude to try.
+        threshold_multiples: multiples ``k`` of the initial variance norm to try (imu_tk's
+            meaning, :mod:`.detector`).
         min_interval_s: shortest static interval used.
         gravity: local ``|g|`` in m/s^2.
         min_orientations: fewest distinct static orientations accepted.
         prior: optional prior on any of the parameters (see :class:`MultiposPrior`).
-        names: how messages spell the options (keyword -> e.g. ``--init-static``); default
-            the keywords.
+        names: how messages spell the options (keyword -> e.g. ``--init-static``).
+        raw: the readings are raw counts in unknown units.
+        nominal: with ``raw``, datasheet scales and offsets: the starting point and the
+            units the result is given in (default: found from the data; result in imu_tk's
+            ``K`` units).
+        g_sensitivity: ``auto`` (keep ``G`` if the likelihood-ratio test says so), ``on``,
+            ``off``.
 
     Returns:
         The intrinsics with 1-sigma, residuals and diagnostics.
@@ -297,26 +266,72 @@ def calibrate_multipos(
             static orientations.
         ConvergenceError: a fit failed.
     """
-    rate = _check_options(imu, init_static_s, window_s, min_interval_s, gravity,
-                          min_orientations, names)
-    det = make_detector(imu, rate, init_static_s, window_s, min_interval_s, names)
-    choice = _scan(det, imu.accel, threshold_multiples, min_orientations, gravity, prior)
-    iv, afit = choice.intervals, choice.fit
-    bg, bg_sd, density = _gyro_bias_with_prior(imu.gyro[det.init_mask], rate, prior)
-    gfit = _fit_rotations(imu, iv, afit, gravity, bg, bg_sd, density, prior)
-    Ma_sig, ba_sig, Mg_sig = _sigmas(afit, gfit)
-    return MultiposResult(
-        accel_matrix=afit.M, accel_bias=afit.b, gyro_matrix=gfit.M, gyro_bias=bg,
+    if g_sensitivity not in G_MODES:
+        raise InputError(f"{option(names, 'g_sensitivity')} {g_sensitivity}: use auto, on or "
+                         "off")
+    _prepare(raw, nominal, prior)
+    rate = check_options(imu, init_static_s, window_s, min_interval_s, gravity,
+                         min_orientations, names)
+    det = make_detector(imu, rate, init_static_s, window_s, min_interval_s, names,
+                        check_gyro=not raw)
+    start = (_accel_start(imu, det, threshold_multiples, gravity, nominal, names) if raw
+             else RawConversion.identity())
+    imu_s = start.apply(imu) if raw else imu
+    prior_s = prior_in_units(prior, start) if prior is not None and raw else prior
+    choice = scan_thresholds(det, imu_s.accel, threshold_multiples, min_orientations,
+                             gravity, prior_s)
+    afit, sig_int = _accel_refit(imu_s.accel, choice, gravity, prior_s)
+    iv = choice.intervals
+    means, _ = interval_moments(imu_s.accel, iv)
+    h = (means - afit.b) @ np.linalg.inv(afit.M).T
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    rot = _Rotations.between(imu.t, iv)
+    if raw:
+        start = _gyro_start(imu_s, start, rot, u, det.init_mask, nominal)
+        imu_s = start.apply(imu)
+        prior_s = prior_in_units(prior, start) if prior is not None else None
+        check_initial_gyro(imu_s.gyro[det.init_mask], rate, init_static_s, names)
+    return _finish(imu, imu_s, det, choice, afit, sig_int / gravity, u, rot, rate, gravity,
+                   prior_s, g_sensitivity, start if raw else None, nominal, prior)
+
+
+def _finish(imu: ImuSamples, imu_s: ImuSamples, det: Detector, choice: Choice, afit: AccelFit,
+            sig_dir: Array, u: Array, rot: _Rotations, rate: float, gravity: float,
+            prior_s: MultiposPrior | None, g_mode: str, start: RawConversion | None,
+            nominal: RawConversion | None, prior: MultiposPrior | None) -> MultiposResult:
+    """Gyro bias and g-sensitivity, gyro fit, sigmas, and the result in its output units."""
+    iv = choice.intervals
+    gs, keep = _g_sensitivity(imu_s, iv, afit, g_mode)
+    gyro = _bias(imu_s.gyro[det.init_mask], gs, keep, prior_s)
+    gfit = _fit_rotations(imu_s, rot, u, sig_dir, gyro, afit, det.init_mask, rate, prior_s)
+    test = None
+    if gs is not None:
+        # The other model, for the report: how much G changes the gyro integration.
+        other = _bias(imu_s.gyro[det.init_mask], gs, not keep, prior_s)
+        alt = _fit_rotations(imu_s, rot, u, sig_dir, other, afit, det.init_mask, rate,
+                             prior_s)
+        with_g, without_g = (gfit, alt) if keep else (alt, gfit)
+        test = {**gs.test_dict(), "kept": bool(keep), "gyro_rms_rad_with_g": with_g.rms,
+                "gyro_rms_rad_without_g": without_g.rms, "gyro_chi2_with_g": with_g.chi2,
+                "gyro_chi2_without_g": without_g.chi2}
+    Ma_sig, ba_sig, Mg_sig = sigmas(afit, gfit)
+    res = MultiposResult(
+        accel_matrix=afit.M, accel_bias=afit.b, gyro_matrix=gfit.M, gyro_bias=gyro.bias,
         accel_matrix_sigma=Ma_sig, accel_bias_sigma=ba_sig, gyro_matrix_sigma=Mg_sig,
-        gyro_bias_sigma=bg_sd,
+        gyro_bias_sigma=gyro.bias_sd,
         accel_residual_rms=afit.rms, gyro_residual_rms=gfit.rms,
         threshold_multiple=choice.k, n_static_intervals=len(iv),
         n_distinct_orientations=choice.n_distinct,
         static_intervals=np.stack([imu.t[iv[:, 0]], imu.t[iv[:, 1]]], axis=1),
-        poorly_determined=_poorly_determined(Ma_sig, ba_sig, Mg_sig, bg_sd, afit, gfit),
+        poorly_determined=poorly_determined(afit, gfit, Ma_sig, ba_sig, Mg_sig, gyro.bias_sd),
         accel_condition=afit.condition, gyro_condition=gfit.condition,
         accel_chi2=afit.chi2, gyro_chi2=gfit.chi2, gravity=float(gravity),
         session_time_ns=int(imu.stamps_ns()[0]),
         prior_source=None if prior is None else prior.source,
         threshold_scan=choice.scan,
-    )
+        g_sensitivity=gs.G if keep and gs is not None else None,
+        g_sensitivity_sigma=gs.G_sigma if keep and gs is not None else None,
+        g_sensitivity_test=test, raw_input=start)
+    if start is None:
+        return res
+    return res.in_units(_output_units(start, nominal, afit, gfit))

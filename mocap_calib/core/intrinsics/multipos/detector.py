@@ -1,9 +1,12 @@
 """Static detector of a multi-position session (Tedaldi et al. 2014, as imu_tk).
 
-The magnitude ``|var_w(a)|^2`` of the per-axis accel variance over a centred window ``t_w`` is
-compared with ``k |var_init(a)|^2``, the same magnitude over the initial static period; a run of
-samples below it at least ``min_interval_s`` long is a static interval. The statistics come from
-:mod:`mocap_calib.core.model.rest`.
+The threshold has imu_tk's meaning: a sample is static when the norm of the per-axis accel
+variance over a centred window ``t_w``, ``|var_w(a)| = sqrt(sum_c var_w(a_c)^2)``, is below
+``k |var_init(a)|``, ``k`` times the same norm over the initial static period (imu_tk's
+``staticIntervalsDetector`` with ``th_mult * norm_th``; its calibration scans ``k = 2..10``). A
+run of static samples at least ``min_interval_s`` long is a static interval. The statistics
+come from :mod:`mocap_calib.core.model.rest`. The threshold is a ratio of variances, so the
+detector needs no units (raw counts work as they are).
 """
 
 from __future__ import annotations
@@ -30,7 +33,8 @@ def window_samples(window_s: float, rate_hz: float) -> int:
 
 
 def variance_magnitude(accel: Array, win: int) -> Array:
-    """``|var_w(a)|^2``: squared norm of the per-axis variance over a centred window.
+    """``|var_w(a)|``: norm of the per-axis variance over a centred window (imu_tk's
+    "variance magnitude").
 
     Args:
         accel: (N, 3) accel samples.
@@ -39,8 +43,7 @@ def variance_magnitude(accel: Array, win: int) -> Array:
     Returns:
         (N,) magnitudes; NaN where the window does not fit (the first and last ``win // 2``).
     """
-    var = rest.window_variance(accel, win)
-    return np.sum(var * var, axis=1)
+    return np.linalg.norm(rest.window_variance(accel, win), axis=1)
 
 
 @dataclass(frozen=True)
@@ -76,11 +79,14 @@ def check_timing(imu: ImuSamples) -> float:
 
 
 def make_detector(imu: ImuSamples, rate: float, init_static_s: float, window_s: float,
-                  min_interval_s: float, names: Mapping[str, str] | None = None) -> Detector:
+                  min_interval_s: float, names: Mapping[str, str] | None = None,
+                  check_gyro: bool = True) -> Detector:
     """Detector of one session; checks that the initial period is static.
 
     Args:
         names: how the caller spells the options in messages (see ``params.option``).
+        check_gyro: also check that the gyro does not turn in the initial period (needs the
+            gyro in rad/s; with raw counts the caller checks once the scale is known).
     """
     win = window_samples(window_s, rate)
     init_mask = imu.t - imu.t[0] <= init_static_s
@@ -89,35 +95,52 @@ def make_detector(imu: ImuSamples, rate: float, init_static_s: float, window_s: 
                          f"shorter than two detector windows ({2 * win / rate:.1f} s); use "
                          "30-50 s")
     mag = variance_magnitude(imu.accel, win)
-    var_init = imu.accel[init_mask].var(axis=0, ddof=1)
-    init_mag = float(np.sum(var_init**2))
-    check_initial_static(imu, init_mask, mag, init_mag, init_static_s, rate, names)
-    # Floor for quantised, nearly noise-free data: a zero threshold would find nothing static.
-    init_mag = max(init_mag, 1e-16)
+    init_mag = float(np.linalg.norm(imu.accel[init_mask].var(axis=0, ddof=1)))
+    check_initial_accel(init_mask, mag, init_mag, init_static_s, names)
+    if check_gyro:
+        check_initial_gyro(imu.gyro[init_mask], rate, init_static_s, names)
+    # Floor for quantised, nearly noise-free data: a zero threshold would find nothing static
+    # (relative to the signal, so it holds in any unit).
+    scale = float(np.median(np.linalg.norm(imu.accel[init_mask], axis=1)))
+    init_mag = max(init_mag, 1e-16 * scale**2, 1e-300)
     min_len = max(win // 2, int(round(min_interval_s * rate)))
     return Detector(mag, init_mask, init_mag, min_len)
 
 
-def check_initial_static(imu: ImuSamples, init_mask: NDArray[np.bool_], mag: Array,
-                         init_mag: float, init_static_s: float, rate: float,
-                         names: Mapping[str, str] | None = None) -> None:
-    """Raise if the initial period is not static: its threshold would then mean nothing."""
+def _rest_fix(init_static_s: float, names: Mapping[str, str] | None) -> str:
+    return (f"start the recording with the IMU resting still for at least {init_static_s:g} s "
+            f"(30-50 s recommended), or pass a shorter {option(names, 'init_static_s')}")
+
+
+def check_initial_accel(init_mask: NDArray[np.bool_], mag: Array, init_mag: float,
+                        init_static_s: float, names: Mapping[str, str] | None = None) -> None:
+    """Raise if the accelerometer moves in the initial period: its threshold would then mean
+    nothing."""
     inner = mag[init_mask]
     inner = inner[np.isfinite(inner)]
-    fix = (f"start the recording with the IMU resting still for {init_static_s:.0f}-50 s "
-           f"(or pass a shorter {option(names, 'init_static_s')})")
     # Over a static period the windowed variance is the whole period's variance (noise); a
     # motion or a tilt inside it makes the whole-period variance much larger.
-    if init_mag > 25.0 * float(np.median(inner)):
+    if init_mag > 5.0 * float(np.median(inner)):
         raise ObservabilityError(f"no initial static period: the accelerometer varies within "
-                                 f"the first {init_static_s:.0f} s; {fix}")
-    # A rotation that keeps the gravity direction (about the vertical) shows only on the gyro.
-    means = rest.block_means(imu.gyro[init_mask], max(1, int(round(rate))))
+                                 f"the first {init_static_s:g} s; "
+                                 f"{_rest_fix(init_static_s, names)}")
+
+
+def check_initial_gyro(gyro_init: Array, rate: float, init_static_s: float,
+                       names: Mapping[str, str] | None = None, limit: float = 0.05) -> None:
+    """Raise if the gyro turns in the initial period: a rotation that keeps the gravity
+    direction (about the vertical) shows only there.
+
+    Args:
+        gyro_init: (n, 3) gyro over the initial period, rad/s (or nominal rad/s).
+        limit: largest deviation of a 1 s block mean from the median block, rad/s.
+    """
+    means = rest.block_means(gyro_init, max(1, int(round(rate))))
     spread = float(np.max(np.abs(rest.median_deviation(means))))
-    if spread > 0.05:
+    if spread > limit:
         raise ObservabilityError(f"no initial static period: the gyro shows rotation "
                                  f"({np.degrees(spread):.1f} deg/s) within the first "
-                                 f"{init_static_s:.0f} s; {fix}")
+                                 f"{init_static_s:g} s; {_rest_fix(init_static_s, names)}")
 
 
 def detect_static_intervals(imu: ImuSamples, threshold_multiple: float, *,
@@ -127,7 +150,7 @@ def detect_static_intervals(imu: ImuSamples, threshold_multiple: float, *,
 
     Args:
         imu: the session.
-        threshold_multiple: ``k`` in ``|var_w(a)|^2 < k |var_init(a)|^2``.
+        threshold_multiple: ``k`` in ``|var_w(a)| < k |var_init(a)|`` (imu_tk's meaning).
         init_static_s: length of the initial static period.
         window_s: length of the centred variance window ``t_w``.
         min_interval_s: shortest interval kept.

@@ -91,7 +91,12 @@ def _accel_prior(prior: MultiposPrior | None) -> tuple[Array, Array, Array]:
     return np.concatenate([im, ib + 6]), np.concatenate([vm, vb]), np.concatenate([sm, sb])
 
 
-def fit_accel(means: Array, sig: Array, g: float, prior: MultiposPrior | None) -> AccelFit:
+def accel_pack(M: Array, b: Array) -> Array:
+    return np.concatenate([[M[i, j] for i, j in LOWER], b])
+
+
+def fit_accel(means: Array, sig: Array, g: float, prior: MultiposPrior | None,
+              start: AccelFit | None = None) -> AccelFit:
     """Fit ``M_a`` (lower-triangular) and ``b_a`` to interval means whose calibrated norm must
     be ``g``.
 
@@ -100,11 +105,14 @@ def fit_accel(means: Array, sig: Array, g: float, prior: MultiposPrior | None) -
         sig: (n,) 1-sigma of the norm of each mean.
         g: ``|g|``.
         prior: optional prior on ``accel_matrix`` and ``accel_bias``.
+        start: an earlier fit to start from (default: identity, or the prior's values).
     """
     pi, pv, ps = _accel_prior(prior)
     p0 = np.array([1.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
     # Start from the prior where there is one: the problem is then closer to linear.
     p0[pi] = pv
+    if start is not None:
+        p0 = accel_pack(start.M, start.b)
 
     def fun(p: Array) -> Array:
         r, _ = accel_model(p, means, sig, g)
@@ -143,7 +151,7 @@ class GyroFit:
 
 
 def fit_gyro(gyro_pad: Array, dt_pad: Array, u_start: Array, u_end: Array, sig: Array,
-             bias: Array, prior: MultiposPrior | None) -> GyroFit:
+             offset: Array, prior: MultiposPrior | None, start: Array | None = None) -> GyroFit:
     """Fit ``M_g`` so that integrated rotations carry each start gravity direction to the end.
 
     Args:
@@ -152,13 +160,17 @@ def fit_gyro(gyro_pad: Array, dt_pad: Array, u_start: Array, u_end: Array, sig: 
         u_start: (m, 3) calibrated gravity direction of the interval before each rotation.
         u_end: (m, 3) same for the interval after.
         sig: (m,) 1-sigma of each residual component (rad).
-        bias: gyro bias (fixed).
+        offset: what is subtracted before ``M_g^-1`` (fixed): the gyro bias (3,), or per
+            sample ``b_g + G f`` (m, L+1, 3) with the g-sensitivity.
         prior: optional prior on ``gyro_matrix``.
+        start: ``M_g`` to start from (default: identity, or the prior's values).
     """
     pi, pv, ps = prior_block(prior, "gyro_matrix", list(range(9)))
     x0 = np.eye(3).ravel()
     x0[pi] = pv
-    raw = gyro_pad - bias
+    if start is not None:
+        x0 = np.asarray(start, dtype=float).ravel().copy()
+    raw = gyro_pad - offset
 
     def predicted(x: Array) -> Array:
         C = np.linalg.inv(x.reshape(3, 3))

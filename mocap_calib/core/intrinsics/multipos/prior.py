@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.intrinsics.multipos.params import PARAMETERS
 from mocap_calib.core.intrinsics.multipos.result import MultiposResult
+from mocap_calib.core.intrinsics.multipos.units import RawConversion, change_units
 from mocap_calib.core.model.trend import extrapolate_trend
 from mocap_calib.errors import InputError
 
@@ -28,11 +29,14 @@ class MultiposPrior:
             and positive (and the structural zeros above the diagonal of ``accel_matrix``)
             carry no prior.
         source: what the prior came from, for reports.
+        counts: the values are for raw counts (``x = raw``), from raw-count calibrations;
+            otherwise for SI readings.
     """
 
     values: Mapping[str, Array]
     sigmas: Mapping[str, Array]
     source: str = "prior"
+    counts: bool = False
 
     def __post_init__(self) -> None:
         for name in self.values:
@@ -124,6 +128,25 @@ class MultiposPrior:
             values[name], sigmas[name] = v.reshape(shape), sd.reshape(shape) * sigma_scale
         source = "earlier result" if len(dicts) == 1 else f"trend of {len(dicts)} results"
         return cls(values, sigmas, source)
+
+
+def prior_in_units(prior: MultiposPrior, conv: RawConversion) -> MultiposPrior:
+    """A raw-count prior (``counts``) for readings converted by ``conv``."""
+    counts = RawConversion.identity("counts")
+    values: dict[str, Array] = {}
+    sigmas: dict[str, Array] = {}
+    for name in prior.values:
+        sensor = name.split("_")[0]
+        v = np.asarray(prior.values[name], dtype=float)
+        s = np.asarray(prior.sigmas[name], dtype=float)
+        r = conv.scale(sensor)
+        if name.endswith("matrix"):
+            values[name], _ = change_units(v, np.zeros(3), counts, conv, sensor)
+            sigmas[name] = s * r[:, None]
+        else:
+            _, values[name] = change_units(np.eye(3), v, counts, conv, sensor)
+            sigmas[name] = s * r
+    return MultiposPrior(values, sigmas, prior.source, counts=False)
 
 
 def _stack(dicts: Sequence[Mapping[str, Any]], name: str) -> tuple[Array, Array]:

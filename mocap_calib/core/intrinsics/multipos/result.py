@@ -4,13 +4,14 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.intrinsics.multipos.params import PARAMETERS
+from mocap_calib.core.intrinsics.multipos.units import RawConversion, change_units, imu_tk_form
 from mocap_calib.core.model.versioned import check_kind, header
 
 Array = NDArray[np.float64]
@@ -42,7 +43,8 @@ class MultiposResult:
         accel_matrix: ``M_a`` (3x3, lower-triangular) in ``a_m = M_a f + b_a``.
         accel_bias: ``b_a`` in m/s^2.
         gyro_matrix: ``M_g`` (3x3) in ``w_m = M_g w + b_g``.
-        gyro_bias: ``b_g`` in rad/s (mean gyro over the initial static period).
+        gyro_bias: ``b_g`` in rad/s (mean gyro over the initial static period, or with
+            ``G`` the intercept of the static gyro against the specific force).
         accel_matrix_sigma: 1-sigma of ``M_a`` (0 above the diagonal: not a parameter).
         accel_bias_sigma: 1-sigma of ``b_a``.
         gyro_matrix_sigma: 1-sigma of ``M_g``.
@@ -65,6 +67,13 @@ class MultiposResult:
         session_time_ns: stamp of the session's first sample (for trends over sessions).
         prior_source: what the prior came from, or None without one.
         threshold_scan: per tried ``k``: ``{k, n_intervals, chi2}`` (chi2 None if unusable).
+        g_sensitivity: ``G`` in ``w_m = M_g w + G f + b_g`` (rad/s per m/s^2), or None when the
+            model leaves it out.
+        g_sensitivity_sigma: its 1-sigma.
+        g_sensitivity_test: the likelihood-ratio test of ``G`` and the gyro residual with and
+            without it (None when not tested).
+        raw_input: for raw-count input, the conversion of the counts to the SI readings that
+            the values above are for (``x = scale (raw - offset)``); None for SI input.
     """
 
     accel_matrix: Array
@@ -90,22 +99,74 @@ class MultiposResult:
     session_time_ns: int
     prior_source: str | None = None
     threshold_scan: list[dict[str, Any]] = field(default_factory=list)
+    g_sensitivity: Array | None = None
+    g_sensitivity_sigma: Array | None = None
+    g_sensitivity_test: dict[str, Any] | None = None
+    raw_input: RawConversion | None = None
+
+    def in_units(self, conv: RawConversion) -> MultiposResult:
+        """The same calibration for readings converted by ``conv`` from the same raw counts
+        (e.g. ``RawConversion.identity("counts")``: the counts themselves)."""
+        if self.raw_input is None:
+            raise ValueError("an SI calibration has no raw counts to re-express")
+        src = self.raw_input
+        out: dict[str, Any] = {"raw_input": conv}
+        for sensor in ("accel", "gyro"):
+            r = conv.scale(sensor) / src.scale(sensor)
+            M, b = change_units(getattr(self, f"{sensor}_matrix"),
+                                getattr(self, f"{sensor}_bias"), src, conv, sensor)
+            out[f"{sensor}_matrix"], out[f"{sensor}_bias"] = M, b
+            out[f"{sensor}_matrix_sigma"] = getattr(self, f"{sensor}_matrix_sigma") * r[:, None]
+            out[f"{sensor}_bias_sigma"] = getattr(self, f"{sensor}_bias_sigma") * r
+        if self.g_sensitivity is not None and self.g_sensitivity_sigma is not None:
+            r = conv.gyro_scale / src.gyro_scale
+            out["g_sensitivity"] = self.g_sensitivity * r[:, None]
+            out["g_sensitivity_sigma"] = self.g_sensitivity_sigma * r[:, None]
+        return replace(self, **out)
+
+    def imu_tk(self) -> dict[str, dict[str, Array]]:
+        """imu_tk's form per sensor: ``T K (raw - b)`` is the calibrated reading (m/s^2,
+        rad/s) of a raw reading (counts for raw input, else the SI reading). ``G`` has no
+        place in it."""
+        r = self if self.raw_input is None else self.in_units(RawConversion.identity("counts"))
+        out = {}
+        for sensor in ("accel", "gyro"):
+            T, K, b = imu_tk_form(getattr(r, f"{sensor}_matrix"), getattr(r, f"{sensor}_bias"))
+            out[sensor] = {"T": T, "K": K, "b": b}
+        return out
 
     def to_dict(self) -> dict[str, Any]:
-        """``kind``/``version``, the intrinsics keys of ``docs/conventions.md``, then
-        ``sigma``, ``residuals`` and ``diagnostics`` (plain Python types, ready for YAML)."""
-        return {
+        """``kind``/``version``, the intrinsics keys of ``docs/conventions.md`` (with
+        ``g_sensitivity`` when modelled), ``raw_input`` for raw counts, then ``sigma``,
+        ``residuals``, imu_tk's form and ``diagnostics`` (plain Python types, for YAML)."""
+        d: dict[str, Any] = {
             **header(KIND, VERSION),
             "accel_matrix": self.accel_matrix.tolist(),
             "accel_bias": self.accel_bias.tolist(),
             "gyro_matrix": self.gyro_matrix.tolist(),
             "gyro_bias": self.gyro_bias.tolist(),
-            "sigma": {
-                "accel_matrix": self.accel_matrix_sigma.tolist(),
-                "accel_bias": self.accel_bias_sigma.tolist(),
-                "gyro_matrix": self.gyro_matrix_sigma.tolist(),
-                "gyro_bias": self.gyro_bias_sigma.tolist(),
-            },
+        }
+        sigma = {
+            "accel_matrix": self.accel_matrix_sigma.tolist(),
+            "accel_bias": self.accel_bias_sigma.tolist(),
+            "gyro_matrix": self.gyro_matrix_sigma.tolist(),
+            "gyro_bias": self.gyro_bias_sigma.tolist(),
+        }
+        if self.g_sensitivity is not None and self.g_sensitivity_sigma is not None:
+            d["g_sensitivity"] = self.g_sensitivity.tolist()
+            sigma["g_sensitivity"] = self.g_sensitivity_sigma.tolist()
+        if self.raw_input is not None:
+            d["raw_input"] = self.raw_input.to_dict()
+        d["sigma"] = sigma
+        d.update(self._figures())
+        return d
+
+    def _figures(self) -> dict[str, Any]:
+        """``residuals``, ``imu_tk`` and ``diagnostics`` of :meth:`to_dict`."""
+        tk = {s: {k: v.tolist() for k, v in m.items()} for s, m in self.imu_tk().items()}
+        tk["model"] = ("calibrated = T K (raw - b); T, K, b as imu_tk's CalibratedTriad"
+                       + ("" if self.g_sensitivity is None else "; G not included"))
+        return {
             "residuals": {
                 "accel_rms_mps2": float(self.accel_residual_rms),
                 "gyro_rms_rad": float(self.gyro_residual_rms),
@@ -124,7 +185,10 @@ class MultiposResult:
                 "session_time_ns": int(self.session_time_ns),
                 "prior": self.prior_source,
                 "threshold_scan": list(self.threshold_scan),
+                "threshold_meaning": "static if |var_w(a)| < k |var_init(a)| (imu_tk)",
+                "g_sensitivity_test": self.g_sensitivity_test,
             },
+            "imu_tk": tk,
         }
 
     @classmethod
@@ -161,4 +225,20 @@ class MultiposResult:
             session_time_ns=int(diag.get("session_time_ns", 0)),
             prior_source=diag.get("prior"),
             threshold_scan=[dict(e) for e in diag.get("threshold_scan") or []],
+            g_sensitivity_test=diag.get("g_sensitivity_test"),
+            **_optional(d, sigma),
         )
+
+
+def _optional(d: Mapping[str, Any], sigma: Mapping[str, Any]) -> dict[str, Any]:
+    """``g_sensitivity`` (with its sigma) and ``raw_input`` when the file has them."""
+    out: dict[str, Any] = {}
+    if d.get("g_sensitivity") is not None:
+        out["g_sensitivity"] = _array(d, "g_sensitivity", (3, 3))
+        out["g_sensitivity_sigma"] = _array(sigma, "g_sensitivity", (3, 3), "sigma: ")
+    if d.get("raw_input") is not None:
+        try:
+            out["raw_input"] = RawConversion.from_dict(d["raw_input"])
+        except (KeyError, TypeError) as err:
+            raise ValueError(f"malformed 'raw_input' ({err})") from None
+    return out
