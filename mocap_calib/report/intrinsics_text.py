@@ -46,30 +46,85 @@ def _matrix_rows(sensor: str, M: np.ndarray, S: np.ndarray, lower: bool
     return rows
 
 
+def _raw_rows(r: MultiposResult, sensor: str) -> list[tuple[str, str, str, str]]:
+    """Raw counts: imu_tk's scale ``K`` per axis (SI per count) and offset ``b`` (counts)."""
+    assert r.raw_input is not None
+    tk = r.imu_tk()[sensor]
+    M = getattr(r, f"{sensor}_matrix")
+    S = getattr(r, f"{sensor}_matrix_sigma")
+    rel = np.diag(S) / np.abs(np.diag(M))
+    unit = "m/s^2/count" if sensor == "accel" else "rad/s/count"
+    rows = [(f"{sensor} scale K {'xyz'[i]}", f"{tk['K'][i, i]:.6e}",
+             f"{rel[i] * tk['K'][i, i]:.2g}", unit) for i in range(3)]
+    bsig = getattr(r, f"{sensor}_bias_sigma") / r.raw_input.scale(sensor)
+    rows += [(f"{sensor} offset b {'xyz'[i]}", f"{tk['b'][i]:+.3f}", f"{bsig[i]:.2g}", "counts")
+             for i in range(3)]
+    return rows
+
+
+def _g_rows(r: MultiposResult) -> list[tuple[str, str, str, str]]:
+    if r.g_sensitivity is None or r.g_sensitivity_sigma is None:
+        return []
+    G, S = r.g_sensitivity, r.g_sensitivity_sigma
+    return [(f"gyro g-sensitivity {'xyz'[i]}{'xyz'[j]}", f"{G[i, j]:+.3e}", f"{S[i, j]:.2g}",
+             "rad/s/(m/s^2)") for i in range(3) for j in range(3)]
+
+
+def _detector_lines(r: MultiposResult) -> list[str]:
+    scan = ", ".join(f"{e['k']:g}: {e['n_intervals']}" for e in r.threshold_scan)
+    return [f"static detector     threshold multiple k = {r.threshold_multiple:g}, "
+            f"{r.n_static_intervals} static intervals, "
+            f"{r.n_distinct_orientations} distinct orientations",
+            f"                    (static where |var_w(a)| < k |var_init(a)|, imu_tk's "
+            f"meaning; intervals found per k: {scan})"]
+
+
+def _g_line(r: MultiposResult) -> list[str]:
+    t = r.g_sensitivity_test
+    if not t:
+        return []
+    verdict = "kept" if t["kept"] else "left out"
+    return [f"g-sensitivity G     {verdict} (likelihood ratio T = {t['statistic']:.3g}, "
+            f"log10 p = {t['log10_p']:.3g}, {'' if t['significant'] else 'not '}significant); "
+            f"gyro residual {np.degrees(t['gyro_rms_rad_with_g']):.3g} deg with G, "
+            f"{np.degrees(t['gyro_rms_rad_without_g']):.3g} deg without"]
+
+
 def multipos_summary(r: MultiposResult) -> str:
-    """Table of the intrinsics (scale errors in %, misalignments in deg), the fit figures and
-    the poorly determined parameters."""
+    """Table of the intrinsics (scale errors in %, misalignments in deg; for raw counts imu_tk's
+    scales and offsets), the fit figures, the g-sensitivity test and the poorly determined
+    parameters."""
+    raw = r.raw_input is not None
+    # Scale errors mean something only against a nominal scale: SI input or a given one.
+    errors = not raw or (r.raw_input is not None and r.raw_input.source == "given")
     rows: list[tuple[str, str, str, str]] = []
     for sensor, M, S, lower in (("accel", r.accel_matrix, r.accel_matrix_sigma, True),
                                 ("gyro", r.gyro_matrix, r.gyro_matrix_sigma, False)):
-        rows += _matrix_rows(sensor, M, S, lower)
+        if raw:
+            rows += _raw_rows(r, sensor)
+        rows += [row for row in _matrix_rows(sensor, M, S, lower)
+                 if errors or "scale error" not in row[0]]
         bias = getattr(r, f"{sensor}_bias")
         bsig = getattr(r, f"{sensor}_bias_sigma")
         unit = "m/s^2" if sensor == "accel" else "rad/s"
         for i in range(3):
             rows.append((f"{sensor} bias {'xyz'[i]}", f"{bias[i]:+.6f}", f"{bsig[i]:.2g}", unit))
+    rows += _g_rows(r)
     lines = [text_table(("parameter", "estimate", "1-sigma", "unit"), rows,
                         (False, True, True, False)), ""]
     lines.append(f"accel residual RMS  {1e3 * r.accel_residual_rms:.3g} mm/s^2 "
                  f"(|h| - g over the static intervals; chi2/dof {r.accel_chi2:.3g})")
     lines.append(f"gyro residual RMS   {np.degrees(r.gyro_residual_rms):.3g} deg "
                  f"(gravity direction after each rotation; chi2/dof {r.gyro_chi2:.3g})")
-    lines.append(f"static detector     threshold multiple k = {r.threshold_multiple:g}, "
-                 f"{r.n_static_intervals} static intervals, "
-                 f"{r.n_distinct_orientations} distinct orientations")
+    lines += _detector_lines(r) + _g_line(r)
+    if r.raw_input is not None:
+        what = "the nominal scales given" if r.raw_input.source == "given" else "imu_tk's K"
+        lines.append(f"raw counts          SI values for x = scale (raw - offset) with "
+                     f"{what} ('raw_input'); imu_tk's T K (raw - b) under 'imu_tk'")
     if r.prior_source is not None:
         lines.append(f"prior               {r.prior_source}")
-    lines.append("model               a_m = M_a f + b_a, w_m = M_g w + b_g "
+    g = "" if r.g_sensitivity is None else " + G f"
+    lines.append(f"model               a_m = M_a f + b_a, w_m = M_g w{g} + b_g "
                  "(M = diag(1 + scale error) (I + misalignment))")
     if r.poorly_determined:
         lines.append("")

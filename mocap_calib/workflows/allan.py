@@ -72,7 +72,7 @@ def run_allan(spec: ImuSpec, *, out: Path | None = None, rrd: Path | None = None
     if tau_min_s is not None and not (np.isfinite(tau_min_s) and tau_min_s > 0):
         raise InputError(f"--tau-min {tau_min_s}: must be a positive time in s")
     check_writable(out, rrd)
-    say(progress, f"reading {spec.imu}")
+    say(progress, f"reading {spec.name}")
     imu, notes = spec.load()
     for n in notes:
         say(progress, n)

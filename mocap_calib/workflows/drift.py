@@ -20,6 +20,7 @@ from mocap_calib.core.intrinsics.attitude_drift import (
 )
 from mocap_calib.core.intrinsics.multipos.result import KIND as INTRINSICS_KIND
 from mocap_calib.core.intrinsics.multipos.result import VERSION as INTRINSICS_VERSION
+from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.model.versioned import KindError, check_kind
@@ -51,6 +52,8 @@ class DriftCalibration:
         time_offset: clock offset ``t_d`` in s (0 when not given).
         gyro_bias_rate: ``r_g`` of ``gyro_bias_drift`` in rad/s^2, or None.
         session_span_ns: (first, last) IMU stamp of the calibration's session, when known.
+        raw_input: for intrinsics of raw counts, their conversion to the readings the
+            calibration is for (the IMU log must then be raw counts too).
     """
 
     kind: str
@@ -60,6 +63,7 @@ class DriftCalibration:
     time_offset: float = 0.0
     gyro_bias_rate: Array | None = None
     session_span_ns: tuple[int, int] | None = None
+    raw_input: RawConversion | None = None
 
 
 def _vec(value: Any, shape: tuple[int, ...], path: Path, name: str) -> Array | None:
@@ -111,8 +115,14 @@ def _from_intrinsics(path: Path, data: dict[str, Any]) -> DriftCalibration:
         raise InputError(f"{path}: {err}") from None
     values = {}
     for name, shape in (("accel_matrix", (3, 3)), ("accel_bias", (3,)),
-                        ("gyro_matrix", (3, 3)), ("gyro_bias", (3,))):
+                        ("gyro_matrix", (3, 3)), ("gyro_bias", (3,)), ("g_sensitivity", (3, 3))):
         values[name] = _vec(data.get(name), shape, path, name)
+    raw = None
+    if data.get("raw_input") is not None:
+        try:
+            raw = RawConversion.from_dict(data["raw_input"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"{path}: malformed 'raw_input' ({err}); {_CALIB_FIX}") from None
     if values["gyro_bias"] is None:
         raise InputError(f"{path}: no 'gyro_bias'; {_CALIB_FIX}")
     span = None
@@ -121,7 +131,8 @@ def _from_intrinsics(path: Path, data: dict[str, Any]) -> DriftCalibration:
         iv = np.asarray(diag.get("static_intervals_s") or [[0.0, 0.0]], dtype=float)
         t0 = int(diag["session_time_ns"])
         span = (t0, t0 + int(round(float(np.max(iv)) * 1e9)))
-    return DriftCalibration("multipos", GyroCalibration.from_dict(values), session_span_ns=span)
+    return DriftCalibration("multipos", GyroCalibration.from_dict(values), session_span_ns=span,
+                            raw_input=raw)
 
 
 def read_calibration(path: Path | str) -> DriftCalibration:
@@ -185,7 +196,7 @@ def _check_segment_options(start: float, end: float, static_window_s: float) -> 
 def _read_streams(spec: ImuSpec, mocap: Path | None, quat_order: str | None,
                   position_unit: str | None, progress: ProgressFn | None
                   ) -> tuple[ImuSamples, MocapPoses | None]:
-    say(progress, f"reading {spec.imu}" + (f" and {mocap}" if mocap is not None else ""))
+    say(progress, f"reading {spec.name}" + (f" and {mocap}" if mocap is not None else ""))
     poses: MocapPoses | None = None
     if mocap is None:
         imu, read_notes = spec.load()
@@ -270,7 +281,15 @@ def run_drift(spec: ImuSpec, calibration: Path, start: float, end: float, *,
         raise InputError(f"{calibration}: has no T_marker_imu, so mocap attitudes cannot be "
                          "turned into IMU attitudes; pass a 'mocap-calib calibrate' result, or "
                          "leave out --mocap to use the accelerometer at rest")
+    if cal.raw_input is not None:
+        if spec.gyro_unit is not None or spec.accel_unit is not None:
+            raise InputError(f"{calibration}: calibrates raw counts, so the IMU log is read as "
+                             "raw counts; leave out --gyro-unit and --accel-unit")
+        spec = replace(spec, raw=True)
     imu, poses = _read_streams(spec, mocap, quat_order, position_unit, progress)
+    if cal.raw_input is not None:
+        imu = cal.raw_input.apply(imu)
+        notes.append("raw counts converted with the calibration's 'raw_input'")
     if start < 0 or end > imu.duration + 1e-9:
         raise InputError(f"segment [{start:g}, {end:g}] s is outside the IMU log, which spans "
                          f"0-{imu.duration:.3f} s after its first sample; choose --start and "

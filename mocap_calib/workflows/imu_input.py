@@ -28,6 +28,9 @@ class ImuSpec:
         time_unit: s, ms, us or ns; None for the format's own.
         gyro_unit: rad/s or deg/s; None for the format's own.
         accel_unit: m/s^2 or g; None for the format's own.
+        raw: the readings are raw sensor counts (``--raw``).
+        accel: imu_tk's accelerometer file (``--accel``), with ``gyro``.
+        gyro: imu_tk's gyroscope file (``--gyro``).
     """
 
     imu: Path | None = None
@@ -35,8 +38,19 @@ class ImuSpec:
     time_unit: str | None = None
     gyro_unit: str | None = None
     accel_unit: str | None = None
+    raw: bool = False
+    accel: Path | None = None
+    gyro: Path | None = None
 
     def load(self) -> tuple[ImuSamples, list[str]]:
         """Read the log (:func:`mocap_calib.io.loader.load_imu_file`): samples and notes."""
         return load_imu_file(self.imu, columns=self.columns, time_unit=self.time_unit,
-                             gyro_unit=self.gyro_unit, accel_unit=self.accel_unit)
+                             gyro_unit=self.gyro_unit, accel_unit=self.accel_unit,
+                             raw=self.raw, accel_file=self.accel, gyro_file=self.gyro)
+
+    @property
+    def name(self) -> str:
+        """The input for progress lines."""
+        if self.imu is None and (self.accel is not None or self.gyro is not None):
+            return f"{self.accel} and {self.gyro}"
+        return str(self.imu)

@@ -1,0 +1,1 @@
+"""Exporters: calibration results in other tools' file formats."""
