@@ -121,7 +121,8 @@ def test_export_to_imu_tk(work: Path, raw_run: tuple[Path, str],
     T, K, _ = read_calib(work / "tk" / "imu_acc.calib")
     K_true = np.asarray(truth["counts"]["accel_scale"]) / np.diag(truth["accel_matrix"])
     assert np.allclose(np.diag(K), K_true, rtol=1e-3)
-    bad = [(["export", path, "--to", "kalibr", "--out", work / "x"], 2, "--to kalibr"),
+    bad = [(["export", path, "--to", "nonsense", "--out", work / "x"], 2,
+            "unknown --to .nonsense.*imu_tk"),
            (["export", work / "missing.yaml", "--to", "imu_tk", "--out", work / "x"], 2,
             "not found")]
     for args, code, pattern in bad:

@@ -28,6 +28,8 @@ class ImuSpec:
         time_unit: s, ms, us or ns; None for the format's own.
         gyro_unit: rad/s or deg/s; None for the format's own.
         accel_unit: m/s^2 or g; None for the format's own.
+        imu_topic: bags and ULogs: the IMU topic (``--imu-topic``).
+        stamp: bags: ``header`` or ``receive`` stamps (``--stamp``).
         raw: the readings are raw sensor counts (``--raw``).
         accel: imu_tk's accelerometer file (``--accel``), with ``gyro``.
         gyro: imu_tk's gyroscope file (``--gyro``).
@@ -38,6 +40,8 @@ class ImuSpec:
     time_unit: str | None = None
     gyro_unit: str | None = None
     accel_unit: str | None = None
+    imu_topic: str | None = None
+    stamp: str = "header"
     raw: bool = False
     accel: Path | None = None
     gyro: Path | None = None
@@ -46,7 +50,8 @@ class ImuSpec:
         """Read the log (:func:`mocap_calib.io.loader.load_imu_file`): samples and notes."""
         return load_imu_file(self.imu, columns=self.columns, time_unit=self.time_unit,
                              gyro_unit=self.gyro_unit, accel_unit=self.accel_unit,
-                             raw=self.raw, accel_file=self.accel, gyro_file=self.gyro)
+                             raw=self.raw, accel_file=self.accel, gyro_file=self.gyro,
+                             topic=self.imu_topic, stamp=self.stamp)
 
     @property
     def name(self) -> str:

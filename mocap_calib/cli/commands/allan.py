@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from mocap_calib.cli.common import ACCEL_UNIT, COLUMNS, GYRO_UNIT, IMU, TIME_UNIT, Progress
+from mocap_calib.cli.common import (
+    ACCEL_UNIT,
+    COLUMNS,
+    GYRO_UNIT,
+    IMU,
+    IMU_TOPIC,
+    STAMP,
+    TIME_UNIT,
+    Progress,
+)
 from mocap_calib.cli.main import app
 
 
@@ -41,12 +50,15 @@ def allan(
     time_unit: TIME_UNIT = None,
     gyro_unit: GYRO_UNIT = None,
     accel_unit: ACCEL_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.workflows.allan import run_allan
     from mocap_calib.workflows.imu_input import ImuSpec
 
-    run = run_allan(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit), out=out, rrd=rrd,
+    spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp)
+    run = run_allan(spec, out=out, rrd=rrd,
                     aggregate=aggregate, tau_min_s=tau_min,
                     require_random_walk=not allow_unresolved, progress=Progress(quiet))
     typer.echo(run.summary())

@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from mocap_calib.cli.common import ACCEL_UNIT, COLUMNS, GYRO_UNIT, IMU, TIME_UNIT, Progress
+from mocap_calib.cli.common import (
+    ACCEL_UNIT,
+    COLUMNS,
+    GYRO_UNIT,
+    IMU,
+    IMU_TOPIC,
+    STAMP,
+    TIME_UNIT,
+    Progress,
+)
 from mocap_calib.cli.main import app
 
 
@@ -78,6 +87,8 @@ def multipos(
     time_unit: TIME_UNIT = None,
     gyro_unit: GYRO_UNIT = None,
     accel_unit: ACCEL_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     from mocap_calib.workflows.imu_input import ImuSpec
@@ -86,12 +97,11 @@ def multipos(
     options = MultiposOptions(
         init_static_s=init_static, window_s=window, min_interval_s=min_interval,
         gravity=gravity, min_orientations=min_orientations, thresholds=threshold or (),
-        g_sensitivity=g_sensitivity, accel_scale=accel_scale,
-        accel_offset=accel_offset,
-        gyro_scale=gyro_scale,
-        gyro_offset=gyro_offset, prior_files=prior or [],
+        g_sensitivity=g_sensitivity, accel_scale=accel_scale, accel_offset=accel_offset,
+        gyro_scale=gyro_scale, gyro_offset=gyro_offset, prior_files=prior or [],
         prior_biases=prior_biases, prior_sigma_scale=prior_sigma_scale)
-    run = run_multipos(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, raw, accel, gyro),
-                       out=out, options=options, progress=Progress(quiet))
+    spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp, raw=raw,
+                   accel=accel, gyro=gyro)
+    run = run_multipos(spec, out=out, options=options, progress=Progress(quiet))
     typer.echo(run.summary())
     typer.echo(f"\nwrote {out}")

@@ -8,10 +8,9 @@ from typing import Annotated
 import typer
 
 from mocap_calib.cli.main import app
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS
-from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
+from mocap_calib.workflows.simulate import effects_doc, simulate_to_folder
 
-_EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
+_EFFECTS_DOC = effects_doc()
 
 
 @app.command(
@@ -33,6 +32,9 @@ def simulate(
         "--effect", "-e", metavar="NAME[=VALUE]",
         help="Inject an effect (repeatable). Without a value a realistic magnitude is drawn. "
         + _EFFECTS_DOC)] = None,
+    mocap_noise_corr: Annotated[float, typer.Option(
+        help="Mocap noise correlated over this time constant in s (AR(1) with the same "
+        "per-sample sigma), as real mocap noise is; 0: white.")] = 0.0,
     protocol: Annotated[str, typer.Option(
         help="flight: a drone flight in a mocap room; multipos: static orientations for "
         "'mocap-calib multipos' (no mocap); static: a still IMU for 'mocap-calib allan'.")]
@@ -42,10 +44,8 @@ def simulate(
         "(+-8 g, +-2000 deg/s; truth.yaml gives the nominal scales) for 'multipos --raw'.")]
     = False,
 ) -> None:
-    from mocap_calib.workflows.calibrate import simulate_to_folder
-
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
                                  imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [],
-                                 counts=counts)
+                                 mocap_noise_corr=mocap_noise_corr, counts=counts)
     for path, what in written:
         typer.echo(f"wrote {path}  ({what})")

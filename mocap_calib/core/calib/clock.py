@@ -15,7 +15,6 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]
@@ -59,25 +58,12 @@ def _resample(t: Array, y: Array, dt: float, gap: float) -> tuple[float, Array]:
     return float(grid[0]), z
 
 
-def coarse_time_offset(imu: ImuSamples, mocap: MocapPoses, rate_hz: float = 200.0) -> CoarseOffset:
-    """Find ``t_d`` by cross-correlating gyro and mocap angular speed over all lags.
-
-    Args:
-        imu: IMU samples (its clock).
-        mocap: mocap poses (its clock), gross outliers already removed.
-        rate_hz: grid rate of the correlation (the result is refined to a fraction of it).
-
-    Raises:
-        ObservabilityError: no clear correlation peak (too little rotation, or unrelated streams).
-    """
-    shift = (mocap.time_origin_ns - imu.time_origin_ns) * 1e-9
-    return coarse_offset_arrays(imu.t, imu.gyro, mocap.t, mocap.rotation, -shift, rate_hz)
-
-
 def coarse_offset_arrays(u: Array, gyro: Array, tau: Array, R_WM: Array, clock_shift: float,
                          rate_hz: float = 200.0) -> CoarseOffset:
-    """:func:`coarse_time_offset` on arrays: IMU times ``u`` and mocap times ``tau`` relative to
-    their own origins, ``clock_shift = (origin_imu - origin_mocap) * 1e-9``."""
+    """Find ``t_d`` by cross-correlating gyro and mocap angular speed over all lags.
+
+    IMU times ``u`` and mocap times ``tau`` are relative to their own origins,
+    ``clock_shift = (origin_imu - origin_mocap) * 1e-9``."""
     dt = 1.0 / rate_hz
     shift = -clock_shift
     t_m, s_m = mocap_angular_speed(tau, R_WM)

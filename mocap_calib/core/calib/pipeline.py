@@ -20,13 +20,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.clock import coarse_offset_arrays
-from mocap_calib.core.calib.result import CalibrationResult, Diagnostics
+from mocap_calib.core.calib.result import CalibrationResult, Diagnostics, StageStats
 from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.calib.stage_attitude import run_attitude_stage
-from mocap_calib.core.calib.stage_position import PositionInit, Prior, run_position_stage
+from mocap_calib.core.calib.stage_position import (
+    PositionInit,
+    PositionResult,
+    Prior,
+    run_position_stage,
+)
 from mocap_calib.core.calib.stage_velocity import run_velocity_stage
+from mocap_calib.core.calib.state import CalibrationTrace, ModelState
 from mocap_calib.core.calib.window_engine import make_windows
-from mocap_calib.core.diagnosis.predict import ModelState
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.imu_model import Intrinsics, correct
@@ -82,25 +87,39 @@ class CalibrationOptions:
                                 ("--window", self.window, 0.5, 60.0)):
             if not lo <= v <= hi:
                 raise InputError(f"{name} {v}: must be between {lo} and {hi} s")
+        if not 1 <= self.max_iterations <= 10_000:
+            raise InputError(f"--max-iterations {self.max_iterations}: must be between 1 and "
+                             "10000")
         nz = self.noise
         for k, v in nz.to_dict().items():
+            if k.startswith("mocap_noise_corr"):
+                continue
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"noise model: {k} = {v} must be a positive number")
+        if not (0.0 <= nz.mocap_noise_corr_time <= 10.0
+                and 0.0 <= nz.mocap_noise_corr_fraction < 1.0):
+            raise InputError("noise model: mocap_noise_corr_time must be 0-10 s and "
+                             "mocap_noise_corr_fraction in [0, 1)")
 
 
 def _crop(imu: ImuSamples, mocap: MocapPoses,
           opts: CalibrationOptions) -> tuple[ImuSamples, MocapPoses]:
+    """``--start``/``--end`` (s from the IMU start) select IMU samples; the mocap is cut to
+    match (with a margin for the clock offset) only when the raw stamps share an epoch. From
+    clocks of different epochs it stays whole: the clock search finds the matching stretch."""
     if opts.start is None and opts.end is None:
         return imu, mocap
     lo = imu.t[0] + (opts.start or 0.0)
     hi = imu.t[0] + opts.end if opts.end is not None else np.inf
     if not hi > lo:
         raise InputError("--end must be after --start")
-    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
     imu_c = imu.select((imu.t >= lo) & (imu.t <= hi))
+    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
     tm = mocap.t - shift  # mocap times on the IMU clock (before the fine offset)
-    moc_c = mocap.select((tm >= lo - 1.0) & (tm <= hi + 1.0))
-    return imu_c, moc_c
+    if tm[-1] < imu.t[0] or tm[0] > imu.t[-1]:  # different epochs
+        return imu_c, mocap
+    margin = 1.0 if opts.time_offset is None else 1.0 + abs(opts.time_offset)
+    return imu_c, mocap.select((tm >= lo - margin) & (tm <= hi + margin))
 
 
 def _corrector(model: Model, effects: dict[str, Array], t_mid: float, gyro_bias: Array,
@@ -139,22 +158,81 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     t0 = time.perf_counter()
     imu, mocap = _crop(imu, mocap, opts)
     s = prepare(imu, mocap, noise=opts.noise)
+    notes = _session_notes(s)
+    session_info = _session_info(imu, mocap, s)
+    t_d0 = _align_clocks(s, opts, session_info, say)
+    delta0 = s.clock_shift + t_d0
+
+    effects0 = {e.name: e.zero() for e in model.units if e.sensor in ("gyro", "accel")}
+    for pr in opts.priors:
+        if pr.block in effects0:
+            effects0[pr.block] = np.asarray(pr.value, dtype=float)
+    t_mid = 0.5 * (s.u[0] + s.u[-1])
+
+    say("stage 1/3: attitude factors (gyro bias, R_MI)")
+    att = run_attitude_stage(
+        s, delta0, opts.noise, opts.attitude_spacing,
+        _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
+        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "attitude"))
+    say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
+    vel = run_velocity_stage(
+        s, delta0, opts.noise, opts.velocity_spacing, att.R_MI,
+        _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
+        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "velocity"))
+
+    say("stage 3/3: position factors (all parameters jointly)")
+    v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
+    windows = make_windows(s, delta0, opts.window, opts.max_mocap_rate, v_imu)
+    if windows.count < 2:
+        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; the "
+                                 "session is too short or its mocap has too many gaps")
+    init = PositionInit(att.R_MI, vel.p_MI, vel.gravity_dir, opts.gravity, delta0,
+                        att.gyro_bias, vel.accel_bias, effects0)
+    pos = run_position_stage(s, model, opts.noise, windows, init, opts.priors, opts.robust,
+                             opts.max_iterations, adapt_noise=opts.adapt_noise,
+                             on_iteration=on_iteration, progress=say)
+    if not model.has("time_offset"):
+        notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
+    diag = Diagnostics(
+        residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
+        iterations=pos.history,
+        trace=CalibrationTrace(session=s, model_state=ModelState.from_position(pos, model, t_mid),
+                               noise_used=pos.noise, windows=pos.windows, weights=pos.weights))
+    return _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
+                    time.perf_counter() - t0)
+
+
+def _stage_hook(on_iteration: IterationFn | None, stage: str):
+    if on_iteration is None:
+        return None
+    return lambda it, v, err: on_iteration(stage, it, {}, err)
+
+
+def _session_notes(s: PreparedSession) -> list[str]:
     notes: list[str] = []
     if s.dropped_mocap_rows:
         notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
     if s.spikes_removed:
         notes.append(f"{s.spikes_removed} mocap samples with implausible jumps (marker swaps) "
                      "were removed")
+    return notes
 
-    # 1. Clock alignment.
-    session_info: dict[str, Any] = {
+
+def _session_info(imu: ImuSamples, mocap: MocapPoses, s: PreparedSession) -> dict[str, Any]:
+    return {
         "imu_samples": len(imu), "mocap_samples": len(mocap),
         "imu_rate_hz": round(s.imu_rate, 3), "mocap_rate_hz": round(s.mocap_rate, 3),
         "duration_s": round(min(imu.duration, mocap.duration), 3),
         "mocap_spikes_removed": s.spikes_removed,
         "imu_start_ns": int(imu.time_origin_ns + round(float(imu.t[0]) * 1e9)),
     }
-    coarse = None
+
+
+def _align_clocks(s: PreparedSession, opts: CalibrationOptions, session_info: dict[str, Any],
+                  say: ProgressFn) -> float:
+    """The starting ``t_d``: the coarse search when the model estimates it (and none is
+    given), else the given value; checks that the streams then overlap."""
+    model = opts.model
     if model.has("time_offset") and opts.time_offset is None:
         say("aligning clocks (angular-speed cross-correlation)")
         coarse = coarse_offset_arrays(s.u, s.gyro, s.tau, s.R_WM, s.clock_shift)
@@ -170,41 +248,14 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                if not model.has("time_offset") else "check that both files are from one session")
         raise InputError(f"the IMU and mocap streams overlap for only {max(overlap, 0):.1f} s "
                          f"with a time offset of {t_d0:.3f} s; {fix}")
+    return t_d0
 
-    effects0 = {e.name: e.zero() for e in model.units if e.sensor in ("gyro", "accel")}
-    for pr in opts.priors:
-        if pr.block in effects0:
-            effects0[pr.block] = np.asarray(pr.value, dtype=float)
-    t_mid = 0.5 * (s.u[0] + s.u[-1])
 
-    # 2. Attitude factors.
-    say("stage 1/3: attitude factors (gyro bias, R_MI)")
-    att = run_attitude_stage(
-        s, delta0, opts.noise, opts.attitude_spacing,
-        _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
-        on_iteration=None if on_iteration is None else
-        (lambda it, v, err: on_iteration("attitude", it, {}, err)))
-    # 3. Velocity factors.
-    say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
-    vel = run_velocity_stage(
-        s, delta0, opts.noise, opts.velocity_spacing, att.R_MI,
-        _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
-        on_iteration=None if on_iteration is None else
-        (lambda it, v, err: on_iteration("velocity", it, {}, err)))
-
-    # 4. Position factors.
-    say("stage 3/3: position factors (all parameters jointly)")
-    v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
-    windows = make_windows(s, delta0, opts.window, opts.max_mocap_rate, v_imu)
-    if windows.count < 2:
-        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; the "
-                                 "session is too short or its mocap has too many gaps")
-    init = PositionInit(att.R_MI, vel.p_MI, vel.gravity_dir, opts.gravity, delta0,
-                        att.gyro_bias, vel.accel_bias, effects0)
-    pos = run_position_stage(s, model, opts.noise, windows, init, opts.priors, opts.robust,
-                             opts.max_iterations, adapt_noise=opts.adapt_noise,
-                             on_iteration=on_iteration, progress=say)
-
+def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
+             stages: list[StageStats], notes: list[str], session_info: dict[str, Any],
+             diag: Diagnostics, seconds: float) -> CalibrationResult:
+    """The result: values (None where unobservable), sigmas, effects, solver figures."""
+    model = opts.model
     sr, sp = pos.solver["mocap_noise_variance_scale"]
     if max(abs(np.log(sr)), abs(np.log(sp))) > np.log(1.1):
         notes.append(
@@ -244,16 +295,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                          "sigma": None if sg is None else eff.report_sigma(sg)}
     t_d = pos.delta - s.clock_shift
     sig_td = sig("time_offset")
-    solver = {"total_seconds": round(time.perf_counter() - t0, 3), "sigma_scale": round(scale, 4),
+    solver = {"total_seconds": round(seconds, 3), "sigma_scale": round(scale, 4),
               "position_chi2_per_dof": round(pos.chi2_per_dof, 4), **pos.solver}
-    if not model.has("time_offset"):
-        notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
-    state = ModelState.from_position(pos, model, t_mid)
-    diag = Diagnostics(
-        residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
-        iterations=pos.history,
-        extras={"model_state": state, "noise_used": pos.noise, "windows": pos.windows,
-                "weights": pos.weights, "session": s})
     return CalibrationResult(
         gyro_bias=val("gyro_bias", pos.gyro_bias_mean),
         accel_bias=val("accel_bias", pos.accel_bias_mean),
@@ -266,7 +309,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         sigma_gravity=sig("gravity"),
         sigma_time_offset=None if sig_td is None else float(sig_td[0]),
         gravity_magnitude=float(pos.g_mag), model=str(model), effects=effects,
-        unobservable=unob, stages=[att.stats, vel.stats, pos.stats], solver=solver,
+        unobservable=unob, stages=stages, solver=solver,
         noise=pos.noise, notes=notes, session=session_info, diagnostics=diag)
 
 

@@ -32,12 +32,18 @@ from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, run_position_stage
-from mocap_calib.core.diagnosis.predict import ModelState, ResidualAnalysis, analyse_residuals
+from mocap_calib.core.calib.state import ModelState
+from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]
+
+
+REPORT_KIND = "diagnosis"
+REPORT_VERSION = 1
 
 
 @dataclass
@@ -82,6 +88,12 @@ class CandidateScore:
                 "log10_p": round(self.log10_p, 3), "significant": self.significant,
                 "residual_drop": round(self.residual_drop, 4)}
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CandidateScore:
+        return cls(str(d["effect"]), int(d["dof"]), float(d["delta_chi2"]),
+                   float(d["noise_scale"]), float(d["statistic"]), float(d["log10_p"]),
+                   bool(d["significant"]), float(d["residual_drop"]))
+
 
 @dataclass
 class Residuals:
@@ -92,6 +104,7 @@ class Residuals:
     accel_rms: Array
     accel_floor: Array
     analysis: ResidualAnalysis | None = None
+    stored: dict[str, Any] | None = field(default=None, repr=False)  # as read from a file
 
     @classmethod
     def of(cls, ra: ResidualAnalysis) -> Residuals:
@@ -112,7 +125,16 @@ class Residuals:
         if self.analysis is not None:
             d["cutoff_hz"] = self.analysis.cutoff_hz
             d["power_over_floor_by_band"] = self.analysis.band_ratios()
+        elif self.stored is not None:
+            d.update({k: v for k, v in self.stored.items() if k not in d})
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Residuals:
+        """The figures of :meth:`to_dict` (the residual series themselves are not stored)."""
+        return cls(*(np.asarray(d[k], dtype=float)
+                     for k in ("gyro_rms", "gyro_floor", "accel_rms", "accel_floor")),
+                   stored=d)
 
 
 @dataclass
@@ -143,6 +165,17 @@ class DiagnoseStep:
                 d["residuals_after"] = self.residuals_after.to_dict()
         return d
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DiagnoseStep:
+        added = d.get("added") or {}
+        name = added.get("effect")
+        after = d.get("residuals_after")
+        return cls(str(d["model"]), Residuals.from_dict(d["residuals"]), float(d["chi2"]),
+                   int(d["dof"]), [CandidateScore.from_dict(c) for c in d["candidates"]],
+                   added=name, added_params=added.get(EFFECTS[name].param) if name else None,
+                   added_sigma=added.get("sigma"),
+                   residuals_after=None if after is None else Residuals.from_dict(after))
+
 
 @dataclass
 class DiagnoseReport:
@@ -164,6 +197,7 @@ class DiagnoseReport:
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            **header(REPORT_KIND, REPORT_VERSION),
             "found": list(self.found),
             "verdict": self.verdict,
             "start_model": self.start_model,
@@ -176,6 +210,22 @@ class DiagnoseReport:
             "notes": list(self.notes),
             "seconds": round(self.seconds, 2),
         }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DiagnoseReport:
+        """Inverse of :meth:`to_dict` (figures only: no residual series).
+
+        Raises:
+            KindError: not a diagnosis report, or a newer version.
+            KeyError, ValueError, TypeError: a malformed report.
+        """
+        check_kind(d, REPORT_KIND, REPORT_VERSION)
+        return cls(list(d["found"]), str(d["start_model"]), str(d["final_model"]),
+                   [DiagnoseStep.from_dict(x) for x in d["steps"]],
+                   CalibrationResult.from_dict(d["final_calibration"]),
+                   Residuals.from_dict(d["final_residuals"]),
+                   float(d["test"]["threshold_log10_p"]), list(d.get("notes") or []),
+                   float(d.get("seconds", 0.0)))
 
 
 #: Beyond these, a named effect is implausible for a MEMS IMU: it most likely absorbs something
@@ -259,12 +309,12 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
         notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
         cal_opts = replace(cal_opts, model=model)
         start = calibrate(imu, mocap, cal_opts)
-    ex = start.diagnostics.extras
-    s: PreparedSession = ex["session"]
-    noise: NoiseModel = ex["noise_used"]
-    t_mid = float(ex["model_state"].t_mid)
-    windows = ex["windows"]
-    weights = ex["weights"]
+    ex = start.diagnostics.trace
+    s: PreparedSession = ex.session
+    noise: NoiseModel = ex.noise_used
+    t_mid = float(ex.model_state.t_mid)
+    windows = ex.windows
+    weights = ex.weights
     coarse_delta = None
 
     def fit(m: Model, base: PositionResult, extra: dict[str, Array], nz: NoiseModel,
@@ -281,7 +331,7 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     # The current fit, as a PositionResult (refit the start model with frozen weights so every
     # later comparison uses exactly the same cost).
     # From the model state, not the public result: that holds None for what is unobservable.
-    st0: ModelState = ex["model_state"]
+    st0: ModelState = ex.model_state
     g_mag0 = float(np.linalg.norm(st0.g_W))
     init0 = PositionInit(
         R_MI=st0.R_MI, p_MI=st0.p_MI, g_dir=st0.g_W / g_mag0, g_mag=g_mag0, delta=st0.delta,
@@ -374,8 +424,8 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
 
     say(f"final calibration with {model}")
     final = calibrate(imu, mocap, replace(opts.calibration, model=model))
-    fx = final.diagnostics.extras
-    final_res = Residuals.of(analyse_residuals(fx["session"], fx["model_state"], fx["noise_used"],
+    fx = final.diagnostics.trace
+    final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, fx.noise_used,
                                                cutoff_hz=opts.cutoff_hz))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))

@@ -324,3 +324,31 @@ def pieces(u: Array, tau0: Array, tau1: Array, delta: float) -> Pieces:
     # Nodes exactly on a sample must use the segment that starts there (the interpolant is
     # continuous, but its cubic differs on each side only in derivatives).
     return Pieces(nodes, hs, hermite(u, nodes - delta))
+
+
+def compose(inc: StepIncrements, h: Array, R0: Array, p0: Array, v0: Array,
+            g_W: Array) -> tuple[Array, Array, Array]:
+    """Chain step increments from a start state into attitudes, positions and velocities.
+
+    Args:
+        inc: increments of ``m`` steps for ``S`` sequences (``dR``, ``dv``, ``dp`` of shape
+            (S, m, ...)).
+        h: (S, m) step lengths (s); R0, p0, v0: (S, 3, 3), (S, 3), (S, 3) start state.
+        g_W: (3,) gravity in the world frame.
+
+    Returns:
+        R (S, m+1, 3, 3), p (S, m+1, 3), v (S, m+1, 3).
+    """
+    S, m = h.shape
+    R = np.empty((S, m + 1, 3, 3))
+    p = np.empty((S, m + 1, 3))
+    v = np.empty((S, m + 1, 3))
+    R[:, 0], p[:, 0], v[:, 0] = R0, p0, v0
+    for k in range(m):
+        hk = h[:, k, None]
+        Rk = R[:, k]
+        p[:, k + 1] = (p[:, k] + v[:, k] * hk + 0.5 * g_W * hk**2
+                       + np.einsum("sij,sj->si", Rk, inc.dp[:, k]))
+        v[:, k + 1] = v[:, k] + g_W * hk + np.einsum("sij,sj->si", Rk, inc.dv[:, k])
+        R[:, k + 1] = Rk @ inc.dR[:, k]
+    return R, p, v
