@@ -22,7 +22,7 @@ from mocap_calib.io.euroc import write_mav0
 from mocap_calib.io.loader import load_inputs, sniff_format
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.workflows.calibrate import InputSpec, run_calibration
-from mocap_calib.workflows.imu import ImuSpec, load_imu
+from mocap_calib.workflows.imu_input import ImuSpec
 
 sys.path.insert(0, str(Path(__file__).parent))
 from recordings import write_bag, write_ulog  # noqa: E402
@@ -105,7 +105,7 @@ def test_tf_topic_with_child_frame_and_receive_stamps(csv_session, tmp_path) -> 
 def test_imu_only_commands_read_bags_and_ulogs(csv_session, tmp_path) -> None:
     _, imu, _ = csv_session
     bag = write_bag(tmp_path / "imu.mcap", "bare_mcap", imu, None)
-    got, notes = load_imu(ImuSpec(imu=bag))
+    got, notes = ImuSpec(imu=bag).load()
     assert np.array_equal(got.gyro, imu.gyro) and np.array_equal(got.t, imu.t)
     assert any("MCAP" in n for n in notes)
 

@@ -1,7 +1,8 @@
 """Exports of a calibration to the configuration files of other tools.
 
 Each target writes what that tool reads, in that tool's frames and time-offset sign; the
-conventions are in ``docs/exports.md`` and :mod:`mocap_calib.export.targets`. This layer may
+conventions are in ``docs/exports.md`` and :mod:`mocap_calib.export.targets`. Multipos
+intrinsics go to imu_tk's calibration files (:mod:`mocap_calib.export.imu_tk`). This layer may
 use ``core`` (the result, the noise model) and ``io``; it returns text, the workflow writes it.
 """
 

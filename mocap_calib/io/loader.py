@@ -36,6 +36,7 @@ from mocap_calib.io.euroc import (
     read_mav0,
 )
 from mocap_calib.io.generic import WHITESPACE, read_generic, sniff_layout
+from mocap_calib.io.imu_tk import read_imu_tk_pair
 from mocap_calib.io.mocap_exports import ExportOptions, read_export, sniff_export
 from mocap_calib.io.tum import read_tum
 from mocap_calib.io.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
@@ -323,22 +324,9 @@ def is_recording(path: Path | str) -> bool:
     return bag_kind(path) is not None or (not path.is_dir() and is_ulog(path))
 
 
-def load_imu_file(path: Path | str, *, topic: str | None = None, stamp: str = "header"
-                  ) -> tuple[ImuSamples, list[str]]:
-    """IMU samples of a bag or ULog without mocap (for multipos, allan, drift).
-
-    Args:
-        path: a ROS 1 bag, ROS 2 bag folder, bare MCAP file or PX4 ULog.
-        topic: the IMU topic (None: the only ``sensor_msgs/Imu`` topic, or ``sensor_combined``).
-        stamp: ``header`` or ``receive`` (bags only).
-
-    Returns:
-        The samples and one-line notes for the user.
-
-    Raises:
-        InputError: not a recording, no or ambiguous IMU topic, a damaged file.
-    """
-    path = Path(path)
+def _load_recording_imu(path: Path, topic: str | None, stamp: str
+                        ) -> tuple[ImuSamples, list[str]]:
+    """IMU samples of a bag or ULog without mocap."""
     fmt = sniff_format(path)
     if fmt not in RECORDINGS:
         raise input_error(f"not a bag or ULog ({FORMAT_NAMES.get(fmt, fmt)})",
@@ -348,3 +336,100 @@ def load_imu_file(path: Path | str, *, topic: str | None = None, stamp: str = "h
     imu, _ = reader._recording(path, fmt, True, False)
     assert imu is not None
     return imu, reader.notes
+
+
+def load_imu_file(path: Path | str | None, *, columns: str | None = None,
+                  time_unit: str | None = None, gyro_unit: str | None = None,
+                  accel_unit: str | None = None, raw: bool = False,
+                  accel_file: Path | str | None = None, gyro_file: Path | str | None = None,
+                  topic: str | None = None, stamp: str = "header"
+                  ) -> tuple[ImuSamples, list[str]]:
+    """Read an IMU log without mocap (:func:`load_inputs` needs both streams).
+
+    Format as for :func:`load_inputs`: a ROS bag, MCAP or PX4 ULog (``topic``, ``stamp``); a
+    folder is an EuRoC ``mav0``; a file with the EuRoC ``imu0`` header is EuRoC; anything else
+    is a generic CSV that needs ``columns``. Or imu_tk's two files (``accel_file``,
+    ``gyro_file``; :mod:`mocap_calib.io.imu_tk`). New formats (and options) are added here, as
+    keywords, so every IMU-only command gets them.
+
+    Args:
+        path: ``--imu`` file or folder (None with ``accel_file`` and ``gyro_file``).
+        columns: ``--columns`` string for generic CSVs.
+        time_unit: s, ms, us or ns; None for the format's own (imu_tk's files: s).
+        gyro_unit: rad/s or deg/s; None for the format's own.
+        accel_unit: m/s^2 or g; None for the format's own.
+        raw: the readings are raw sensor counts: read as they are, no unit check.
+        accel_file: imu_tk's accelerometer file.
+        gyro_file: imu_tk's gyroscope file.
+        topic: bags and ULogs: the IMU topic (None: the only ``sensor_msgs/Imu`` topic, or
+            ``sensor_combined``).
+        stamp: bags: ``header`` or ``receive``.
+
+    Returns:
+        The samples and one-line notes for the user.
+
+    Raises:
+        InputError: no path, missing file, pose file given, unknown format, bad rows, no or
+            ambiguous IMU topic.
+    """
+    if raw and (gyro_unit is not None or accel_unit is not None):
+        raise input_error("--gyro-unit/--accel-unit given with --raw",
+                          "raw counts have no unit: leave those options out")
+    units: dict[str, str] = {k: v for k, v in (
+        ("time_unit", time_unit), ("gyro_unit", gyro_unit), ("accel_unit", accel_unit))
+        if v is not None}
+    if accel_file is not None or gyro_file is not None:
+        return _load_imu_tk(path, accel_file, gyro_file, units, raw)
+    if path is None:
+        raise input_error("no --imu given", "pass the IMU log with --imu FILE (or imu_tk's two "
+                          "files with --accel FILE --gyro FILE)")
+    path = Path(path)
+    if is_recording(path):
+        if raw:
+            raise input_error("--raw given for a bag or ULog", "their IMU messages are in SI "
+                              "units: leave out --raw", str(path))
+        return _load_recording_imu(path, topic, stamp)
+    fmt = sniff_format(path)
+    notes: list[str] = []
+    if fmt in ("mav0", "euroc_imu"):
+        file = find_mav0(path) / "imu0" / "data.csv" if fmt == "mav0" else path
+        if columns is not None:
+            notes.append(f"ignored --columns for {path}: it is an {FORMAT_NAMES[fmt]}")
+        imu = read_euroc_imu(file, raw=raw, **units)
+    elif fmt == "euroc_poses" or (fmt == "tum" and columns is None):
+        raise input_error(f"--imu is given a pose file ({FORMAT_NAMES[fmt]}), not an IMU log",
+                          "pass the IMU file (EuRoC imu0/data.csv layout or a CSV with "
+                          "--columns)", str(path))
+    else:
+        if columns is None:
+            raise input_error("format not recognised (not an EuRoC imu0 CSV)",
+                              "say which columns hold what with --columns, e.g. "
+                              "--columns 't=0,gyro=1:4,accel=4:7' (imu_tk's two files: "
+                              "--accel FILE --gyro FILE)", str(path))
+        read, _ = read_generic(path, columns, streams=["imu"], raw=raw, **units)
+        assert read is not None
+        imu, file = read, path
+    if raw:
+        notes.append("readings taken as raw sensor counts")
+    notes.append(_describe("IMU", len(imu), imu.rate_hz, imu.duration, fmt, file))
+    return imu, notes
+
+
+def _load_imu_tk(path: Path | str | None, accel_file: Path | str | None,
+                 gyro_file: Path | str | None, units: dict[str, str], raw: bool
+                 ) -> tuple[ImuSamples, list[str]]:
+    if path is not None:
+        raise input_error("--imu and --accel/--gyro both given",
+                          "pass either one IMU log (--imu) or imu_tk's two files "
+                          "(--accel FILE --gyro FILE)")
+    if accel_file is None or gyro_file is None:
+        missing = "--accel" if accel_file is None else "--gyro"
+        raise input_error(f"no {missing} given", "imu_tk's layout needs both files: "
+                          "--accel FILE --gyro FILE")
+    imu, notes = read_imu_tk_pair(accel_file, gyro_file, raw=raw,
+                                  **{"time_unit": "s", **units})
+    if raw:
+        notes.append("readings taken as raw sensor counts")
+    notes.append(f"IMU: {len(imu)} samples at {imu.rate_hz:.1f} Hz over {imu.duration:.1f} s "
+                 f"(imu_tk files {accel_file}, {gyro_file})")
+    return imu, notes

@@ -13,8 +13,24 @@ from mocap_calib.export.targets import (
     export_calibration,
 )
 from mocap_calib.io.yaml_io import check_writable, load_noise, load_result, save_text
+from mocap_calib.workflows.intrinsics_export import INTRINSICS_FORMATS, export_intrinsics
 
-__all__ = ["TARGETS", "FILE_NAMES", "export_to_file"]
+__all__ = ["TARGETS", "FILE_NAMES", "export_to_file", "export_result", "ALL_TARGETS"]
+
+#: Every ``--to``: the calibration targets and the intrinsics ones (multipos -> imu_tk).
+ALL_TARGETS = (*TARGETS, *INTRINSICS_FORMATS)
+
+
+def export_result(path: Path, target: str, out: Path | None = None, noise: Path | None = None,
+                  imu_rate_hz: float | None = None, imu_topic: str = "/imu0") -> list[str]:
+    """``mocap-calib export``: a calibration (or, for imu_tk, multipos intrinsics) in
+    ``target``'s format; returns the lines to print."""
+    if target in INTRINSICS_FORMATS:
+        return export_intrinsics(path, target, out or Path("imu")).summary().splitlines()
+    if target not in TARGETS:
+        raise InputError(f"unknown --to '{target}'; choose one of: {', '.join(ALL_TARGETS)}")
+    exported, written = export_to_file(path, target, out, noise, imu_rate_hz, imu_topic)
+    return [f"note: {n}" for n in exported.notes] + [f"wrote {written}  ({target})"]
 
 
 def export_to_file(calibration: Path, target: str, out: Path | None = None,

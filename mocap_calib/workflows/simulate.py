@@ -18,7 +18,8 @@ def effects_doc() -> str:
 def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0,
                        duration: float = 90.0, imu_rate: float = 200.0, mocap_rate: float = 100.0,
                        effects: list[str] | None = None,
-                       mocap_noise_corr: float = 0.0) -> list[tuple[Path, str]]:
+                       mocap_noise_corr: float = 0.0, counts: bool = False
+                       ) -> list[tuple[Path, str]]:
     """Simulate a session and write it in the EuRoC layout plus ``truth.yaml``.
 
     Returns:
@@ -32,6 +33,13 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"{out_dir}: exists and is not a folder; choose another OUT_DIR")
     parsed = dict(parse_effect(e) for e in (effects or []))
+    if protocol == "multipos":
+        from mocap_calib.workflows.multipos import simulate_multipos_to_folder
+
+        return simulate_multipos_to_folder(out_dir, seed=seed, rate_hz=imu_rate,
+                                           effects=parsed, counts=counts)
+    if counts:
+        raise InputError("--counts applies to --protocol multipos only")
     header = "mocap-calib simulation truth (SI units). See docs/conventions.md."
     if protocol == "flight":
         sim = simulate_flight(SimConfig(seed=seed, duration=duration, imu_rate=imu_rate,
@@ -45,11 +53,7 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
                 (truth, "true calibration, effects and noise")]
     if parsed:
         raise InputError(f"--effect applies to --protocol flight only, not '{protocol}'")
-    if protocol == "multipos":
-        from mocap_calib.sim.multipos import simulate_multipos
-
-        imu, truth_d = simulate_multipos(seed=seed, rate_hz=imu_rate)
-    elif protocol == "static":
+    if protocol == "static":
         from mocap_calib.sim.static import simulate_static
 
         imu, truth_d = simulate_static(seed=seed, duration_s=duration, rate_hz=imu_rate)

@@ -8,22 +8,27 @@ from typing import Annotated
 import typer
 
 from mocap_calib.cli.main import app
-from mocap_calib.workflows.export import FILE_NAMES, TARGETS, export_to_file
+from mocap_calib.workflows.export import ALL_TARGETS, FILE_NAMES, TARGETS, export_result
 
-_TARGETS_HELP = ", ".join(f"{t} ({FILE_NAMES[t]})" for t in TARGETS)
+_TARGETS_HELP = ", ".join(f"{t} ({FILE_NAMES[t]})" for t in TARGETS) + (
+    "; imu_tk (multipos intrinsics: OUT_acc.calib and OUT_gyro.calib, T K (raw - b))")
 
 
 @app.command(
     help="Export a calibration result to another tool's configuration, in that tool's frames "
     "and time-offset sign (docs/exports.md). Targets: " + _TARGETS_HELP + ".",
-    epilog="Example: mocap-calib export calib.yaml --to openvins --out kalibr_imu_chain.yaml "
-    "--noise noise.yaml",
+    epilog="Examples: mocap-calib export calib.yaml --to openvins --out kalibr_imu_chain.yaml "
+    "--noise noise.yaml | mocap-calib export intrinsics.yaml --to imu_tk --out imu",
 )
 def export(
-    calibration: Annotated[Path, typer.Argument(help="Result YAML of 'mocap-calib calibrate'.")],
-    to: Annotated[str, typer.Option("--to", help="Target tool: " + ", ".join(TARGETS) + ".")],
+    calibration: Annotated[Path, typer.Argument(
+        help="Result YAML of 'mocap-calib calibrate' (for --to imu_tk: intrinsics of "
+        "'mocap-calib multipos').")],
+    to: Annotated[str, typer.Option("--to", help="Target tool: " + ", ".join(ALL_TARGETS)
+                                    + ".")],
     out: Annotated[Path | None, typer.Option(
-        help="File to write (default: the tool's own file name).", show_default=False)] = None,
+        help="File to write (default: the tool's own file name); imu_tk: the prefix of its "
+        "two files (default 'imu').", show_default=False)] = None,
     noise: Annotated[Path | None, typer.Option(
         help="Noise YAML (Kalibr keys, e.g. from 'mocap-calib allan'); default: the noise "
         "model the calibration used.", show_default=False)] = None,
@@ -33,7 +38,5 @@ def export(
     imu_topic: Annotated[str, typer.Option(
         help="IMU topic for the targets that name it.")] = "/imu0",
 ) -> None:
-    exported, path = export_to_file(calibration, to, out, noise, imu_rate, imu_topic)
-    for note in exported.notes:
-        typer.echo(f"note: {note}")
-    typer.echo(f"wrote {path}  ({to})")
+    for line in export_result(calibration, to, out, noise, imu_rate, imu_topic):
+        typer.echo(line)

@@ -18,8 +18,9 @@ _EFFECTS_DOC = effects_doc()
     "Writes OUT_DIR/mav0/imu0/data.csv, OUT_DIR/mav0/vicon0/data.csv (EuRoC layout) and "
     "OUT_DIR/truth.yaml (the calibration-result keys plus the injected effects and noise). "
     "The same seed gives the same bytes.",
-    epilog="Example: mocap-calib simulate sim_out --seed 7 --effect time_offset=0.012 "
-    "--effect gyro_scale_misalignment",
+    epilog="Examples: mocap-calib simulate sim_out --seed 7 --effect time_offset=0.012 "
+    "--effect gyro_scale_misalignment | mocap-calib simulate mp --protocol multipos --counts "
+    "--effect gyro_g_sensitivity",
 )
 def simulate(
     out_dir: Annotated[Path, typer.Argument(help="Folder to write the session into.")],
@@ -38,9 +39,13 @@ def simulate(
         help="flight: a drone flight in a mocap room; multipos: static orientations for "
         "'mocap-calib multipos' (no mocap); static: a still IMU for 'mocap-calib allan'.")]
     = "flight",
+    counts: Annotated[bool, typer.Option(
+        "--counts", help="With --protocol multipos: write raw counts of a 16-bit MEMS part "
+        "(+-8 g, +-2000 deg/s; truth.yaml gives the nominal scales) for 'multipos --raw'.")]
+    = False,
 ) -> None:
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
                                  imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [],
-                                 mocap_noise_corr=mocap_noise_corr)
+                                 mocap_noise_corr=mocap_noise_corr, counts=counts)
     for path, what in written:
         typer.echo(f"wrote {path}  ({what})")
