@@ -145,14 +145,8 @@ def violations(path: Path) -> list[str]:
     return bad
 
 
-#: Being moved into workflows by the intrinsics restructuring (issue 12's branch).
-PENDING = {"cli/commands/multipos.py", "cli/commands/allan.py", "cli/commands/drift.py"}
-
-
 @pytest.mark.parametrize("path", ALL_FILES, ids=lambda p: str(p.relative_to(PACKAGE_DIR)))
 def test_layer_imports(path: Path) -> None:
-    if str(path.relative_to(PACKAGE_DIR)) in PENDING:
-        pytest.skip("pending move into workflows")
     bad = violations(path)
     assert not bad, f"{path.relative_to(PACKAGE_DIR)} (layer {layer_of(path)}) imports {bad}"
 
