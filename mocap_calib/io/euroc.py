@@ -19,7 +19,9 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
-from mocap_calib.io.generic import Layout, name_key, read_indexed, sniff_layout, write_table
+from mocap_calib.io.generic import read_indexed
+from mocap_calib.io.layout import Layout, name_key, sniff_layout
+from mocap_calib.io.tables import write_table
 
 IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
               "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")

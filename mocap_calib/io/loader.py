@@ -35,8 +35,9 @@ from mocap_calib.io.euroc import (
     read_euroc_poses,
     read_mav0,
 )
-from mocap_calib.io.generic import WHITESPACE, read_generic, sniff_layout
+from mocap_calib.io.generic import read_generic
 from mocap_calib.io.imu_tk import read_imu_tk_pair
+from mocap_calib.io.layout import WHITESPACE, sniff_layout
 from mocap_calib.io.mocap_exports import ExportOptions, read_export, sniff_export
 from mocap_calib.io.tum import read_tum
 from mocap_calib.io.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
