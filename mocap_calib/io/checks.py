@@ -26,7 +26,8 @@ IntArray = NDArray[np.int64]
 TIME_UNITS: dict[str, int] = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 GYRO_UNITS: tuple[str, ...] = ("rad/s", "deg/s")
 ACCEL_UNITS: tuple[str, ...] = ("m/s^2", "g")
-POSITION_UNITS: tuple[str, ...] = ("m", "mm")
+#: Metres per unit of a position column.
+POSITION_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 QUAT_ORDERS: tuple[str, ...] = ("wxyz", "xyzw")
 
 MIN_IMU_ROWS = 100
@@ -50,7 +51,8 @@ ACCEL_COUNTS_MIN = 200.0
 GYRO_COUNTS_DEG_MIN = 4000.0
 _COUNTS_FIX = ("'mocap-calib multipos --raw' calibrates raw counts; the other commands need "
                "SI units: convert the log (or pass --gyro-unit / --accel-unit)")
-#: Positions spanning more than this (m) in one axis are almost surely millimetres.
+_UNIT_NAMES = {"m": "metres", "cm": "centimetres", "mm": "millimetres"}
+#: Positions spanning more than this (m) in one axis are not metres.
 POSITION_RANGE_MAX = 100.0
 
 
@@ -305,8 +307,20 @@ def check_position_unit(position: Array, position_unit: str, lines: Lines) -> No
         return
     span = float(np.max(np.ptp(position, axis=0)))
     if span > POSITION_RANGE_MAX:
-        raise lines.error(f"positions span {span:.4g} m, more than a mocap volume",
-                          "the positions look like millimetres; pass --position-unit mm")
+        # The span alone cannot tell centimetres from millimetres: name every unit that
+        # gives a room-sized span; calibrate's convention check says which one the
+        # accelerometer agrees with.
+        fits = [(u, span * m) for u, m in POSITION_UNITS.items()
+                if u != "m" and 0.1 <= span * m <= POSITION_RANGE_MAX]
+        if fits:
+            shown = " or ".join(f"{_UNIT_NAMES[u]} (a {s:.3g} m span)" for u, s in fits)
+            fix = ("pass " + " or ".join(f"--position-unit {u}" for u, _ in fits)
+                   + (", whichever the file uses" if len(fits) > 1 else ""))
+            what = f"positions span {span:.4g} m, more than a mocap volume: not metres; {shown}"
+        else:
+            what = f"positions span {span:.4g} m, more than a mocap volume, in any unit"
+            fix = "check the position columns"
+        raise lines.error(what, fix)
 
 
 def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
@@ -367,7 +381,8 @@ def validate_mocap(ns: IntArray, quat_wxyz: Array, position: Array, lines: Lines
     check_position_unit(position, position_unit, lines)
     origin = int(ns[0])
     return MocapPoses((ns - origin) / 1e9, quat_wxyz, position, origin, lines.source,
-                      dropped_rows=int(len(keep) - len(rows)))
+                      dropped_rows=int(len(keep) - len(rows)),
+                      position_unit_m=POSITION_UNITS.get(position_unit, 1.0))
 
 
 def check_overlap(imu: ImuSamples, mocap: MocapPoses, allow_offset: bool,

@@ -114,7 +114,7 @@ def read_euroc_poses(path: Path | str, *, time_unit: str = "ns", position_unit: 
     Args:
         path: The CSV file.
         time_unit: Unit of the stamps (EuRoC: ns).
-        position_unit: m (EuRoC) or mm.
+        position_unit: m (EuRoC), cm or mm.
         quat_order: wxyz (EuRoC) or xyzw.
 
     Returns:
@@ -240,7 +240,7 @@ def read_mav0(path: Path | str, pose_source: str = "auto", *, time_unit: str = "
         gyro_unit: rad/s (EuRoC) or deg/s.
         accel_unit: m/s^2 (EuRoC) or g.
         quat_order: wxyz (EuRoC) or xyzw.
-        position_unit: m (EuRoC) or mm.
+        position_unit: m (EuRoC), cm or mm.
 
     Returns:
         The session.

@@ -96,7 +96,7 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
         gyro_unit: rad/s or deg/s.
         accel_unit: m/s^2 or g.
         quat_order: wxyz or xyzw.
-        position_unit: m or mm.
+        position_unit: m, cm or mm.
         raw: the IMU readings are raw counts: no unit conversion or check.
 
     Returns:
@@ -127,7 +127,7 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
         q = block(quat)
         if quat_order == "xyzw":
             q = q[:, [3, 0, 1, 2]]
-        p = block(position) * (1e-3 if position_unit == "mm" else 1.0)
+        p = block(position) * POSITION_UNITS[position_unit]
         mocap = validate_mocap(ns, np.ascontiguousarray(q), p, lines, time_unit=time_unit,
                                position_unit=position_unit)
     return imu, mocap
@@ -173,7 +173,7 @@ def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str =
         gyro_unit: rad/s or deg/s.
         accel_unit: m/s^2 or g.
         quat_order: Order of the 4 quaternion columns: wxyz or xyzw.
-        position_unit: m or mm.
+        position_unit: m, cm or mm.
         streams: Streams to read (``"imu"``, ``"mocap"``); each must be in the column map.
             None reads whatever the column map describes.
         raw: the IMU readings are raw counts (no unit conversion or check).

@@ -117,7 +117,7 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
         gyro_unit: rad/s or deg/s; None for the format's own.
         accel_unit: m/s^2 or g; None for the format's own.
         quat_order: wxyz or xyzw; None for the format's own.
-        position_unit: m or mm; None for the format's own.
+        position_unit: m, cm or mm; None for the format's own.
         recording: topics, TF child frame and stamp source for bags and ULogs.
         export: format, rigid body, rotation form and rate for Motive/Vicon exports.
 

@@ -20,6 +20,7 @@ from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
+from mocap_calib.sim.motions import motion_trajectory
 from mocap_calib.sim.trajectory import random_trajectory
 
 Array = NDArray[np.float64]
@@ -109,6 +110,7 @@ class SimConfig:
     aggressiveness: float = 1.0
     rig_seed: int | None = None  # draw T_MI and the room's tilt from this seed (a fixed rig)
     mocap_noise_corr: float = 0.0  # s: AR(1) mocap noise with this time constant (0: white)
+    motion: str = "flight"  # a key of sim.motions.MOTIONS (turntable, planar, slow, ...)
 
     def validate(self) -> None:
         if not self.duration > 1.0:
@@ -184,6 +186,10 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
 
     # Calibration truth, drawn in a fixed order so the seed fixes everything.
     traj = random_trajectory(rng, aggressiveness=cfg.aggressiveness)
+    if cfg.motion != "flight":
+        # Another motion kind: its own generator, so the draws below stay the seed's.
+        traj = motion_trajectory(cfg.motion, np.random.default_rng([cfg.seed, 17]),
+                                 cfg.aggressiveness)
     R_MI = _random_rotation(rng)
     p_MI = rng.uniform(-0.1, 0.1, 3)
     p_MI *= max(1.0, 0.04 / np.linalg.norm(p_MI))
@@ -323,6 +329,7 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
             "imu_rate": float(cfg.imu_rate),
             "mocap_rate": float(cfg.mocap_rate),
             "mocap_noise_corr_s": float(cfg.mocap_noise_corr),
+            **({"motion": cfg.motion} if cfg.motion != "flight" else {}),
             "bias_definition": "mean of the true bias over the IMU samples",
             "gyro_bias_initial": b_g[0].tolist(),
             "accel_bias_initial": b_a[0].tolist(),

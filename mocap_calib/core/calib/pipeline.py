@@ -20,6 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.clock import MIN_MARGIN_Z, ClockSearch, search_clock
+from mocap_calib.core.calib.conventions import explain_failure, screen_conventions
+from mocap_calib.core.calib.faults import leave_out_imu_faults
 from mocap_calib.core.calib.result import CalibrationResult, Diagnostics, StageStats
 from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.calib.stage_attitude import AttitudeResult, run_attitude_stage
@@ -179,9 +181,17 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         if pr.block in effects0:
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
     t_mid = 0.5 * (s.u[0] + s.u[-1])
-    t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
-    delta0 = s.clock_shift + t_d0
-    att, vel = _initial_stages(s, opts, delta0, effects0, t_mid, on_iteration, say)
+    try:  # a failure here is often a convention mistake: name it if one explains the data
+        t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
+        s, left_out = leave_out_imu_faults(s, s.clock_shift + t_d0)
+        notes += left_out
+        delta0 = s.clock_shift + t_d0
+        att, vel = _initial_stages(s, opts, delta0, effects0, t_mid, on_iteration, say)
+    except CalibrationError:
+        explain_failure(s, opts, mocap.position_unit_m, say)
+        raise
+    screen_conventions(s, opts, t_d0, [] if clock is None else [c for c, _ in clock.candidates],
+                       att.stats.rms_after, vel.stats.rms_after, mocap.position_unit_m, say)
 
     say("stage 3/3: position factors (all parameters jointly)")
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
@@ -215,7 +225,7 @@ def _stage_hook(on_iteration: IterationFn | None, stage: str):
 
 
 def _session_notes(s: PreparedSession) -> list[str]:
-    notes: list[str] = []
+    notes: list[str] = list(s.notes)
     if s.dropped_mocap_rows:
         notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
     if s.spikes_removed:
