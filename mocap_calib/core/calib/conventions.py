@@ -29,9 +29,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import gaussian_filter1d
 
 from mocap_calib.core.calib.clock import search_clock
+from mocap_calib.core.calib.kinematics import (
+    MocapGrid,
+    SmoothedImu,
+    mocap_grid,
+    overlap,
+    rotation_fit,
+)
 from mocap_calib.core.calib.session import PreparedSession, local_derivative
 from mocap_calib.core.model import so3
 from mocap_calib.errors import InputError, ObservabilityError
@@ -41,11 +47,6 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 
-#: Grid step (s) and smoothing (s, Gaussian sigma) of the closed-form fit.
-GRID_S = 0.01
-SMOOTH_S = 0.04
-#: Longest stretch (s) the fit uses (the middle of the overlap): enough, and fast.
-STRETCH_S = 60.0
 #: A reading explains the data when the residuals are at most these fractions of the signal.
 GOOD_ROTATION = 0.2
 GOOD_FORCE = 0.3
@@ -54,6 +55,8 @@ POOR_ROTATION = 0.15
 POOR_VELOCITY = 0.3
 #: A fit no better than this fraction of its chance level (wrong clock offsets) is chance.
 CHANCE = 0.6
+#: A closed-form clock offset this far (s) from the coarse one replaces it as the start.
+CLOCK_MOVE = 0.02
 #: Below this angular-speed scatter (rad/s) the rotation fit cannot judge anything.
 MIN_RATE_STD = 0.05
 
@@ -122,114 +125,27 @@ class Fit:
         return self.rotation_ratio < GOOD_ROTATION and self.force_ratio < GOOD_FORCE
 
 
-def _smooth(x: Array) -> Array:
-    return gaussian_filter1d(x, SMOOTH_S / GRID_S, axis=0, mode="nearest")
-
-
 def _near(x: float, target: float, tol: float = 0.15) -> bool:
     return target != 0 and abs(x / target - 1.0) < tol
 
 
-@dataclass(frozen=True)
-class _Imu:
-    """The IMU box-averaged over a grid step (no aliasing when sampled on the grid)."""
-
-    u: Array
-    gyro: Array
-    accel: Array
-
-    @classmethod
-    def of(cls, s: PreparedSession) -> _Imu:
-        n = max(1, int(round(GRID_S * s.imu_rate)))
-        k = np.ones(n) / n
-        box = [np.stack([np.convolve(x[:, i], k, mode="same") for i in range(3)], axis=1)
-               for x in (s.gyro, s.accel)]
-        return cls(s.u, box[0], box[1])
-
-    def at(self, u: Array) -> tuple[Array, Array]:
-        g = np.stack([np.interp(u, self.u, self.gyro[:, i]) for i in range(3)], axis=1)
-        a = np.stack([np.interp(u, self.u, self.accel[:, i]) for i in range(3)], axis=1)
-        return _smooth(g), _smooth(a)
-
-
-@dataclass(frozen=True)
-class _Grid:
-    """One reading of the mocap on a grid (mocap clock): body rates, angular acceleration,
-    acceleration, attitudes; ``ok`` marks the points away from gaps and ends."""
-
-    T: Array
-    ok: NDArray[np.bool_]
-    w_M: Array
-    alpha: Array
-    a_W: Array
-    R: Array
-
-
-def _grid(s: PreparedSession, R: Array, p: Array, lo: float, hi: float) -> _Grid:
-    T = np.arange(lo, hi, GRID_S)
-    idx = np.clip(np.searchsorted(s.tau, T), 1, len(s.tau) - 1)
-    gap = (s.tau[idx] - s.tau[idx - 1]) > s.gap
-    # Smoothing and differences reach a few sigma around a gap: leave those points out.
-    reach = int(np.ceil(4 * SMOOTH_S / GRID_S)) + 2
-    bad = np.convolve(gap.astype(float), np.ones(2 * reach + 1), mode="same") > 0
-    bad[:reach] = bad[-reach:] = True
-    i = np.clip(idx - 1, 0, len(s.tau) - 2)
-    a = np.clip((T - s.tau[i]) / (s.tau[i + 1] - s.tau[i]), 0.0, 1.0)
-    d = so3.log(np.einsum("nji,njk->nik", R[i], R[i + 1]))
-    Rg = R[i] @ so3.exp(a[:, None] * d)
-    pg = p[i] + a[:, None] * (p[i + 1] - p[i])
-    w_mid = so3.log(np.einsum("nji,njk->nik", Rg[:-1], Rg[1:])) / GRID_S
-    w_M = _smooth(np.vstack([w_mid[:1], 0.5 * (w_mid[1:] + w_mid[:-1]), w_mid[-1:]]))
-    alpha = np.gradient(w_M, GRID_S, axis=0)
-    a_W = np.gradient(np.gradient(_smooth(pg), GRID_S, axis=0), GRID_S, axis=0)
-    return _Grid(T, ~bad, w_M, alpha, a_W, Rg)
-
-
-def _overlap(s: PreparedSession, delta: float, margin: float) -> tuple[float, float] | None:
-    """The middle (at most :data:`STRETCH_S`) of the streams' overlap at ``delta``."""
-    lo = max(s.tau[0], s.u[0] + delta) + margin
-    hi = min(s.tau[-1], s.u[-1] + delta) - margin
-    if hi - lo < 5.0:
-        return None
-    mid = 0.5 * (lo + hi)
-    return max(lo, mid - STRETCH_S / 2), min(hi, mid + STRETCH_S / 2)
-
-
-def _rotation_fit(g_I: Array, w_M: Array) -> tuple[float, bool, float, Array, Array]:
-    """``w_M = scale Q (w_I - b)``, ``Q`` orthogonal (Kabsch, free scale and handedness).
-    Returns (residual ratio, reflected, scale, Q, the centred mocap rates)."""
-    a = g_I - g_I.mean(axis=0)
-    b = w_M - w_M.mean(axis=0)
-    U, S, Vt = np.linalg.svd(a.T @ b)
-    det = float(np.sign(np.linalg.det(Vt.T @ U.T)))
-    aa, bb = float(np.sum(a * a)), float(np.sum(b * b))
-    proper = S[0] + S[1] + det * S[2]
-    rot_res = bb - proper**2 / max(aa, 1e-300)  # best rotation
-    orth_res = bb - S.sum() ** 2 / max(aa, 1e-300)  # best orthogonal map
-    reflected = bool(det < 0 and orth_res < 0.25 * rot_res)
-    Q = Vt.T @ U.T if reflected else Vt.T @ np.diag([1.0, 1.0, det]) @ U.T
-    res = orth_res if reflected else rot_res
-    scale = (S.sum() if reflected else proper) / max(aa, 1e-300)
-    return float(np.sqrt(max(res, 0.0) / max(bb, 1e-300))), reflected, float(scale), Q, b
-
-
-def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float, imu: _Imu | None = None,
+def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float, imu: SmoothedImu | None = None,
                 refine: bool = True) -> Fit | None:
     """The closed-form fit of the mocap poses ``R``, ``p`` (one reading) near offset ``t_d``
     (refined within +-0.3 s by the rotation fit when ``refine``)."""
-    imu = imu or _Imu.of(s)
+    imu = imu or SmoothedImu.of(s)
     span = 0.3 if refine else 0.0
     delta = s.clock_shift + t_d
-    ov = _overlap(s, delta, 0.5 + span)
+    ov = overlap(s, delta, 0.5 + span)
     if ov is None:
         return None
-    gr = _grid(s, R, p, *ov)
+    gr = mocap_grid(s, R, p, *ov)
     ok = gr.ok
     if ok.sum() < 200 or float(np.std(gr.w_M[ok], axis=0).max()) < MIN_RATE_STD:
         return None
     if refine:
         shifts = np.arange(-span, span + 1e-9, 0.02)
-        ratios = [_rotation_fit(imu.at(gr.T[ok] - delta - d)[0], gr.w_M[ok])[0]
+        ratios = [rotation_fit(imu.at(gr.T[ok] - delta - d)[0], gr.w_M[ok])[0]
                   for d in shifts]
         k = int(np.argmin(ratios))
         d = shifts[k]
@@ -240,7 +156,7 @@ def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float, imu: _Imu | 
                 d += 0.5 * (r0 - r2) / den * 0.02
         t_d, delta = t_d + float(d), delta + float(d)
     g_I, f_I = imu.at(gr.T[ok] - delta)
-    rot_ratio, reflected, scale, Q, b = _rotation_fit(g_I, gr.w_M[ok])
+    rot_ratio, reflected, scale, Q, b = rotation_fit(g_I, gr.w_M[ok])
     force = _force(gr, ok, f_I @ Q.T, b)
     return Fit(float(t_d), rot_ratio, reflected, scale, force.ratio, force.k, force.g,
                force.k_known, force.g_known, force.k_sign_known)
@@ -256,7 +172,7 @@ class _Force:
     k_sign_known: bool = True
 
 
-def _force(gr: _Grid, ok: NDArray[np.bool_], y: Array, b: Array) -> _Force:
+def _force(gr: MocapGrid, ok: NDArray[np.bool_], y: Array, b: Array) -> _Force:
     """Specific force ``y = Q f_I = k R_MW a_W - R_MW g_W + K p + c``, linear in
     ``(k, g_W, p, c)``; about one axis only ``Q`` is free about that axis, and the angle is
     scanned (the accelerometer decides)."""
@@ -310,7 +226,7 @@ def _solve(M: Array, H: Array, Hi: Array, y: Array, var: float) -> _Force:
 
 
 def _best(s: PreparedSession, R: Array, p: Array, offsets: list[float],
-          imu: _Imu) -> Fit | None:
+          imu: SmoothedImu) -> Fit | None:
     fits = [f for f in (fit_reading(s, R, p, t, imu) for t in offsets) if f is not None]
     return min(fits, key=lambda f: f.score) if fits else None
 
@@ -327,7 +243,7 @@ def _offsets(s: PreparedSession, R: Array, p: Array, known: list[float],
     return list(dict.fromkeys(round(t, 4) for t in out))[:8]
 
 
-def _chance(s: PreparedSession, R: Array, p: Array, t_d: float, imu: _Imu) -> float | None:
+def _chance(s: PreparedSession, R: Array, p: Array, t_d: float, imu: SmoothedImu) -> float | None:
     """Median score at clock offsets seconds away from ``t_d`` (known to be wrong)."""
     scores = [f.score for f in (fit_reading(s, R, p, t_d + d, imu, refine=False)
                                 for d in (-9.0, -6.0, -4.0, 4.0, 6.0, 9.0)) if f is not None]
@@ -381,7 +297,8 @@ def _parameter_fixes(fit: Fit, gravity: float, position_unit_m: float = 1.0) -> 
 
 
 def check_conventions(s: PreparedSession, offsets: list[float], gravity: float = 9.81,
-                      max_offset: float | None = None, position_unit_m: float = 1.0) -> None:
+                      max_offset: float | None = None, position_unit_m: float = 1.0
+                      ) -> Fit | None:
     """Try the common readings of the data; raise naming the mistake, or the mismatch.
 
     Args:
@@ -391,13 +308,16 @@ def check_conventions(s: PreparedSession, offsets: list[float], gravity: float =
         max_offset: the user's limit on the clock offset search.
         position_unit_m: metres per unit the positions were declared in (for the hint).
 
+    Returns:
+        The fit of the data as given, when it explains them (None otherwise).
+
     Raises:
         InputError: a reading other than the given one, or the given one with other units,
             signs or handedness, explains the data (and the given one does not).
         ObservabilityError: no reading does, and the best agreement is no better than chance
             (the streams are not of the same stretch of the same recording).
     """
-    imu = _Imu.of(s)
+    imu = SmoothedImu.of(s)
     fits: dict[str, Fit] = {}
     for kind in READINGS:
         R, p = read_as(kind, s.R_WM, s.p_WM)
@@ -405,16 +325,16 @@ def check_conventions(s: PreparedSession, offsets: list[float], gravity: float =
         if f is not None:
             fits[kind] = f
     if not fits:
-        return
+        return None
     fixes = {k: _parameter_fixes(f, gravity, position_unit_m) for k, f in fits.items()}
     good = [k for k in fits if fits[k].fits()]
     if "given" in good and not fixes["given"]:
-        return
+        return fits["given"]
     if good:
         clean = [k for k in good if not fixes[k]] or good
         best = min(clean, key=lambda k: fits[k].score)
         if best != "given" and "given" in good:
-            return  # the data as given fits too (only its parameters are off): not clear
+            return None  # the data as given fit too (only their parameters are off): unclear
         named = ([READINGS[best]] if best != "given" else []) + fixes[best]
         raise InputError("; ".join(named) + " (the data as they are read do not fit)")
     best = min(fits, key=lambda k: fits[k].score)
@@ -425,6 +345,7 @@ def check_conventions(s: PreparedSession, offsets: list[float], gravity: float =
             "the IMU and mocap streams do not match at any clock offset (their agreement is no "
             "better than chance): check that both files are from the same recording and "
             "overlap in time")
+    return None
 
 
 def base_fit_poor(s: PreparedSession, spacing: float, rms_attitude_rad: float,
@@ -458,12 +379,24 @@ def explain_failure(s: PreparedSession, opts: CalibrationOptions, position_unit_
 def screen_conventions(s: PreparedSession, opts: CalibrationOptions, t_d: float,
                        candidates: list[float], rms_attitude_deg: list[float],
                        rms_velocity: list[float], position_unit_m: float,
-                       say: Callable[[str], None]) -> None:
+                       say: Callable[[str], None]) -> float | None:
     """After stages 1-2: when their residuals are a large fraction of the motion, try the
-    other conventions (nothing is computed when the fit is good)."""
+    other conventions (nothing is computed when the fit is good).
+
+    Returns:
+        A better starting clock offset, when the data as given fit well at one more than
+        :data:`CLOCK_MOVE` s from ``t_d`` (the coarse search picked a wrong lag; slow motion
+        blurs its peak) and the model estimates the offset; else None.
+    """
     rot = float(np.radians(np.sqrt(np.mean(np.square(rms_attitude_deg)))))
     vel = float(np.sqrt(np.mean(np.square(rms_velocity))))
     if not base_fit_poor(s, opts.attitude_spacing, rot, vel):
-        return
+        return None
     say("the first fits are poor: checking the inputs' conventions")
-    check_conventions(s, [t_d, *candidates], opts.gravity, opts.max_offset, position_unit_m)
+    fit = check_conventions(s, [t_d, *candidates], opts.gravity, opts.max_offset,
+                            position_unit_m)
+    free = opts.model.has("time_offset") and opts.time_offset is None
+    if fit is None or not free or abs(fit.t_d - t_d) <= CLOCK_MOVE:
+        return None
+    say(f"the data fit at clock offset {fit.t_d:.4f} s, not {t_d:.4f} s: starting there")
+    return fit.t_d

@@ -139,6 +139,10 @@ class SolveReport:
     last_decrease: float = 0.0
 
 
+#: Cost decrease per LM iteration below which a solve has converged (the cost is half a chi2).
+ABS_TOL = 5e-3
+
+
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
            on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
            relative_tol: float = 1e-7, retry: bool = True) -> tuple[gtsam.Values, SolveReport]:
@@ -190,7 +194,10 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
         if on_iteration is not None:
             on_iteration(it0 + it, opt.values(), err)
         rel = (prev - err) / max(prev, 1e-300)
-        if rel < relative_tol or err < 1e-12:
+        # Converged also when an iteration lowers the cost (half a chi2) by less than
+        # ABS_TOL: statistically nothing (a 1-sigma change is 0.5). Along a direction the
+        # data do not determine, held only by a weak prior, LM would creep on for ever.
+        if rel < relative_tol or err < 1e-12 or prev - err < ABS_TOL:
             reason = "converged"
             break
         if opt.lambda_() > 1e10:

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.calib.clock import MIN_MARGIN_Z, ClockSearch, search_clock
 from mocap_calib.core.calib.conventions import explain_failure, screen_conventions
+from mocap_calib.core.calib.degenerate import mark_single_axis, mark_undetermined
 from mocap_calib.core.calib.faults import leave_out_imu_faults
 from mocap_calib.core.calib.result import CalibrationResult, Diagnostics, StageStats
 from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
@@ -190,8 +191,14 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     except CalibrationError:
         explain_failure(s, opts, mocap.position_unit_m, say)
         raise
-    screen_conventions(s, opts, t_d0, [] if clock is None else [c for c, _ in clock.candidates],
-                       att.stats.rms_after, vel.stats.rms_after, mocap.position_unit_m, say)
+    better = screen_conventions(s, opts, t_d0, [] if clock is None else [
+        c for c, _ in clock.candidates], att.stats.rms_after, vel.stats.rms_after,
+        mocap.position_unit_m, say)
+    if better is not None:  # the closed-form fit found the clock offset the search missed
+        t_d0, delta0 = better, s.clock_shift + better
+        clock = None if clock is None else replace(clock, time_offset=better,
+                                                   verified_by_fit=True)
+        att, vel = _initial_stages(s, opts, delta0, effects0, t_mid, on_iteration, say)
 
     say("stage 3/3: position factors (all parameters jointly)")
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
@@ -214,7 +221,9 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                                clock=clock))
     result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
                       time.perf_counter() - t0)
+    mark_single_axis(result, s, pos.delta)
     judge(result, s, pos, opts, clock, say)
+    mark_undetermined(result)
     return result
 
 
