@@ -201,10 +201,27 @@ def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str =
     def res(cols: tuple[Col, ...] | None, want: bool) -> list[int] | None:
         return [resolve_column(c, layout) for c in cols] if want and cols is not None else None
 
+    groups = {"t": [resolve_column(colmap.time, layout)],
+              "gyro": res(colmap.gyro, "imu" in streams),
+              "accel": res(colmap.accel, "imu" in streams),
+              "quat": res(colmap.quat, "mocap" in streams),
+              "pos": res(colmap.position, "mocap" in streams)}
+    _check_distinct(groups, layout)
     return read_indexed(
-        layout, time=resolve_column(colmap.time, layout),
-        gyro=res(colmap.gyro, "imu" in streams), accel=res(colmap.accel, "imu" in streams),
-        quat=res(colmap.quat, "mocap" in streams),
-        position=res(colmap.position, "mocap" in streams),
+        layout, time=groups["t"][0], gyro=groups["gyro"], accel=groups["accel"],
+        quat=groups["quat"], position=groups["pos"],
         time_unit=time_unit, gyro_unit=gyro_unit, accel_unit=accel_unit, quat_order=quat_order,
         position_unit=position_unit, raw=raw)
+
+
+def _check_distinct(groups: dict[str, list[int] | None], layout: Layout) -> None:
+    """Raise when the column map reads one column twice (``gyro=1:4,accel=1:4``): the
+    calibration would then fit one signal against itself."""
+    seen: dict[int, str] = {}
+    for key, cols in groups.items():
+        for c in cols or ():
+            if c in seen:
+                where = f"{seen[c]}= and {key}=" if seen[c] != key else f"{key}= twice"
+                raise input_error(f"column {layout.label(c)} is used twice ({where})",
+                                  COLUMNS_FIX, "--columns")
+            seen[c] = key

@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from mocap_calib.io.checks import TIME_UNITS, Lines
+from mocap_calib.errors import InputError
+from mocap_calib.io.checks import TIME_NAMES, TIME_UNITS, Lines, time_unit_hint
 
 IntArray = NDArray[np.int64]
 _INT64_MAX = np.iinfo(np.int64).max
@@ -44,6 +45,8 @@ def parse_stamps(raw: pd.Series, unit: str, label: str, lines: Lines,
     plain = s.str.fullmatch(r"\d+").to_numpy(dtype=bool)
     if plain.all():
         return _scaled(_to_int64(s, unit, lines), factor, unit, lines)
+    if unit == "ns":
+        _refuse_fractional_ns(s, label, lines)
     is_dec = s.str.fullmatch(r"[+-]?(\d+\.?\d*|\.\d+)").to_numpy(dtype=bool)
     out = np.zeros(len(s), dtype=np.int64)
     if is_dec.any():
@@ -58,8 +61,7 @@ def parse_stamps(raw: pd.Series, unit: str, label: str, lines: Lines,
                               "fix or delete that line", int(np.flatnonzero(~is_dec)[k]))
         scaled = x * factor
         if np.any(np.abs(scaled) >= 9.2e18):
-            raise lines.error(f"timestamps overflow 64-bit nanoseconds with --time-unit {unit}",
-                              "check --time-unit (s, ms, us or ns)")
+            raise _overflow(s, unit, lines)
         out[~is_dec] = np.round(scaled).astype(np.int64)
     return out
 
@@ -68,15 +70,13 @@ def _to_int64(s: pd.Series, unit: str, lines: Lines) -> IntArray:
     """Digit strings to int64, raising if one does not fit."""
     n = s.str.len().to_numpy()
     if (n > 19).any() or ((n == 19) & (s > str(_INT64_MAX)).to_numpy(dtype=bool)).any():
-        raise lines.error(f"timestamps overflow 64-bit nanoseconds with --time-unit {unit}",
-                          "check --time-unit (s, ms, us or ns)")
+        raise _overflow(s, unit, lines)
     return s.astype(np.int64).to_numpy()
 
 
 def _scaled(v: IntArray, factor: int, unit: str, lines: Lines) -> IntArray:
     if factor > 1 and np.any(np.abs(v) > _INT64_MAX // factor):
-        raise lines.error(f"timestamps overflow 64-bit nanoseconds with --time-unit {unit}",
-                          "check --time-unit (s, ms, us or ns)")
+        raise _overflow(pd.Series(v.astype(str)), unit, lines)
     return v * factor
 
 
@@ -102,3 +102,37 @@ def _decimal_ns(s: pd.Series, factor: int, digits: int, unit: str, lines: Lines)
     round_up = (frac.str.slice(digits, digits + 1) >= "5").to_numpy(dtype=bool)
     ns = _scaled(ip, factor, unit, lines) + fv + round_up
     return np.where(neg, -ns, ns)
+
+
+def _hint(s: pd.Series, unit: str) -> str:
+    """`` they look like X (R Hz): pass --time-unit X`` from the numbers' own spacing."""
+    x = pd.to_numeric(s, errors="coerce").to_numpy(dtype=np.float64)
+    x = x[np.isfinite(x)]
+    step = float(np.median(np.diff(x))) if len(x) > 1 else float("nan")
+    hint = time_unit_hint(step, unit)
+    if hint is None:
+        return "check the time column and --time-unit (s, ms, us or ns)"
+    u, rate = hint
+    return f"they look like {u} ({TIME_NAMES[u]}, {rate:.3g} Hz): pass --time-unit {u}"
+
+
+def _overflow(s: pd.Series, unit: str, lines: Lines) -> InputError:
+    """The error for stamps that do not fit 64-bit nanoseconds, naming the likely unit (or
+    the absurd stamp)."""
+    digits = s.str.lstrip("+-").str.partition(".")[0].str.len().to_numpy()
+    if digits.max() > 25:
+        row = int(np.argmax(digits))
+        return lines.error(f"a timestamp has {int(digits[row])} digits, more than any time in "
+                           "s, ms, us or ns", "fix or delete that line", row)
+    return lines.error(f"timestamps overflow 64-bit nanoseconds if they are in {unit} "
+                       f"({TIME_NAMES[unit]})", _hint(s, unit))
+
+
+def _refuse_fractional_ns(s: pd.Series, label: str, lines: Lines) -> None:
+    """Nanosecond stamps are integers: decimals with a fraction mean another unit."""
+    frac = s.str.partition(".")[2].str.strip("0")
+    bad = (frac.str.len() > 0).to_numpy()
+    if bad.any():
+        raise lines.error(f"time column {label} holds {s.iloc[int(np.argmax(bad))]!r}: "
+                          "nanosecond stamps are whole numbers, these have decimals",
+                          _hint(s, "ns"), int(np.argmax(bad)))
