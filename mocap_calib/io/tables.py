@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -37,6 +38,19 @@ def write_table(path: Path | str, header: str, columns: Sequence[Array | IntArra
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    # Atomic: written under a temporary name and renamed, so an interrupted run leaves the
+    # old file (or none), never half of a new one.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        _write_rows(tmp, header, columns, sep, chunk)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _write_rows(path: Path, header: str, columns: Sequence[Array | IntArray | list[str]],
+                sep: str, chunk: int) -> None:
     n = len(columns[0]) if columns else 0
     with open(path, "w", encoding="utf-8", newline="\n") as f:
         f.write(header + "\n")
@@ -52,4 +66,3 @@ def write_table(path: Path | str, header: str, columns: Sequence[Array | IntArra
                     cols.append(format_floats(part))
             f.write("\n".join(map(sep.join, zip(*cols, strict=True))))
             f.write("\n")
-    return path

@@ -20,7 +20,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.errors import ConvergenceError
+from mocap_calib.errors import ConvergenceError, ObservabilityError
 
 Array = NDArray[np.float64]
 
@@ -214,6 +214,27 @@ def require_converged(stage: str, report: SolveReport, max_iterations: int) -> N
         f"the {stage} stage did not converge in {report.iterations} iterations (cost still "
         f"falling by {100 * report.last_decrease:.2g} % per iteration); raise "
         f"--max-iterations (now {max_iterations}) or check the inputs' units and conventions")
+
+
+def marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Marginals:
+    """GTSAM's marginals, with its indeterminate-system exception turned into a one-line
+    :class:`~mocap_calib.errors.ObservabilityError`."""
+    try:
+        return gtsam.Marginals(graph, values)
+    except RuntimeError as err:
+        raise gtsam_error(err) from None
+
+
+def gtsam_error(err: RuntimeError) -> Exception:
+    """A GTSAM exception as one line: an indeterminate linear system means the data (with the
+    weak range priors) do not determine every parameter; anything else stays as it is."""
+    text = " ".join(str(err).split())
+    if "ndeterminant" not in text and "ndeterminate" not in text:
+        return err
+    return ObservabilityError(
+        "the data do not determine every parameter (GTSAM: indeterminate linear system); the "
+        "motion does not excite the model's parameters, or an input's unit or convention is "
+        "wrong: check them, record motion about all axes, or use a smaller --model")
 
 
 def information_matrix(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,

@@ -23,6 +23,7 @@ from mocap_calib.core.calib.graph import (
     BatchFactors,
     BatchOutput,
     huber_isotropic,
+    marginals,
     require_converged,
     robust_weights_and_chi2,
     run_lm,
@@ -172,7 +173,7 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         b_lin = b_est.copy()
         dRI, J = preint(b_lin)
 
-    marg = gtsam.Marginals(graph, sol)
+    marg = marginals(graph, sol)
     e_after, _, _ = attitude_errors(R_est, b_est, dRM, dRI, J, b_lin, jacobians=False)
     w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     t_mid = 0.5 * (s.tau[i0] + s.tau[i1])

@@ -24,6 +24,7 @@ from mocap_calib.core.calib.graph import (
     BatchFactors,
     BatchOutput,
     huber_isotropic,
+    marginals,
     require_converged,
     robust_weights_and_chi2,
     run_lm,
@@ -205,7 +206,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         dv, A = preint(b_lin)
         data = _Data(data.dvM, data.LM, R_i, dv, A, dt)
 
-    marg = gtsam.Marginals(graph, sol)
+    marg = marginals(graph, sol)
     e_after = velocity_errors(data, b_est, p_est, gravity * g_dir, b_lin)
     w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     stats = StageStats(
