@@ -20,7 +20,7 @@ from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
-from mocap_calib.sim.trajectory import random_trajectory
+from mocap_calib.sim.trajectory import periodic_trajectory, random_trajectory
 
 Array = NDArray[np.float64]
 
@@ -109,6 +109,7 @@ class SimConfig:
     aggressiveness: float = 1.0
     rig_seed: int | None = None  # draw T_MI and the room's tilt from this seed (a fixed rig)
     mocap_noise_corr: float = 0.0  # s: AR(1) mocap noise with this time constant (0: white)
+    periodic_motion_s: float = 0.0  # > 0: a flight repeating with this period (clock tests)
 
     def validate(self) -> None:
         if not self.duration > 1.0:
@@ -184,6 +185,8 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
 
     # Calibration truth, drawn in a fixed order so the seed fixes everything.
     traj = random_trajectory(rng, aggressiveness=cfg.aggressiveness)
+    if cfg.periodic_motion_s > 0:
+        traj = periodic_trajectory(np.random.default_rng([cfg.seed, 1]), cfg.periodic_motion_s)
     R_MI = _random_rotation(rng)
     p_MI = rng.uniform(-0.1, 0.1, 3)
     p_MI *= max(1.0, 0.04 / np.linalg.norm(p_MI))
