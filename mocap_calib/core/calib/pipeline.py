@@ -201,7 +201,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         iterations=pos.history,
         trace=CalibrationTrace(session=s, model_state=ModelState.from_position(pos, model, t_mid),
                                noise_used=pos.noise, windows=pos.windows, weights=pos.weights,
-                               clock=clock))
+                               clock=clock, position=pos))
     result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
                       time.perf_counter() - t0)
     judge(result, s, pos, opts, clock, say)

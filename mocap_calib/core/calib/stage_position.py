@@ -236,7 +236,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
                        adapt_noise: bool = True, weights: Array | None = None,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
-                       covariance: bool = True) -> PositionResult:
+                       covariance: bool = True, one_step: bool = False) -> PositionResult:
     """Refine all parameters on the window factors.
 
     Args:
@@ -251,6 +251,9 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
         progress: called with a short message at every IRLS round.
         covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
+        one_step: a single Gauss-Newton step from ``init`` instead of LM rounds: for refits
+            from a nearby solution (segments, other noise densities), where the cost is nearly
+            quadratic over the step and one linearisation is enough.
     """
     t_start = time.perf_counter()
     pg = build_position_graph(s, model, noise, windows, init, priors)
@@ -259,8 +262,11 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         pg.problem.weights = np.asarray(weights, dtype=float).copy()
         robust = False
     history = _History(pg, on_iteration)
-    fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
-                        robust, adapt_noise, history, progress)
+    if one_step:
+        fit = _gauss_newton_step(pg, evaluate_at_solution=covariance)
+    else:
+        fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
+                            robust, adapt_noise, history, progress)
     sol, out = fit.values, pg.evals[-1]
     th = pg.theta(sol)
     blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
@@ -314,6 +320,17 @@ class _Fit:
     noise_scale: Array
     out0: Any  # the evaluation at the start values (unit weights): the "before" figures
     correlation: CorrelationFit | None = None
+
+
+def _gauss_newton_step(pg: PositionGraph, evaluate_at_solution: bool) -> _Fit:
+    """One Gauss-Newton step from the start values (noise model and weights as given)."""
+    pg.problem.freeze_whitening(False)
+    delta = pg.graph.linearize(pg.values).optimize()
+    out0 = pg.evals[-1]
+    sol = pg.values.retract(delta)
+    if evaluate_at_solution:
+        pg.batch.output(sol, 0)
+    return _Fit(sol, 1, np.ones(2), out0)
 
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
