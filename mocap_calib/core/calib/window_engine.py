@@ -243,12 +243,12 @@ class PositionProblem:
         out = self._filter(th, c, ci, res, F, dwf, gcols, g_in, noise, frozen, store)
         return out
 
-    def likelihoods(self, th: Theta, noises: list[NoiseModel], part: str = "both") -> list[Array]:
-        """-2 log-likelihood of every window (chi2 + log det; ``part`` "chi2" for the first
-        only) under each noise model, at the same parameters: the trajectory is integrated
-        once, only the filter runs per model (without the Jacobian columns)."""
+    def likelihoods(self, th: Theta, noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
+        """Per noise model, every window's chi2 and log det of its innovations (-2 log L is
+        their sum) at the same parameters: the trajectory is integrated once, only the filter
+        runs per model (without the Jacobian columns)."""
         win = self.win
-        out = [np.zeros(win.count) for _ in noises]
+        out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
         keep = self.noise
         try:
             for c in self.chunks:
@@ -263,9 +263,9 @@ class PositionProblem:
                 for i, nz in enumerate(noises):
                     self.noise = nz
                     noise = self._noise(th, h, R_WM)
-                    chi2, logdet = _likelihood_pass(res.r, self._transition_full(F, noise),
-                                                    noise, self.weights[c], win.mask[c])
-                    out[i][c] = chi2 if part == "chi2" else chi2 + logdet
+                    out[i][0][c], out[i][1][c] = _likelihood_pass(
+                        res.r, self._transition_full(F, noise), noise, self.weights[c],
+                        win.mask[c])
         finally:
             self.noise = keep
         return out
