@@ -126,7 +126,7 @@ def _theta(values: gtsam.Values, model: Model, W: int, fixed: PositionInit, t_mi
     u3 = values.atUnit3(KEY_G)
     effects = {}
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             effects[eff.name] = np.asarray(values.atVector(key_effect(i)), dtype=float)
     knots = np.stack([np.asarray(values.atVector(key_knot(w))) for w in range(W)])
     return Theta(
@@ -149,7 +149,7 @@ def _block_keys(model: Model) -> dict[str, int]:
     if model.has("gravity_magnitude"):
         keys["gravity_magnitude"] = KEY_GM
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             keys[eff.name] = key_effect(i)
     return keys
 
@@ -453,7 +453,7 @@ def _start_values(model: Model, init: PositionInit, W: int) -> gtsam.Values:
     if model.has("gravity_magnitude"):
         values.insert(KEY_GM, np.array([init.g_mag]))
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             values.insert(key_effect(i), init.effects.get(eff.name, eff.zero()))
     for w in range(W):
         values.insert(key_knot(w), np.r_[init.gyro_bias, init.accel_bias] if init.knots is None
@@ -474,7 +474,7 @@ def _add_range_priors(graph: gtsam.NonlinearFactorGraph, model: Model,
     if model.has("gravity_magnitude"):
         range_priors["gravity_magnitude"] = (KEY_GM, init.g_mag)
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             range_priors[eff.name] = (key_effect(i), init.effects.get(eff.name, eff.zero()))
     for block, (key, val) in range_priors.items():
         dim = {"rotation": 3, "translation": 3, "gravity": 2}.get(block)
