@@ -14,6 +14,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 import pytest
+from conftest import shared_data
 from refusal_corpus import CASES, Case, clean, run_case, session
 
 from mocap_calib.cli.main import _is_indeterminate
@@ -24,8 +25,6 @@ from mocap_calib.core.calib.session import prepare
 from mocap_calib.core.model.faults import frozen, imu_faults
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import InputError, ObservabilityError
-
-from conftest import shared_data
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
