@@ -20,7 +20,7 @@ from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
-from mocap_calib.sim.motions import motion_trajectory
+from mocap_calib.sim.motions import MOTIONS, motion_trajectory
 from mocap_calib.sim.trajectory import Trajectory, periodic_trajectory, random_trajectory
 
 Array = NDArray[np.float64]
@@ -123,6 +123,9 @@ class SimConfig:
     motion: str = "flight"  # a key of sim.motions.MOTIONS (turntable, planar, slow, ...)
 
     def validate(self) -> None:
+        if self.motion not in MOTIONS:
+            raise InputError(f"unknown --motion '{self.motion}'; choose one of: "
+                             f"{', '.join(MOTIONS)}")
         if not self.duration > 1.0:
             raise InputError(f"--duration {self.duration}: must be more than 1 s")
         if self.duration > 4 * 3600:
