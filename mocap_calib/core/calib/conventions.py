@@ -24,7 +24,7 @@ stage 1-2 residuals the pipeline already has.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -116,6 +116,7 @@ class Fit:
     k_known: bool = True
     g_known: bool = True
     k_sign_known: bool = True
+    runner_up: float = float("inf")  # score of the best fit more than a second away
 
     @property
     def score(self) -> float:
@@ -227,8 +228,14 @@ def _solve(M: Array, H: Array, Hi: Array, y: Array, var: float) -> _Force:
 
 def _best(s: PreparedSession, R: Array, p: Array, offsets: list[float],
           imu: SmoothedImu) -> Fit | None:
+    """The best fit over the offsets, with the score of the best one over a second away
+    (``runner_up``: a clock offset is unambiguous when that is clearly worse)."""
     fits = [f for f in (fit_reading(s, R, p, t, imu) for t in offsets) if f is not None]
-    return min(fits, key=lambda f: f.score) if fits else None
+    if not fits:
+        return None
+    best = min(fits, key=lambda f: f.score)
+    far = [f.score for f in fits if abs(f.t_d - best.t_d) > 1.0]
+    return replace(best, runner_up=min(far, default=float("inf")))
 
 
 def _offsets(s: PreparedSession, R: Array, p: Array, known: list[float],
@@ -368,12 +375,24 @@ def base_fit_poor(s: PreparedSession, spacing: float, rms_attitude_rad: float,
 
 
 def explain_failure(s: PreparedSession, opts: CalibrationOptions, position_unit_m: float,
-                    say: Callable[[str], None]) -> None:
+                    say: Callable[[str], None]) -> float | None:
     """After the clock alignment or stages 1-2 failed: raise the mistake that explains the
-    failure, if one does (the caller re-raises the original error otherwise)."""
+    failure, if one does.
+
+    Returns:
+        The clock offset at which the data as given fit, when that is unambiguous (the next
+        best offset over a second away fits at least twice worse; periodic motion does not)
+        and the model estimates the offset: the calibration can start there. Else None (the
+        caller re-raises the original error).
+    """
     say("checking the inputs' conventions (the first fits failed)")
     known = [] if opts.time_offset is None else [opts.time_offset]
-    check_conventions(s, known, opts.gravity, opts.max_offset, position_unit_m)
+    fit = check_conventions(s, known, opts.gravity, opts.max_offset, position_unit_m)
+    free = opts.model.has("time_offset") and opts.time_offset is None
+    if fit is None or not free or fit.runner_up < 2.0 * fit.score:
+        return None
+    say(f"the data as given fit at clock offset {fit.t_d:.4f} s (closed-form fit)")
+    return fit.t_d
 
 
 def screen_conventions(s: PreparedSession, opts: CalibrationOptions, t_d: float,

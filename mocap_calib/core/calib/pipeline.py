@@ -183,22 +183,27 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
     t_mid = 0.5 * (s.u[0] + s.u[-1])
     try:  # a failure here is often a convention mistake: name it if one explains the data
-        t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
-        s, left_out = leave_out_imu_faults(s, s.clock_shift + t_d0)
-        notes += left_out
-        delta0 = s.clock_shift + t_d0
-        att, vel = _initial_stages(s, opts, delta0, effects0, t_mid, on_iteration, say)
+        s, t_d0, clock, left_out, att, vel = _first_fits(s, opts, effects0, t_mid,
+                                                         on_iteration, say)
     except CalibrationError:
-        explain_failure(s, opts, mocap.position_unit_m, say)
-        raise
+        found = explain_failure(s, opts, mocap.position_unit_m, say)
+        if found is None:
+            raise
+        notes.append(f"clock offset started at {found:.4f} s, where a closed-form fit of the "
+                     "data is unambiguous (the clock search could not tell)")
+        s, t_d0, clock, left_out, att, vel = _first_fits(
+            s, replace(opts, time_offset=found), effects0, t_mid, on_iteration, say)
+    notes += left_out
     better = screen_conventions(s, opts, t_d0, [] if clock is None else [
         c for c, _ in clock.candidates], att.stats.rms_after, vel.stats.rms_after,
         mocap.position_unit_m, say)
     if better is not None:  # the closed-form fit found the clock offset the search missed
-        t_d0, delta0 = better, s.clock_shift + better
+        t_d0 = better
         clock = None if clock is None else replace(clock, time_offset=better,
                                                    verified_by_fit=True)
-        att, vel = _initial_stages(s, opts, delta0, effects0, t_mid, on_iteration, say)
+        att, vel = _initial_stages(s, opts, s.clock_shift + better, effects0, t_mid,
+                                   on_iteration, say)
+    delta0 = s.clock_shift + t_d0
 
     say("stage 3/3: position factors (all parameters jointly)")
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
@@ -225,6 +230,16 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     judge(result, s, pos, opts, clock, say)
     mark_undetermined(result)
     return result
+
+
+def _first_fits(s: PreparedSession, opts: CalibrationOptions, effects0: dict[str, Array],
+                t_mid: float, on_iteration: IterationFn | None, say: ProgressFn):
+    """Clock alignment, the IMU's faulty spans left out, stages 1-2."""
+    t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
+    s, left_out = leave_out_imu_faults(s, s.clock_shift + t_d0)
+    att, vel = _initial_stages(s, opts, s.clock_shift + t_d0, effects0, t_mid, on_iteration,
+                               say)
+    return s, t_d0, clock, left_out, att, vel
 
 
 def _stage_hook(on_iteration: IterationFn | None, stage: str):
