@@ -72,6 +72,7 @@ class Verdict:
     line: str  # the last stderr line (the refusal) or the result's summary
     seconds: float
     problems: list[str] = field(default_factory=list)
+    command: str = ""
 
     @property
     def ok(self) -> bool:
@@ -476,7 +477,7 @@ def run_case(case: Case, d: Path) -> Verdict:
     code, out, err, seconds = run_cli(argv)
     lines = [x for x in err.splitlines() if x.strip()]
     last = lines[-1] if lines else ""
-    v = Verdict(case, code, last, seconds)
+    v = Verdict(case, code, last, seconds, command=argv[0])
     e = case.expect
     if "Traceback" in out + err or code == 70:
         v.problems.append(f"internal error: {last}")

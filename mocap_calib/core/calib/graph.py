@@ -139,26 +139,30 @@ class SolveReport:
     last_decrease: float = 0.0
 
 
-#: Cost decrease per LM iteration below which a solve has converged (the cost is half a chi2).
+#: Cost decrease per LM iteration below which a stage's solve has converged (the cost is half
+#: a chi2, so this is statistically nothing): along a direction the data do not determine,
+#: held only by a weak prior, LM would otherwise creep on for ever (a turntable's R_MI).
 ABS_TOL = 5e-3
 
 
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
            on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
-           relative_tol: float = 1e-7, retry: bool = True) -> tuple[gtsam.Values, SolveReport]:
+           relative_tol: float = 1e-7, retry: bool = True, absolute_tol: float = 0.0
+           ) -> tuple[gtsam.Values, SolveReport]:
     """Levenberg-Marquardt with an optional per-iteration hook (values and error).
 
     A run cut off by the iteration limit while the cost still falls is retried once from where
     it stopped (with LM's damping reset, which is what usually stalls it); the report says
-    whether the cost finally stopped falling (``converged``).
+    whether the cost finally stopped falling (``converged``). With ``absolute_tol`` (see
+    :data:`ABS_TOL`) it has also converged when an iteration lowers the cost by less.
     """
     t0 = time.perf_counter()
     initial_error = float(graph.error(initial))
     values, it, err, rel, reason = _lm_pass(graph, initial, max_iterations, on_iteration,
-                                            relative_tol, 0)
+                                            relative_tol, 0, absolute_tol)
     if reason == "iteration limit" and retry:
         values, it2, err, rel, reason = _lm_pass(graph, values, max_iterations, on_iteration,
-                                                 relative_tol, it)
+                                                 relative_tol, it, absolute_tol)
         it += it2
     report = SolveReport(it, initial_error, float(err), time.perf_counter() - t0,
                          converged=reason != "iteration limit", reason=reason,
@@ -168,7 +172,8 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
 
 def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int,
              on_iteration: Callable[[int, gtsam.Values, float], None] | None,
-             relative_tol: float, it0: int) -> tuple[gtsam.Values, int, float, float, str]:
+             relative_tol: float, it0: int, absolute_tol: float = 0.0
+             ) -> tuple[gtsam.Values, int, float, float, str]:
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(relative_tol)
@@ -194,10 +199,7 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
         if on_iteration is not None:
             on_iteration(it0 + it, opt.values(), err)
         rel = (prev - err) / max(prev, 1e-300)
-        # Converged also when an iteration lowers the cost (half a chi2) by less than
-        # ABS_TOL: statistically nothing (a 1-sigma change is 0.5). Along a direction the
-        # data do not determine, held only by a weak prior, LM would creep on for ever.
-        if rel < relative_tol or err < 1e-12 or prev - err < ABS_TOL:
+        if rel < relative_tol or err < 1e-12 or prev - err < absolute_tol:
             reason = "converged"
             break
         if opt.lambda_() > 1e10:

@@ -194,15 +194,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         s, t_d0, clock, left_out, att, vel = _first_fits(
             s, replace(opts, time_offset=found), effects0, t_mid, on_iteration, say)
     notes += left_out
-    better = screen_conventions(s, opts, t_d0, [] if clock is None else [
-        c for c, _ in clock.candidates], att.stats.rms_after, vel.stats.rms_after,
-        mocap.position_unit_m, say)
-    if better is not None:  # the closed-form fit found the clock offset the search missed
-        t_d0 = better
-        clock = None if clock is None else replace(clock, time_offset=better,
-                                                   verified_by_fit=True)
-        att, vel = _initial_stages(s, opts, s.clock_shift + better, effects0, t_mid,
-                                   on_iteration, say)
+    t_d0, clock, att, vel = _screen(s, opts, t_d0, clock, att, vel, effects0, t_mid,
+                                    mocap.position_unit_m, on_iteration, say)
     delta0 = s.clock_shift + t_d0
 
     say("stage 3/3: position factors (all parameters jointly)")
@@ -240,6 +233,23 @@ def _first_fits(s: PreparedSession, opts: CalibrationOptions, effects0: dict[str
     att, vel = _initial_stages(s, opts, s.clock_shift + t_d0, effects0, t_mid, on_iteration,
                                say)
     return s, t_d0, clock, left_out, att, vel
+
+
+def _screen(s: PreparedSession, opts: CalibrationOptions, t_d0: float,
+            clock: ClockSearch | None, att: AttitudeResult, vel: VelocityResult,
+            effects0: dict[str, Array], t_mid: float, position_unit_m: float,
+            on_iteration: IterationFn | None, say: ProgressFn):
+    """The convention check when stages 1-2 fit poorly; restarts them at the clock offset a
+    closed-form fit finds when the search picked a wrong lag."""
+    better = screen_conventions(s, opts, t_d0, [] if clock is None else [
+        c for c, _ in clock.candidates], att.stats.rms_after, vel.stats.rms_after,
+        position_unit_m, say)
+    if better is None:
+        return t_d0, clock, att, vel
+    clock = None if clock is None else replace(clock, time_offset=better, verified_by_fit=True)
+    att, vel = _initial_stages(s, opts, s.clock_shift + better, effects0, t_mid, on_iteration,
+                               say)
+    return better, clock, att, vel
 
 
 def _stage_hook(on_iteration: IterationFn | None, stage: str):

@@ -93,7 +93,8 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
     dt_i = np.diff(imu.t)
     if np.any(dt_m <= 0) or np.any(dt_i <= 0):
         raise InputError("timestamps must increase strictly; sort the files and remove duplicates")
-    refuse_dead(imu, mocap)
+    if not _both_static(imu, mocap):  # both static: the static session is the message
+        refuse_dead(imu, mocap)
     notes: list[str] = []
     frozen = frozen_mocap(mocap)
     if frozen.any():
@@ -130,6 +131,14 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
         imu_faults=imu_faults(imu.gyro, imu.accel, imu.rate_hz),
         notes=tuple(notes),
     )
+
+
+def _both_static(imu: ImuSamples, mocap: MocapPoses) -> bool:
+    speed = np.linalg.norm(imu.gyro - np.median(imu.gyro, axis=0), axis=1)
+    R = mocap.rotation
+    angles = np.linalg.norm(so3.log(np.einsum("ji,njk->nik", R[0], R)), axis=1)
+    return bool(np.percentile(speed, 90) < 0.1 and np.max(angles) < np.radians(10)
+                and np.max(np.ptp(mocap.position, axis=0)) < 0.05)
 
 
 def screen_mocap_spikes(tau: Array, R: Array, p: Array, sigma_p: float, sigma_r: float,

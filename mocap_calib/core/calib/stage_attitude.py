@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.graph import (
+    ABS_TOL,
     BatchFactors,
     BatchOutput,
     huber_isotropic,
@@ -161,7 +162,8 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         init = gtsam.Values()
         init.insert(KEY_R, gtsam.Rot3(R_est))
         init.insert(KEY_BG, b_est)
-        sol, rep = run_lm(graph, init, max_iterations, on_iteration)
+        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
+                          absolute_tol=ABS_TOL)
         require_converged("attitude", rep, max_iterations)
         iterations += rep.iterations
         evaluations += batch.evaluations

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.graph import (
+    ABS_TOL,
     BatchFactors,
     BatchOutput,
     huber_isotropic,
@@ -193,7 +194,8 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         init.insert(KEY_BA, b_est)
         init.insert(KEY_P, gtsam.Point3(*p_est))
         init.insert(KEY_G, gtsam.Unit3(g_dir))
-        sol, rep = run_lm(graph, init, max_iterations, on_iteration)
+        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
+                          absolute_tol=ABS_TOL)
         require_converged("velocity", rep, max_iterations)
         iterations += rep.iterations
         evaluations += batch.evaluations
