@@ -496,7 +496,11 @@ def run_case(case: Case, d: Path) -> Verdict:
         res = d / "calib.yaml"
         data = yaml.safe_load(res.read_text())
         notes = " ".join(data.get("notes") or [])
-        v.line = "; ".join(f"{k}: null" for k in (data.get("unobservable") or {})) or "result"
+        unob = list(data.get("unobservable") or {})
+        faults = [n for n in data.get("notes") or [] if "left out" in n]
+        v.line = "; ".join(["numbers checked against the truth",
+                            *([f"null (unobservable): {', '.join(unob)}"] if unob else []),
+                            *[f"note: {n}" for n in faults]])
         truth = _truth_of(case)
         if truth is not None:
             v.problems += check_result(res, truth)
