@@ -122,6 +122,27 @@ class PositionResult:
     history: list[dict[str, Any]]
 
 
+def block_value(pos: PositionResult, name: str, clock_shift: float) -> Array:
+    """The parameter vector of an effect at a position-stage solution (the clock offset as
+    ``t_d`` on the raw stamps, ``|g|`` as a 1-vector, the rest from the effect vectors)."""
+    kind = EFFECTS[name].acts_on
+    if kind == "clock":
+        return np.array([pos.delta - clock_shift])
+    if kind == "gravity":
+        return np.array([pos.g_mag])
+    return np.asarray(pos.effects[name], dtype=float)
+
+
+def effect_estimate(pos: PositionResult, name: str,
+                    clock_shift: float) -> tuple[object, object]:
+    """An effect's value and 1-sigma in the result file's form (None if no covariance)."""
+    eff = EFFECTS[name]
+    value = eff.report_value(block_value(pos, name, clock_shift))
+    cov = pos.cov.get(name)
+    sigma = None if cov is None else eff.report_sigma(np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    return value, sigma
+
+
 def _theta(values: gtsam.Values, model: Model, W: int, fixed: PositionInit, t_mid: float) -> Theta:
     u3 = values.atUnit3(KEY_G)
     effects = {}
