@@ -184,8 +184,8 @@ def unexplained_lines(u: dict | None) -> list[str]:
     """The signature of a residual no candidate explains, one line per finding."""
     if not u:
         return []
-    out = ["UNEXPLAINED: the residual stays above the noise floor and no plausible candidate "
-           "explains it"]
+    out = ["UNEXPLAINED: no plausible candidate explains what is left: " + "; ".join(
+        u.get("why") or ["the residual stays above the noise floor"])]
     for sensor in ("gyro", "accel"):
         sg = u.get(sensor) or {}
         axes = ", ".join(sg.get("axes_over_floor") or []) or "none"

@@ -76,6 +76,9 @@ class DiagnoseOptions:
         plausible: the magnitudes an effect may have (beyond: listed as implausible).
         unexplained_ratio: a residual over floor ratio above which, with nothing left to
             add, the gap is reported as unexplained.
+        typical_mocap_noise: per-sample mocap noise (m, rad) beyond which the noise the
+            residuals imply is not the mocap's: a slow model error the correlated noise model
+            absorbs (it raises the floor too, so the ratio alone would not show it).
     """
 
     start: Model = field(default_factory=Model)
@@ -86,6 +89,7 @@ class DiagnoseOptions:
     cutoff_hz: float = 2.0
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
     unexplained_ratio: float = 1.5
+    typical_mocap_noise: tuple[float, float] = (1.5e-3, float(np.radians(0.2)))
 
 
 def plausibility(effect: str, value: object) -> str | None:
@@ -309,6 +313,24 @@ def _first_plausible(scores: list[CandidateScore], limits: PlausibleLimits,
     return None
 
 
+def _why_unexplained(res: Residuals, noise: NoiseModel, opts: DiagnoseOptions) -> list[str]:
+    """Why the data hold more than the model and the noise: the residual above the floor, or a
+    mocap noise no mocap system has (a slow model error taken for noise)."""
+    why = []
+    for sensor in ("gyro", "accel"):
+        if res.ratio(sensor) > opts.unexplained_ratio:
+            why.append(f"the {sensor} residual is {res.ratio(sensor):.2f} x the noise floor")
+    pos, rot = opts.typical_mocap_noise
+    if noise.mocap_position_sigma > pos or noise.mocap_rotation_sigma > rot:
+        corr = (f", correlated over {noise.mocap_noise_corr_time:g} s"
+                if noise.mocap_correlated else "")
+        why.append(f"the residuals imply mocap noise of {1e3 * noise.mocap_position_sigma:.2g} mm "
+                   f"and {np.degrees(noise.mocap_rotation_sigma):.2g} deg per sample{corr}, "
+                   f"beyond a mocap system's ({1e3 * pos:g} mm, {np.degrees(rot):g} deg): "
+                   "a slow error the model does not describe")
+    return why
+
+
 def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
             current: PositionResult, noise: NoiseModel, cur_res: Residuals,
             steps: list[DiagnoseStep], say: Callable[[str], None]) -> DiagnoseReport:
@@ -322,11 +344,11 @@ def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
     unexplained = None
-    if max(cur_res.ratio("gyro"), cur_res.ratio("accel")) > opts.unexplained_ratio \
-            and cur_res.analysis is not None:
+    why = _why_unexplained(cur_res, noise, opts)
+    if why and cur_res.analysis is not None:
         say("describing the residual no candidate explains")
-        unexplained = unexplained_signature(
+        unexplained = {"why": why, **unexplained_signature(
             ds.s, ModelState.from_position(current, model, ds.t_mid), cur_res.analysis, current,
-            opts.unexplained_ratio)
+            opts.unexplained_ratio)}
     return DiagnoseReport([], str(opts.start), str(model), steps, final, final_res, 0.0,
                           ds.notes, 0.0, [], unexplained)
