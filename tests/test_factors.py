@@ -64,8 +64,7 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
     the mocap noise) fixed at the linearisation point, so the gradient differs from the full
     cost's by the noise model's own dependence on the parameters: well under 1 %. A wrong key
     order, sign or tangent space would be off by far more."""
-    from mocap_calib.core.calib.session import local_derivative, prepare
-    from mocap_calib.core.calib.stage_position import (
+    from mocap_calib.core.calib.position_graph import (
         KEY_G,
         KEY_P,
         KEY_R,
@@ -75,6 +74,7 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
         key_effect,
         key_knot,
     )
+    from mocap_calib.core.calib.session import local_derivative, prepare
     from mocap_calib.core.calib.window_engine import make_windows
     from mocap_calib.core.model.effects import Model
     from mocap_calib.core.model.types import NoiseModel

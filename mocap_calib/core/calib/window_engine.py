@@ -26,6 +26,16 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
+from mocap_calib.core.calib.kalman import (
+    DIFFUSE,
+    Accumulator,
+    Noise,
+    likelihood_pass,
+    mocap_cov,
+    predict_covariance,
+    signals_at,
+    step_mean,
+)
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.windows import (  # noqa: F401  (re-exported)
     EvalOut,
@@ -58,131 +68,9 @@ Array = NDArray[np.float64]
 
 #: Robust kernel threshold on a sample's whitened 6-D innovation norm (chi, 6 dof, 99.9%).
 ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
-#: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
-DIFFUSE = (1.0, 1.0, 0.5)
 #: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
 #: longer than the correlation of real mocap noise, short enough for many blocks per session.
 SCORE_BLOCK_S = 1.0
-
-
-def _signals_at(gyro: Array, accel: Array, interp, x: Array,
-                rates: bool) -> tuple[Array, Array, Array, Array | None, Array | None]:
-    """Raw gyro and accel (and, with ``rates``, their time derivatives) through ``interp`` at
-    times ``x``: the arguments of ``correct``."""
-    return (interp(gyro), interp(accel), x, interp.derivative(gyro) if rates else None,
-            interp.derivative(accel) if rates else None)
-
-
-def _step_mean(y_nodes: Array, hs: Array, h: Array) -> Array:
-    """(W, m, c) mean over each step of a signal given at the pieces' nodes (Simpson per piece,
-    exact for the cubic on each piece)."""
-    simpson = (y_nodes[..., 0:-1:2, :] + 4.0 * y_nodes[..., 1::2, :] + y_nodes[..., 2::2, :]) / 6.0
-    total = np.einsum("wmp,wmpc->wmc", hs, simpson)
-    return total / np.where(h > 0, h, 1.0)[..., None]
-
-
-def _mocap_cov(L: Array, sr2: float, sp2: float) -> Array:
-    """(..., 6, 6) covariance of a residual's mocap noise: attitude noise ``sr2`` per axis
-    (I frame), position noise ``sp2``, and the position error ``-L`` times the attitude noise."""
-    out = np.empty(L.shape[:-2] + (6, 6))
-    Lt = np.swapaxes(L, -1, -2)
-    out[..., 0:3, 0:3] = sr2 * np.eye(3)
-    out[..., 0:3, 3:6] = -sr2 * Lt
-    out[..., 3:6, 0:3] = -sr2 * L
-    out[..., 3:6, 3:6] = sp2 * np.eye(3) + sr2 * L @ Lt
-    return out
-
-
-def _predict_covariance(P: Array, Phi: Array, noise: _Noise, k: int) -> Array:
-    """Filter covariance through step ``k``: transition plus process noise."""
-    P = Phi @ P @ np.swapaxes(Phi, 1, 2)
-    i15, i3 = np.arange(15), np.arange(3)
-    P[:, i15, i15] += noise.q_diag[:, k]
-    P[:, 3 + i3, 6 + i3] += noise.q_pv[:, k, None]
-    P[:, 6 + i3, 3 + i3] += noise.q_pv[:, k, None]
-    if noise.Qm is not None:
-        P[:, 15:, 15:] += noise.Qm[:, k]
-    return P
-
-
-def _likelihood_pass(r: Array, Phi: Array, noise: _Noise, wts: Array,
-                     mask: NDArray[np.bool_]) -> Array:
-    """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (no Jacobian)."""
-    W, m1 = mask.shape
-    ns = Phi.shape[-1]
-    corr = ns == 21
-    P = np.zeros((W, ns, ns))
-    for i, d in enumerate(DIFFUSE):
-        P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
-    if corr:
-        P[:, 15:, 15:] = noise.Pm0
-    x = np.zeros((W, ns, 1))
-    chi2 = np.zeros(W)
-    logdet = np.zeros(W)
-    for k in range(m1):
-        if k > 0:
-            x = Phi[:, k - 1] @ x
-            P = _predict_covariance(P, Phi[:, k - 1], noise, k - 1)
-        e = r[:, k, :, None] - (x[:, 0:6] + x[:, 15:21] if corr else x[:, 0:6])
-        PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]
-        HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
-        Lc = np.linalg.cholesky(HPHt + noise.Rn[:, k] / wts[:, k, None, None])
-        z = np.linalg.solve(Lc, e)
-        ok = mask[:, k]
-        chi2 += np.where(ok, np.sum(z[..., 0] ** 2, axis=1), 0.0)
-        logdet += np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Lc, axis1=1, axis2=2)), axis=1),
-                           0.0)
-        K = np.linalg.solve(np.swapaxes(Lc, 1, 2), np.linalg.solve(Lc, np.swapaxes(PHt, 1, 2)))
-        K = np.swapaxes(K, 1, 2)  # P H^T S^-1
-        K[~ok] = 0.0
-        x += K @ e
-        P -= K @ np.swapaxes(PHt, 1, 2)
-        P = 0.5 * (P + np.swapaxes(P, 1, 2))
-    return chi2, logdet
-
-
-class _Accumulator:
-    """What a filter pass collects per sample and window (Gram matrix, innovations, scores)."""
-
-    def __init__(self, W: int, m: int, p: int, store: bool,
-                 blocks: NDArray[np.int64] | None) -> None:
-        self.p = p
-        self.gram = np.zeros((W, p + 1, p + 1))
-        self.innov = np.zeros((W, m + 1, 6))
-        self.d_raw = np.zeros((W, m + 1))
-        self.q_rot = np.zeros((W, m + 1))
-        self.q_pos = np.zeros((W, m + 1))
-        self.chi2 = np.zeros(W)
-        self.logdet = np.zeros(W)
-        self.raw_J = np.zeros((W, m + 1, 6, p)) if store else None
-        self.whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
-        self.blocks = blocks
-        self.scores = None if blocks is None else np.zeros((W, int(blocks[-1]) + 1, p))
-
-    def add(self, k: int, N: Array, Nw: Array, Li: Array, ok: NDArray[np.bool_]) -> None:
-        p = self.p
-        self.gram += np.swapaxes(Nw, 1, 2) @ Nw
-        e = Nw[:, :, p]
-        self.chi2 += np.sum(e**2, axis=1)
-        self.logdet -= np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)),
-                                                 axis=1), 0.0)
-        self.innov[:, k] = N[:, :, p]
-        self.d_raw[:, k] = np.linalg.norm(e, axis=1)
-        # Li is lower-triangular: the first three whitened components involve only the
-        # attitude innovation and its own covariance block.
-        self.q_rot[:, k] = np.sum(e[:, 0:3] ** 2, axis=1)
-        self.q_pos[:, k] = np.sum(e[:, 3:6] ** 2, axis=1)
-        if self.whitened is not None:
-            self.whitened[:, k] = Nw
-        if self.scores is not None:
-            self.scores[:, self.blocks[k]] += np.einsum("wrp,wr->wp", Nw[:, :, :p], e)
-
-    def result(self, mask: NDArray[np.bool_], raw_r: Array | None,
-               extras: dict[str, Array]) -> EvalOut:
-        self.d_raw[~mask] = 0.0
-        self.innov[~mask] = 0.0
-        return EvalOut(self.gram, self.innov, self.d_raw, self.chi2, self.q_rot, self.q_pos,
-                       self.logdet, self.scores, raw_r, self.raw_J, self.whitened, extras)
 
 
 @dataclass(frozen=True)
@@ -191,17 +79,6 @@ class _Residuals:
     Jinv: Array  # (W, m+1, 3, 3) right-Jacobian inverse of the attitude residual
     Pm_rot: Array  # (W, m+1, 3, 3) d r_rot / d (nominal attitude perturbation)
     R_WM: Array  # (W, m+1, 3, 3)
-
-
-@dataclass(frozen=True)
-class _Noise:
-    q_diag: Array  # (W, m, 15) diagonal process noise per step
-    q_pv: Array  # (W, m) position-velocity cross term
-    Rn: Array  # (W, m+1, 6, 6) white mocap noise of each residual
-    # Correlated mocap noise (states 15:21, in residual coordinates), when modelled:
-    Fm: Array | None = None  # (W, m, 6, 6) its transition per step
-    Qm: Array | None = None  # (W, m, 6, 6) its process noise per step
-    Pm0: Array | None = None  # (W, 6, 6) its stationary covariance at the first sample
 
 
 class PositionProblem:
@@ -286,7 +163,7 @@ class PositionProblem:
                 for i, nz in enumerate(noises):
                     self.noise = nz
                     noise = self._noise(th, h, R_WM)
-                    out[i][0][c], out[i][1][c] = _likelihood_pass(
+                    out[i][0][c], out[i][1][c] = likelihood_pass(
                         res.r, self._transition_full(F, noise), noise, self.weights[c],
                         win.mask[c])
         finally:
@@ -316,7 +193,7 @@ class PositionProblem:
         pc = pieces(ut, tau[:, :-1], tau[:, 1:], th.delta)  # nodes (W, m, 2n+1)
         intr = Intrinsics(th.knots[c, None, None, 0:3], th.knots[c, None, None, 3:6], th.effects,
                           th.t_mid)
-        corr = correct(model, intr, *_signals_at(s.gyro, accel, pc, pc.nodes - th.delta, rates),
+        corr = correct(model, intr, *signals_at(s.gyro, accel, pc, pc.nodes - th.delta, rates),
                        sensitivities=False)
         inc = integrate_pieces(corr.w, corr.f, pc.hs)
         if not sensitivities:
@@ -325,7 +202,7 @@ class PositionProblem:
         # Sensitivities at step midpoints.
         u_mid = 0.5 * (tau[:, :-1] + tau[:, 1:]) - th.delta
         intr_m = Intrinsics(th.knots[c, None, 0:3], th.knots[c, None, 3:6], th.effects, th.t_mid)
-        cm = correct(model, intr_m, *_signals_at(s.gyro, accel, hermite(ut, u_mid), u_mid, rates))
+        cm = correct(model, intr_m, *signals_at(s.gyro, accel, hermite(ut, u_mid), u_mid, rates))
         dwf = self._buffer("dwf", (W, m, 6, p))  # d(w, f)/dtheta at each step
         dw, df = dwf[:, :, 0:3, :], dwf[:, :, 3:6, :]
         # Signals read at shifted times: d/dt of the signal, averaged over a step, is
@@ -350,7 +227,7 @@ class PositionProblem:
                 df[:, :, :, sl] = -f_rate * lever
             elif kind == "accel_lag":  # accel resampled at x + lag: its step mean, exactly
                 # A raw accel change acts like an accel bias of the opposite sign.
-                a_mean = _step_mean(pc(accel_dot), pc.hs, h)[..., None]
+                a_mean = step_mean(pc(accel_dot), pc.hs, h)[..., None]
                 dw[:, :, :, sl] = -cm.dw["accel_bias"] @ a_mean
                 df[:, :, :, sl] = -cm.df["accel_bias"] @ a_mean
             elif kind == "size":  # terms in w and dw/dt, which vary within a step: its mean
@@ -358,7 +235,7 @@ class PositionProblem:
                 d = np.zeros(A.shape[:-2] + (3, 6))
                 d[..., 1, 0:3] = -A[..., 1, :]
                 d[..., 2, 3:6] = -A[..., 2, :]
-                mean = _step_mean(d.reshape(d.shape[:-2] + (18,)), pc.hs, h).reshape(W, m, 3, 6)
+                mean = step_mean(d.reshape(d.shape[:-2] + (18,)), pc.hs, h).reshape(W, m, 3, 6)
                 df[:, :, :, sl] = mean
                 # f feeds the gyro through G: the accel-bias sensitivities carry that link.
                 dw[:, :, :, sl] = cm.dw["accel_bias"] @ np.linalg.inv(cm.df["accel_bias"]) @ mean
@@ -413,7 +290,7 @@ class PositionProblem:
         g_in[..., 3:6, :] = h[..., None, None] * dg
         return gcols, g_in
 
-    def _noise(self, th: Theta, h: Array, R_WM: Array) -> _Noise:
+    def _noise(self, th: Theta, h: Array, R_WM: Array) -> Noise:
         """Process noise of every step and mocap noise of every sample.
 
         Mocap noise: per-sample attitude noise (marker frame) and position noise; the attitude
@@ -436,9 +313,9 @@ class PositionProblem:
         q_pv = sa2 * h**2 / 2.0
 
         L = R_WM @ so3.hat(th.p_MI) @ th.R_MI  # d p_meas / d (attitude noise in the I frame)
-        full = _mocap_cov(L, nz.mocap_rotation_sigma**2, nz.mocap_position_sigma**2)
+        full = mocap_cov(L, nz.mocap_rotation_sigma**2, nz.mocap_position_sigma**2)
         if not nz.mocap_correlated:
-            return _Noise(q_diag, q_pv, full)
+            return Noise(q_diag, q_pv, full)
         rho = nz.mocap_noise_corr_fraction
         a = np.exp(-h / nz.mocap_noise_corr_time)[..., None, None]  # (W, m, 1, 1)
         Fm = np.zeros((W, m, 6, 6))
@@ -447,10 +324,10 @@ class PositionProblem:
         Fm[..., 3:6, 0:3] = L[:, :-1] - L[:, 1:]  # H_{k+1} H_k^-1
         Fm *= a
         Qm = rho * (1.0 - a * a) * full[:, 1:]
-        return _Noise(q_diag, q_pv, (1.0 - rho) * full, Fm, Qm, rho * full[:, 0])
+        return Noise(q_diag, q_pv, (1.0 - rho) * full, Fm, Qm, rho * full[:, 0])
 
     def _filter(self, th: Theta, c: NDArray[np.int64], ci: int, res: _Residuals, F: Array,
-                dwf: Array, gcols: list[int], g_in: Array, noise: _Noise | None,
+                dwf: Array, gcols: list[int], g_in: Array, noise: Noise | None,
                 frozen: dict[str, Array] | None, store: bool) -> EvalOut:
         """Sequential pass over the steps: sensitivities S, Kalman whitening, Gram matrix.
 
@@ -482,7 +359,7 @@ class PositionProblem:
         if record:
             rec_Li = np.zeros((W, m + 1, 6, 6))
             rec_K = np.zeros((W, m + 1, ns, 6))
-        acc = _Accumulator(W, m, p, store, self._score_blocks(m) if self.collect_scores else None)
+        acc = Accumulator(W, m, p, store, self._score_blocks(m) if self.collect_scores else None)
         N = np.zeros((W, 6, p + 1))
         for k in range(m + 1):
             if k > 0:
@@ -491,7 +368,7 @@ class PositionProblem:
                 S[:, 3:9, gcols] += g_in[:, k - 1]
                 X = Phi[:, k - 1] @ X
                 if frozen is None:
-                    P = _predict_covariance(P, Phi[:, k - 1], noise, k - 1)
+                    P = predict_covariance(P, Phi[:, k - 1], noise, k - 1)
             # Residual Jacobian: direct part minus the nominal's sensitivity.
             N[:, 0:3, :p] = -(Pm_rot[:, k] @ S[:, 0:3, :])
             N[:, 0:3, rs] += Jinv[:, k]
@@ -539,7 +416,7 @@ class PositionProblem:
                 extras.update(Fm=noise.Fm, Qm=noise.Qm, Pm0=noise.Pm0)
         return acc.result(mask, r if store else None, extras)
 
-    def _transition_full(self, F: Array, noise: _Noise | None) -> Array:
+    def _transition_full(self, F: Array, noise: Noise | None) -> Array:
         """The filter's transition: the error state's, and the correlated mocap noise's."""
         if noise is None or noise.Fm is None:
             return F

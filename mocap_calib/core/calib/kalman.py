@@ -1,0 +1,148 @@
+"""The window filter's parts: the mocap noise of a residual, the covariance prediction, the
+likelihood-only pass and the accumulator of a full pass (see
+:mod:`mocap_calib.core.calib.window_engine`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.calib.windows import EvalOut
+
+Array = NDArray[np.float64]
+
+#: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
+DIFFUSE = (1.0, 1.0, 0.5)
+
+
+def signals_at(gyro: Array, accel: Array, interp, x: Array,
+                rates: bool) -> tuple[Array, Array, Array, Array | None, Array | None]:
+    """Raw gyro and accel (and, with ``rates``, their time derivatives) through ``interp`` at
+    times ``x``: the arguments of ``correct``."""
+    return (interp(gyro), interp(accel), x, interp.derivative(gyro) if rates else None,
+            interp.derivative(accel) if rates else None)
+
+
+def step_mean(y_nodes: Array, hs: Array, h: Array) -> Array:
+    """(W, m, c) mean over each step of a signal given at the pieces' nodes (Simpson per piece,
+    exact for the cubic on each piece)."""
+    simpson = (y_nodes[..., 0:-1:2, :] + 4.0 * y_nodes[..., 1::2, :] + y_nodes[..., 2::2, :]) / 6.0
+    total = np.einsum("wmp,wmpc->wmc", hs, simpson)
+    return total / np.where(h > 0, h, 1.0)[..., None]
+
+
+def mocap_cov(L: Array, sr2: float, sp2: float) -> Array:
+    """(..., 6, 6) covariance of a residual's mocap noise: attitude noise ``sr2`` per axis
+    (I frame), position noise ``sp2``, and the position error ``-L`` times the attitude noise."""
+    out = np.empty(L.shape[:-2] + (6, 6))
+    Lt = np.swapaxes(L, -1, -2)
+    out[..., 0:3, 0:3] = sr2 * np.eye(3)
+    out[..., 0:3, 3:6] = -sr2 * Lt
+    out[..., 3:6, 0:3] = -sr2 * L
+    out[..., 3:6, 3:6] = sp2 * np.eye(3) + sr2 * L @ Lt
+    return out
+
+
+def predict_covariance(P: Array, Phi: Array, noise: Noise, k: int) -> Array:
+    """Filter covariance through step ``k``: transition plus process noise."""
+    P = Phi @ P @ np.swapaxes(Phi, 1, 2)
+    i15, i3 = np.arange(15), np.arange(3)
+    P[:, i15, i15] += noise.q_diag[:, k]
+    P[:, 3 + i3, 6 + i3] += noise.q_pv[:, k, None]
+    P[:, 6 + i3, 3 + i3] += noise.q_pv[:, k, None]
+    if noise.Qm is not None:
+        P[:, 15:, 15:] += noise.Qm[:, k]
+    return P
+
+
+def likelihood_pass(r: Array, Phi: Array, noise: Noise, wts: Array,
+                     mask: NDArray[np.bool_]) -> Array:
+    """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (no Jacobian)."""
+    W, m1 = mask.shape
+    ns = Phi.shape[-1]
+    corr = ns == 21
+    P = np.zeros((W, ns, ns))
+    for i, d in enumerate(DIFFUSE):
+        P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
+    if corr:
+        P[:, 15:, 15:] = noise.Pm0
+    x = np.zeros((W, ns, 1))
+    chi2 = np.zeros(W)
+    logdet = np.zeros(W)
+    for k in range(m1):
+        if k > 0:
+            x = Phi[:, k - 1] @ x
+            P = predict_covariance(P, Phi[:, k - 1], noise, k - 1)
+        e = r[:, k, :, None] - (x[:, 0:6] + x[:, 15:21] if corr else x[:, 0:6])
+        PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]
+        HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
+        Lc = np.linalg.cholesky(HPHt + noise.Rn[:, k] / wts[:, k, None, None])
+        z = np.linalg.solve(Lc, e)
+        ok = mask[:, k]
+        chi2 += np.where(ok, np.sum(z[..., 0] ** 2, axis=1), 0.0)
+        logdet += np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Lc, axis1=1, axis2=2)), axis=1),
+                           0.0)
+        K = np.linalg.solve(np.swapaxes(Lc, 1, 2), np.linalg.solve(Lc, np.swapaxes(PHt, 1, 2)))
+        K = np.swapaxes(K, 1, 2)  # P H^T S^-1
+        K[~ok] = 0.0
+        x += K @ e
+        P -= K @ np.swapaxes(PHt, 1, 2)
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    return chi2, logdet
+
+
+class Accumulator:
+    """What a filter pass collects per sample and window (Gram matrix, innovations, scores)."""
+
+    def __init__(self, W: int, m: int, p: int, store: bool,
+                 blocks: NDArray[np.int64] | None) -> None:
+        self.p = p
+        self.gram = np.zeros((W, p + 1, p + 1))
+        self.innov = np.zeros((W, m + 1, 6))
+        self.d_raw = np.zeros((W, m + 1))
+        self.q_rot = np.zeros((W, m + 1))
+        self.q_pos = np.zeros((W, m + 1))
+        self.chi2 = np.zeros(W)
+        self.logdet = np.zeros(W)
+        self.raw_J = np.zeros((W, m + 1, 6, p)) if store else None
+        self.whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
+        self.blocks = blocks
+        self.scores = None if blocks is None else np.zeros((W, int(blocks[-1]) + 1, p))
+
+    def add(self, k: int, N: Array, Nw: Array, Li: Array, ok: NDArray[np.bool_]) -> None:
+        p = self.p
+        self.gram += np.swapaxes(Nw, 1, 2) @ Nw
+        e = Nw[:, :, p]
+        self.chi2 += np.sum(e**2, axis=1)
+        self.logdet -= np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)),
+                                                 axis=1), 0.0)
+        self.innov[:, k] = N[:, :, p]
+        self.d_raw[:, k] = np.linalg.norm(e, axis=1)
+        # Li is lower-triangular: the first three whitened components involve only the
+        # attitude innovation and its own covariance block.
+        self.q_rot[:, k] = np.sum(e[:, 0:3] ** 2, axis=1)
+        self.q_pos[:, k] = np.sum(e[:, 3:6] ** 2, axis=1)
+        if self.whitened is not None:
+            self.whitened[:, k] = Nw
+        if self.scores is not None:
+            self.scores[:, self.blocks[k]] += np.einsum("wrp,wr->wp", Nw[:, :, :p], e)
+
+    def result(self, mask: NDArray[np.bool_], raw_r: Array | None,
+               extras: dict[str, Array]) -> EvalOut:
+        self.d_raw[~mask] = 0.0
+        self.innov[~mask] = 0.0
+        return EvalOut(self.gram, self.innov, self.d_raw, self.chi2, self.q_rot, self.q_pos,
+                       self.logdet, self.scores, raw_r, self.raw_J, self.whitened, extras)
+
+
+@dataclass(frozen=True)
+class Noise:
+    q_diag: Array  # (W, m, 15) diagonal process noise per step
+    q_pv: Array  # (W, m) position-velocity cross term
+    Rn: Array  # (W, m+1, 6, 6) white mocap noise of each residual
+    # Correlated mocap noise (states 15:21, in residual coordinates), when modelled:
+    Fm: Array | None = None  # (W, m, 6, 6) its transition per step
+    Qm: Array | None = None  # (W, m, 6, 6) its process noise per step
+    Pm0: Array | None = None  # (W, 6, 6) its stationary covariance at the first sample
