@@ -17,8 +17,10 @@ from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 
 def _check_floor(rep) -> None:
+    # A 60 s session's low-band RMS (about 2 x 2 Hz x 60 s = 240 independent samples) scatters
+    # by about 4.5 % around the floor: 1.12 is three of those.
     for sensor in ("gyro", "accel"):
-        assert rep.final_residuals.ratio(sensor) < 1.05, (
+        assert rep.final_residuals.ratio(sensor) < 1.12, (
             f"{sensor} residual {rep.final_residuals.ratio(sensor):.3f} x the noise floor")
 
 
