@@ -1,0 +1,33 @@
+"""Self-contained HTML reports (inline PNG plots by matplotlib, no external references).
+
+Generic: :func:`write_html` / :func:`render_html` take :class:`Section` lists (tables, figures,
+notes) and a :class:`Provenance`; :func:`prefixed` makes the ids of sections unique when several
+results share one page (e.g. a batch). Per result kind: :func:`calibration_sections`,
+:func:`diagnosis_sections`, :func:`multipos_sections`, :func:`allan_sections`.
+matplotlib is imported only when a figure is drawn.
+"""
+
+from __future__ import annotations
+
+from mocap_calib.report.html.page import (
+    Cell,
+    Figure,
+    InputFile,
+    Notes,
+    Provenance,
+    Section,
+    Table,
+    render_html,
+    write_html,
+)
+from mocap_calib.report.html.sections import (
+    allan_sections,
+    calibration_sections,
+    diagnosis_sections,
+    multipos_sections,
+    prefixed,
+)
+
+__all__ = ["Cell", "Figure", "InputFile", "Notes", "Provenance", "Section", "Table",
+           "render_html", "write_html", "prefixed", "calibration_sections",
+           "diagnosis_sections", "multipos_sections", "allan_sections"]
