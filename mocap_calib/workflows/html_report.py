@@ -131,3 +131,16 @@ def write_calibration_html(path: Path, result: CalibrationResult, inputs: Sequen
            f"{result.session.get('mocap_samples', '?')} mocap poses")
     return write_report(path, "mocap-calib calibration report", sections, inputs, clock, sub,
                         calibration_verdict(result))
+
+
+def write_diagnosis_html(path: Path, report, inputs: Sequence[Path | None],
+                         clock: RunClock) -> Path:
+    """The ``diagnose --html`` page: the steps, then the final calibration's sections."""
+    from mocap_calib.report.html import diagnosis_sections
+
+    sections = diagnosis_sections(report, calibration_extras(report.final))
+    found = report.verdict
+    verdict = (f"diagnosis: {found}", "ok" if found == "none" else "warn")
+    sub = f"start model {report.start_model}, final model {report.final_model}"
+    return write_report(path, "mocap-calib model diagnosis report", sections, inputs, clock, sub,
+                        verdict)

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from mocap_calib.report.html.page import Figure, Notes, Section, Table
+from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
 
 if TYPE_CHECKING:
     from mocap_calib.core.calib.result import CalibrationResult
@@ -15,6 +15,7 @@ if TYPE_CHECKING:
     from mocap_calib.core.intrinsics.noise_result import AllanResult
     from mocap_calib.core.model.types import ImuSamples
     from mocap_calib.report.html.calibration import CalibrationExtras
+    from mocap_calib.report.html.intrinsics import PoseResiduals
 
 
 def calibration_sections(result: CalibrationResult,
@@ -43,17 +44,19 @@ def diagnosis_sections(report: DiagnoseReport,
     signature when there is one, then the final calibration's sections."""
     from mocap_calib.report.html.diagnosis import diagnosis_steps_sections
 
-    final = calibration_sections(report.final, extras)
+    final = rekeyed(calibration_sections(report.final, extras), "final_calibration.")
     for s in final:
         s.title = f"Final calibration: {s.title}"
     return diagnosis_steps_sections(report) + final
 
 
-def multipos_sections(result: MultiposResult, imu: ImuSamples) -> list[Section]:
-    """Intrinsics with 1-sigma, static intervals on the accel norm, per-pose residuals."""
+def multipos_sections(result: MultiposResult, imu: ImuSamples,
+                      residuals: PoseResiduals | None = None) -> list[Section]:
+    """Intrinsics with 1-sigma, static intervals on the accel norm, per-pose residuals
+    (computed by ``workflows.html_intrinsics.pose_residuals``)."""
     from mocap_calib.report.html.intrinsics import multipos_report_sections
 
-    return multipos_report_sections(result, imu)
+    return multipos_report_sections(result, imu, residuals)
 
 
 def allan_sections(result: AllanResult) -> list[Section]:
@@ -72,4 +75,16 @@ def _prefix_block(b: Any, prefix: str) -> Any:
 def prefixed(sections: Sequence[Section], prefix: str) -> list[Section]:
     """Copies of ``sections`` with every element id prefixed (several results on one page)."""
     return [replace(s, id=prefix + s.id, blocks=[_prefix_block(b, prefix) for b in s.blocks])
+            for s in sections]
+
+
+def rekeyed(sections: Sequence[Section], prefix: str) -> list[Section]:
+    """Copies of ``sections`` whose table cells name their file keys under ``prefix`` (a
+    result embedded in another file, e.g. a diagnosis report's ``final_calibration``)."""
+    def cells(t: Table) -> Table:
+        rows = [[replace(c, key=prefix + c.key) if isinstance(c, Cell) and c.key is not None
+                 else c for c in row] for row in t.rows]
+        return replace(t, rows=rows)
+
+    return [replace(s, blocks=[cells(b) if isinstance(b, Table) else b for b in s.blocks])
             for s in sections]

@@ -27,8 +27,8 @@ def num(key: str, v: Any, scale: float = 1.0, sigma: float | None = None,
     """A numeric cell for the file's value ``v`` at ``key``, shown times ``scale``."""
     if v is None:
         return Cell("-", key, "null", scale)
-    if isinstance(v, bool):
-        return Cell(str(v).lower(), key, str(v).lower())
+    if isinstance(v, (bool, np.bool_)):
+        return Cell(str(bool(v)).lower(), key, str(bool(v)).lower())
     if isinstance(v, str):
         return Cell(v, key, v)
     x = float(v) * scale
@@ -69,6 +69,6 @@ def kv_rows(d: Mapping[str, Any], prefix: str, digits: int = 4) -> list[list[str
     rows: list[list[str | Cell]] = []
     for key, v in flat(d, prefix):
         label = key[len(prefix) + 1:] if key.startswith(prefix + ".") else key
-        rows.append([label, num(key, v if isinstance(v, (int, float, bool, str)) or v is None
-                                else str(v), digits=digits)])
+        plain = isinstance(v, (int, float, bool, str, np.bool_, np.number)) or v is None
+        rows.append([label, num(key, v if plain else str(v), digits=digits)])
     return rows
