@@ -12,7 +12,7 @@ from collections.abc import Iterable
 from datetime import datetime
 from pathlib import Path
 
-from mocap_calib import __version__
+import mocap_calib
 from mocap_calib.report.html.page import InputFile, Provenance
 
 #: The command line as the CLI received it (set by ``cli.main``); None: use ``sys.argv``.
@@ -82,7 +82,7 @@ def provenance(paths: Iterable[Path | str | None], clock: RunClock) -> Provenanc
     import numpy
 
     return Provenance(
-        tool=f"mocap-calib {__version__}", command=command_line(), inputs=input_files(paths),
+        tool=f"mocap-calib {mocap_calib.__version__}", command=command_line(), inputs=input_files(paths),
         started=clock.started, seconds=clock.seconds(),
         extra=[("python", platform.python_version()), ("numpy", numpy.__version__),
                ("platform", platform.platform(terse=True))])

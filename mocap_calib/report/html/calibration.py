@@ -62,14 +62,14 @@ class CalibrationExtras:
 
 #: Rows of the result table: (label, key, sigma key, shown unit, scale, sigma scale).
 _PARAMS = (
-    ("gyro_bias", "gyro_bias", "sigma.gyro_bias", "rad/s", 1.0, 1.0),
-    ("accel_bias", "accel_bias", "sigma.accel_bias", "m/s^2", 1.0, 1.0),
-    ("R_MI quaternion (wxyz)", "T_marker_imu.rotation_wxyz", None, "-", 1.0, 1.0),
-    ("R_MI rotation (1-sigma per axis)", None, "sigma.rotation", "deg", 1.0, DEG),
-    ("p_MI", "T_marker_imu.translation", "sigma.translation", "mm", 1e3, 1e3),
-    ("gravity_in_mocap (1-sigma: tilt)", "gravity_in_mocap", "sigma.gravity_in_mocap", "- / deg",
+    ("gyro_bias", "gyro_bias", "sigma/gyro_bias", "rad/s", 1.0, 1.0),
+    ("accel_bias", "accel_bias", "sigma/accel_bias", "m/s^2", 1.0, 1.0),
+    ("R_MI quaternion (wxyz)", "T_marker_imu/rotation_wxyz", None, "-", 1.0, 1.0),
+    ("R_MI rotation (1-sigma per axis)", None, "sigma/rotation", "deg", 1.0, DEG),
+    ("p_MI", "T_marker_imu/translation", "sigma/translation", "mm", 1e3, 1e3),
+    ("gravity_in_mocap (1-sigma: tilt)", "gravity_in_mocap", "sigma/gravity_in_mocap", "- / deg",
      1.0, DEG),
-    ("time_offset t_d", "time_offset", "sigma.time_offset", "ms", 1e3, 1e3),
+    ("time_offset t_d", "time_offset", "sigma/time_offset", "ms", 1e3, 1e3),
 )
 
 
@@ -90,12 +90,12 @@ def _param_rows(d: dict[str, Any]) -> list[list[str | Cell]]:
         for p, val in rec.items():
             if p == "sigma":
                 continue
-            sig = dict(flat(rec.get("sigma"), f"effects.{name}.sigma"))
-            for j, (key, v) in enumerate(flat(val, f"effects.{name}.{p}")):
-                skey = key.replace(f"effects.{name}.{p}", f"effects.{name}.sigma", 1)
+            sig = dict(flat(rec.get("sigma"), f"effects/{name}/sigma"))
+            for j, (key, v) in enumerate(flat(val, f"effects/{name}/{p}")):
+                skey = key.replace(f"effects/{name}/{p}", f"effects/{name}/sigma", 1)
                 s = sig.get(skey)
-                rows.append([f"{name}.{p}" if j == 0 else "", key.rsplit(".", 1)[-1]
-                             if key != f"effects.{name}.{p}" else "",
+                rows.append([f"{name}.{p}" if j == 0 else "", key.rsplit("/", 1)[-1]
+                             if key != f"effects/{name}/{p}" else "",
                              num(key, v, sigma=s), num(skey, s, digits=2) if skey in sig
                              else Cell(""), ""])
     return rows
@@ -107,11 +107,11 @@ def _stage_rows(d: dict[str, Any]) -> list[list[str | Cell]]:
         unit, k = plots.SHOWN_UNIT.get(st["unit"], (st["unit"], 1.0))
         for a in range(3):
             rows.append([st["name"] if a == 0 else "", "xyz"[a],
-                         num(f"stages.{i}.rms_before.{a}", st["rms_before"][a], k, digits=4),
-                         num(f"stages.{i}.rms_after.{a}", st["rms_after"][a], k, digits=4), unit,
-                         num(f"stages.{i}.n_factors", st["n_factors"]) if a == 0 else "",
-                         num(f"stages.{i}.outliers", st["outliers"]) if a == 0 else "",
-                         num(f"stages.{i}.chi2_per_dof", st["chi2_per_dof"], digits=4)
+                         num(f"stages/{i}/rms_before/{a}", st["rms_before"][a], k, digits=4),
+                         num(f"stages/{i}/rms_after/{a}", st["rms_after"][a], k, digits=4), unit,
+                         num(f"stages/{i}/n_factors", st["n_factors"]) if a == 0 else "",
+                         num(f"stages/{i}/outliers", st["outliers"]) if a == 0 else "",
+                         num(f"stages/{i}/chi2_per_dof", st["chi2_per_dof"], digits=4)
                          if a == 0 else ""])
     return rows
 
@@ -148,19 +148,19 @@ def _consistency_blocks(d: dict[str, Any], r: CalibrationResult) -> list[Any]:
         return [f"Consistency: {cons.get('note', 'not computed')}"]
     rows: list[list[str | Cell]] = []
     for i, s in enumerate(segs):
-        p = f"consistency.segments.{i}"
+        p = f"consistency/segments/{i}"
         sg = s.get("sigma", {})
-        rows.append([str(i + 1), num(f"{p}.start_s", s["start_s"], digits=6),
-                     num(f"{p}.end_s", s["end_s"], digits=6),
-                     num(f"{p}.time_offset", s.get("time_offset"), 1e3,
+        rows.append([str(i + 1), num(f"{p}/start_s", s["start_s"], digits=6),
+                     num(f"{p}/end_s", s["end_s"], digits=6),
+                     num(f"{p}/time_offset", s.get("time_offset"), 1e3,
                          sg.get("time_offset")),
-                     num(f"{p}.sigma.time_offset", sg.get("time_offset"), 1e3, digits=2),
-                     *[num(f"{p}.translation.{a}", s["translation"][a], 1e3,
+                     num(f"{p}/sigma/time_offset", sg.get("time_offset"), 1e3, digits=2),
+                     *[num(f"{p}/translation/{a}", s["translation"][a], 1e3,
                            sg.get("translation", [None] * 3)[a]) for a in range(3)]])
     summary = []
     for what in ("max_pairwise_z", "birge_ratio", "sigma_inflation"):
         for k, v in (cons.get(what) or {}).items():
-            summary.append([what, k, num(f"consistency.{what}.{k}", v, digits=4)])
+            summary.append([what, k, num(f"consistency/{what}/{k}", v, digits=4)])
     full = {"time_offset": r.time_offset,
             "translation": None if r.translation is None else list(r.translation)}
     png = plots.segments_png(segs, full) if segs and "translation" in segs[0] else None
@@ -179,8 +179,8 @@ def checks_section(r: CalibrationResult, d: dict[str, Any]) -> Section:
     pl = d.get("plausibility") or {}
     blocks: list[Any] = [Notes("checks-lines", checks_lines(r) or ["no checks recorded"])]
     if pl:
-        rows = [["verdict", num("plausibility.verdict", pl.get("verdict"))]]
-        rows += kv_rows(pl.get("figures") or {}, "plausibility.figures")
+        rows = [["verdict", num("plausibility/verdict", pl.get("verdict"))]]
+        rows += kv_rows(pl.get("figures") or {}, "plausibility/figures")
         blocks.append(Table("plausibility-table", ("check", "value"), rows,
                             "Plausibility: physical checks"))
         if pl.get("failed"):
@@ -192,7 +192,7 @@ def checks_section(r: CalibrationResult, d: dict[str, Any]) -> Section:
     for what in ("moved_sigmas", "moved_statistical_sigmas"):
         for factor, moved in (sens.get(what) or {}).items():
             for k, v in moved.items():
-                rows2.append([what, factor, k, num(f"sensitivity.{what}.{factor}.{k}", v,
+                rows2.append([what, factor, k, num(f"sensitivity/{what}/{factor}/{k}", v,
                                                    digits=3)])
     if rows2:
         blocks.append(Table("sensitivity-table", ("figure", "noise densities", "parameter",
@@ -207,7 +207,7 @@ def clock_section(r: CalibrationResult, d: dict[str, Any]) -> Section:
     c = d.get("clock") or {}
     if not c:
         return Section("sec-clock", "Clock search", ["No search: the clock offset was given."])
-    rows = [[k, num(f"clock.{k}", c.get(k), digits=8 if "offset" in k else 4)]
+    rows = [[k, num(f"clock/{k}", c.get(k), digits=8 if "offset" in k else 4)]
             for k in ("coarse_time_offset", "peak_z", "margin_z", "second_best_time_offset",
                       "fine_time_offset") if k in c]
     rows += [[f"candidate {i + 1}", Cell(f"t_d {x['time_offset']:.6g} s, z {x['z']:.4g}")]

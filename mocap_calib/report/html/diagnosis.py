@@ -113,12 +113,12 @@ def unexplained_png(u: Mapping[str, Any]) -> bytes | None:
 def _step_rows(steps: list[dict[str, Any]]) -> list[list[str | Cell]]:
     rows: list[list[str | Cell]] = []
     for i, s in enumerate(steps):
-        p = f"steps.{i}"
+        p = f"steps/{i}"
         best = (s.get("candidates") or [{}])[0]
         rows.append([str(i), s["model"],
-                     num(f"{p}.residuals.gyro_ratio", s["residuals"]["gyro_ratio"], digits=4),
-                     num(f"{p}.residuals.accel_ratio", s["residuals"]["accel_ratio"], digits=4),
-                     num(f"{p}.chi2", s["chi2"], digits=8), num(f"{p}.dof", s["dof"]),
+                     num(f"{p}/residuals/gyro_ratio", s["residuals"]["gyro_ratio"], digits=4),
+                     num(f"{p}/residuals/accel_ratio", s["residuals"]["accel_ratio"], digits=4),
+                     num(f"{p}/chi2", s["chi2"], digits=8), num(f"{p}/dof", s["dof"]),
                      (s.get("added") or {}).get("effect") or "-",
                      best.get("effect", "-")])
     return rows
@@ -128,13 +128,13 @@ def _candidate_rows(steps: list[dict[str, Any]]) -> list[list[str | Cell]]:
     rows: list[list[str | Cell]] = []
     for i, s in enumerate(steps):
         for j, c in enumerate(s.get("candidates") or []):
-            p = f"steps.{i}.candidates.{j}"
-            rows.append([str(i + 1) if j == 0 else "", c["effect"], num(f"{p}.dof", c["dof"]),
-                         num(f"{p}.statistic", c["statistic"], digits=6),
-                         num(f"{p}.log10_p", c["log10_p"], digits=5),
-                         num(f"{p}.noise_scale", c["noise_scale"], digits=4),
-                         num(f"{p}.residual_drop", c["residual_drop"], digits=4),
-                         num(f"{p}.significant", c["significant"])])
+            p = f"steps/{i}/candidates/{j}"
+            rows.append([str(i + 1) if j == 0 else "", c["effect"], num(f"{p}/dof", c["dof"]),
+                         num(f"{p}/statistic", c["statistic"], digits=6),
+                         num(f"{p}/log10_p", c["log10_p"], digits=5),
+                         num(f"{p}/noise_scale", c["noise_scale"], digits=4),
+                         num(f"{p}/residual_drop", c["residual_drop"], digits=4),
+                         num(f"{p}/significant", c["significant"])])
     return rows
 
 

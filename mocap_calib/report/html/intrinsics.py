@@ -73,12 +73,12 @@ def _matrix_rows(d: dict[str, Any], names: tuple[str, ...]) -> list[list[str | C
     rows: list[list[str | Cell]] = []
     for name in names:
         vals = list(flat(get(d, name), name))
-        sigs = dict(flat(get(d, f"sigma.{name}"), f"sigma.{name}"))
+        sigs = dict(flat(get(d, f"sigma/{name}"), f"sigma/{name}"))
         for j, (key, v) in enumerate(vals):
-            skey = f"sigma.{key}"
+            skey = f"sigma/{key}"
             s = sigs.get(skey)
             idx = key[len(name) + 1:]
-            rows.append([name if j == 0 else "", idx.replace(".", ","), num(key, v, sigma=s),
+            rows.append([name if j == 0 else "", idx.replace("/", ","), num(key, v, sigma=s),
                          num(skey, s, digits=2) if skey in sigs else Cell("")])
     return rows
 
@@ -120,7 +120,7 @@ def multipos_report_sections(result: MultiposResult, imu: ImuSamples,
             f"per rotation (RMS {gyr_rms:.6g} rad)", pose_png(residuals),
             data={"accel-rms-mps2": repr(acc_rms), "gyro-rms-rad": repr(gyr_rms),
                   "poses": str(len(residuals.accel))}))
-    scan = [[num(f"diagnostics.threshold_scan.{i}.{k}", e.get(k), digits=6)
+    scan = [[num(f"diagnostics/threshold_scan/{i}/{k}", e.get(k), digits=6)
              for k in ("k", "n_intervals", "chi2")]
             for i, e in enumerate(d["diagnostics"].get("threshold_scan") or [])]
     if scan:
@@ -169,16 +169,16 @@ def allan_report_sections(result: AllanResult) -> list[Section]:
         pa = d["per_axis"][s]
         _, nu, ku = _UNITS[s]
         for i in range(3):
-            p = f"per_axis.{s}"
+            p = f"per_axis/{s}"
             rows.append([s if i == 0 else "", "xyz"[i],
-                         num(f"{p}.noise_density.{i}", pa["noise_density"][i],
+                         num(f"{p}/noise_density/{i}", pa["noise_density"][i],
                              sigma=pa["noise_density_sigma"][i]),
-                         num(f"{p}.noise_density_sigma.{i}", pa["noise_density_sigma"][i],
+                         num(f"{p}/noise_density_sigma/{i}", pa["noise_density_sigma"][i],
                              digits=2),
-                         num(f"{p}.random_walk.{i}", pa["random_walk"][i],
+                         num(f"{p}/random_walk/{i}", pa["random_walk"][i],
                              sigma=pa["random_walk_sigma"][i]),
-                         num(f"{p}.random_walk_sigma.{i}", pa["random_walk_sigma"][i], digits=2),
-                         num(f"{p}.bias_instability.{i}", pa["bias_instability"][i], digits=4),
+                         num(f"{p}/random_walk_sigma/{i}", pa["random_walk_sigma"][i], digits=2),
+                         num(f"{p}/bias_instability/{i}", pa["bias_instability"][i], digits=4),
                          f"{nu}; {ku}"])
     kalibr = [[k, num(k, d[k], digits=6)] for k in (
         "gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_noise_density",

@@ -2,8 +2,8 @@
 
 Everything is inline (CSS, images as ``data:`` URIs), so the file opens offline and makes no
 network request. Numbers that come from a result file carry ``data-key`` (the key path in the
-YAML, dots between keys and list indices) and ``data-value`` (the value at full precision), so
-a reader, or a test, can check the page against the file.
+YAML, ``/`` between keys and list indices, as in a JSON pointer) and ``data-value`` (the value
+at full precision), so a reader, or a test, can check the page against the file.
 """
 
 from __future__ import annotations

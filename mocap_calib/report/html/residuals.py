@@ -98,7 +98,9 @@ def trajectory_section(r: CalibrationResult, extras: CalibrationExtras) -> Secti
                f"{1e3 * s.gap:.0f} ms, {len(rem)} removed spikes; IMU dead-reckoning drift after "
                f"2 s per segment{drift}",
                plots.gaps_png(s.tau, gaps, rem, dr_t, before, after),
-               data={"gaps": str(len(gaps)), "removed-spikes": str(len(rem))}),
+               data={"gaps": str(len(gaps)), "removed-spikes": str(len(rem)),
+                     "gap-starts-s": ",".join(f"{a:.3f}" for a in gaps[:, 0]),
+                     "gap-ends-s": ",".join(f"{b:.3f}" for b in gaps[:, 1])}),
     ]
     if len(gaps):
         rows = [[f"{a:.3f}", f"{b:.3f}", f"{1e3 * (b - a):.0f}"] for a, b in gaps[:50]]

@@ -44,7 +44,7 @@ def diagnosis_sections(report: DiagnoseReport,
     signature when there is one, then the final calibration's sections."""
     from mocap_calib.report.html.diagnosis import diagnosis_steps_sections
 
-    final = rekeyed(calibration_sections(report.final, extras), "final_calibration.")
+    final = rekeyed(calibration_sections(report.final, extras), "final_calibration/")
     for s in final:
         s.title = f"Final calibration: {s.title}"
     return diagnosis_steps_sections(report) + final

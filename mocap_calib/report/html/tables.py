@@ -38,21 +38,21 @@ def num(key: str, v: Any, scale: float = 1.0, sigma: float | None = None,
 
 
 def flat(value: Any, key: str) -> Iterator[tuple[str, Any]]:
-    """(key path, scalar) for every scalar in nested lists/dicts, e.g. ``a.0.1``."""
+    """(key path, scalar) for every scalar in nested lists/dicts, e.g. ``a/0/1``."""
     if isinstance(value, Mapping):
         for k, v in value.items():
-            yield from flat(v, f"{key}.{k}")
+            yield from flat(v, f"{key}/{k}")
     elif isinstance(value, (list, tuple)):
         for i, v in enumerate(value):
-            yield from flat(v, f"{key}.{i}")
+            yield from flat(v, f"{key}/{i}")
     else:
         yield key, value
 
 
 def get(d: Mapping[str, Any], key: str) -> Any:
-    """The value at a dotted key path (list indices as numbers), or None."""
+    """The value at a key path (``/`` between keys and list indices), or None."""
     cur: Any = d
-    for part in key.split("."):
+    for part in key.split("/"):
         if isinstance(cur, Mapping):
             cur = cur.get(part)
         elif isinstance(cur, (list, tuple)) and part.lstrip("-").isdigit():
@@ -68,7 +68,7 @@ def kv_rows(d: Mapping[str, Any], prefix: str, digits: int = 4) -> list[list[str
     """One row per scalar of a nested dict: (key, value)."""
     rows: list[list[str | Cell]] = []
     for key, v in flat(d, prefix):
-        label = key[len(prefix) + 1:] if key.startswith(prefix + ".") else key
+        label = key[len(prefix) + 1:] if key.startswith(prefix + "/") else key
         plain = isinstance(v, (int, float, bool, str, np.bool_, np.number)) or v is None
         rows.append([label, num(key, v if plain else str(v), digits=digits)])
     return rows
