@@ -82,7 +82,7 @@ def provenance(paths: Iterable[Path | str | None], clock: RunClock) -> Provenanc
     import numpy
 
     return Provenance(
-        tool=f"mocap-calib {mocap_calib.__version__}", command=command_line(), inputs=input_files(paths),
-        started=clock.started, seconds=clock.seconds(),
+        tool=f"mocap-calib {mocap_calib.__version__}", command=command_line(),
+        inputs=input_files(paths), started=clock.started, seconds=clock.seconds(),
         extra=[("python", platform.python_version()), ("numpy", numpy.__version__),
                ("platform", platform.platform(terse=True))])
