@@ -15,6 +15,7 @@ from mocap_calib.report.html.page import (
     InputFile,
     Notes,
     Provenance,
+    Row,
     Section,
     Table,
     render_html,
@@ -28,6 +29,6 @@ from mocap_calib.report.html.sections import (
     prefixed,
 )
 
-__all__ = ["Cell", "Figure", "InputFile", "Notes", "Provenance", "Section", "Table",
+__all__ = ["Cell", "Figure", "InputFile", "Notes", "Provenance", "Row", "Section", "Table",
            "render_html", "write_html", "prefixed", "calibration_sections",
            "diagnosis_sections", "multipos_sections", "allan_sections"]

@@ -19,7 +19,7 @@ from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.diagnosis.dead_reckoning import DeadReckoning
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis
 from mocap_calib.report.html import calib_plots as plots
-from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
+from mocap_calib.report.html.page import Cell, Figure, Notes, Row, Section, Table
 from mocap_calib.report.html.tables import flat, get, kv_rows, num
 from mocap_calib.report.text import checks_lines
 
@@ -106,9 +106,9 @@ def _stage_rows(d: dict[str, Any]) -> list[list[str | Cell]]:
     for i, st in enumerate(d.get("stages", [])):
         unit, k = plots.SHOWN_UNIT.get(st["unit"], (st["unit"], 1.0))
         for a in range(3):
-            rows.append([st["name"] if a == 0 else "", "xyz"[a],
+            rows.append([f"{st['name']} ({unit})" if a == 0 else "", "xyz"[a],
                          num(f"stages/{i}/rms_before/{a}", st["rms_before"][a], k, digits=4),
-                         num(f"stages/{i}/rms_after/{a}", st["rms_after"][a], k, digits=4), unit,
+                         num(f"stages/{i}/rms_after/{a}", st["rms_after"][a], k, digits=4),
                          num(f"stages/{i}/n_factors", st["n_factors"]) if a == 0 else "",
                          num(f"stages/{i}/outliers", st["outliers"]) if a == 0 else "",
                          num(f"stages/{i}/chi2_per_dof", st["chi2_per_dof"], digits=4)
@@ -126,13 +126,13 @@ def _verdict(d: dict[str, Any]) -> tuple[str, str] | None:
 
 def result_section(r: CalibrationResult, d: dict[str, Any]) -> Section:
     """The estimates with 1-sigma, the stages, warnings and unobservable parameters."""
-    blocks: list[Any] = [
+    blocks: list[Any] = [Row([
         Table("result-table", ("parameter", "axis", "estimate", "1-sigma", "unit"),
               _param_rows(d), f"Calibration ({d.get('model')}), 1-sigma uncertainties"),
-        Table("stages-table", ("stage", "axis", "RMS before", "RMS after", "unit", "factors",
+        Table("stages-table", ("stage", "axis", "RMS before", "RMS after", "factors",
                                "outliers", "chi2/dof"), _stage_rows(d),
               "Residual RMS per stage"),
-    ]
+    ])]
     if r.unobservable:
         blocks.append(Notes("unobservable", [f"{k}: {v}" for k, v in r.unobservable.items()],
                             "warning"))
@@ -169,7 +169,7 @@ def _consistency_blocks(d: dict[str, Any], r: CalibrationResult) -> list[Any]:
                                         "p_MI z (mm)"), rows,
                   "Independent segments, each calibrated on its own"),
             Table("consistency-summary", ("figure", "parameter", "value"), summary,
-                  "Agreement of the segments (|difference| / combined sigma; Birge ratio)"),
+                  "Agreement of the segments"),
             Figure("fig-consistency", "Segments: t_d and p_MI with 1-sigma against the whole "
                    "session's estimate", png)]
 
@@ -178,28 +178,41 @@ def checks_section(r: CalibrationResult, d: dict[str, Any]) -> Section:
     """Plausibility verdict, segment consistency, sensitivity to the noise densities."""
     pl = d.get("plausibility") or {}
     blocks: list[Any] = [Notes("checks-lines", checks_lines(r) or ["no checks recorded"])]
+    if pl.get("failed"):
+        blocks.append(Notes("plausibility-failed", [f"FAILED: {x}" for x in pl["failed"]],
+                            "warning"))
+    row: list[Any] = []
     if pl:
         rows = [["verdict", num("plausibility/verdict", pl.get("verdict"))]]
         rows += kv_rows(pl.get("figures") or {}, "plausibility/figures")
-        blocks.append(Table("plausibility-table", ("check", "value"), rows,
-                            "Plausibility: physical checks"))
-        if pl.get("failed"):
-            blocks.append(Notes("plausibility-failed", [f"FAILED: {x}" for x in pl["failed"]],
-                                "warning"))
-    blocks += _consistency_blocks(d, r)
-    sens = d.get("sensitivity") or {}
-    rows2: list[list[str | Cell]] = []
-    for what in ("moved_sigmas", "moved_statistical_sigmas"):
-        for factor, moved in (sens.get(what) or {}).items():
-            for k, v in moved.items():
-                rows2.append([what, factor, k, num(f"sensitivity/{what}/{factor}/{k}", v,
-                                                   digits=3)])
-    if rows2:
-        blocks.append(Table("sensitivity-table", ("figure", "noise densities", "parameter",
-                                                  "moved (sigmas)"), rows2,
-                            "Sensitivity: how far the estimates move when the IMU noise "
-                            "densities are scaled"))
+        row.append(Table("plausibility-table", ("check", "value"), rows,
+                         "Plausibility: physical checks"))
+    cons = _consistency_blocks(d, r)
+    row += [b for b in cons if isinstance(b, Table) and b.id == "consistency-summary"]
+    sens = _sensitivity_table(d.get("sensitivity") or {})
+    if sens is not None:
+        row.append(sens)
+    blocks.append(Row(row))
+    blocks += [b for b in cons if not (isinstance(b, Table) and b.id == "consistency-summary")]
     return Section("sec-checks", "Checks: plausibility, consistency, sensitivity", blocks)
+
+
+def _sensitivity_table(sens: dict[str, Any]) -> Table | None:
+    """Per parameter, how many sigmas it moves under each scaling of the noise densities
+    (total and statistical sigmas)."""
+    cols = [(what, f) for what in ("moved_sigmas", "moved_statistical_sigmas")
+            for f in (sens.get(what) or {})]
+    if not cols:
+        return None
+    params = list(dict.fromkeys(k for what, f in cols for k in sens[what][f]))
+    rows: list[list[str | Cell]] = []
+    for k in params:
+        rows.append([k] + [num(f"sensitivity/{what}/{f}/{k}", sens[what][f][k], digits=3)
+                           if k in sens[what][f] else "" for what, f in cols])
+    head = ["parameter"] + [f"{f} ({'total' if what == 'moved_sigmas' else 'statistical'})"
+                            for what, f in cols]
+    return Table("sensitivity-table", head, rows, "Sensitivity: sigmas moved when the IMU "
+                 "noise densities are scaled")
 
 
 def clock_section(r: CalibrationResult, d: dict[str, Any]) -> Section:

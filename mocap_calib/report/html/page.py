@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["Cell", "Table", "Figure", "Notes", "Section", "InputFile", "Provenance",
+__all__ = ["Cell", "Table", "Figure", "Notes", "Row", "Section", "InputFile", "Provenance",
            "render_html", "write_html"]
 
 
@@ -74,10 +74,17 @@ class Notes:
 
 
 @dataclass
+class Row:
+    """Blocks side by side (wrapping on narrow screens)."""
+
+    blocks: list[Table | Figure | Notes | str]
+
+
+@dataclass
 class Section:
     id: str
     title: str
-    blocks: list[Table | Figure | Notes | str] = field(default_factory=list)
+    blocks: list[Table | Figure | Notes | Row | str] = field(default_factory=list)
     intro: str = ""
 
 
@@ -112,7 +119,7 @@ class Provenance:
 _CSS = """
 body{font-family:system-ui,-apple-system,'Segoe UI',Helvetica,Arial,sans-serif;margin:0;
  color:#1d1d1f;background:#fafafa;line-height:1.4}
-main{max-width:1180px;margin:0 auto;padding:16px 24px 40px}
+main{max-width:1240px;margin:0 auto;padding:16px 24px 40px}
 h1{font-size:1.6em;margin:.4em 0 .2em}h2{font-size:1.25em;border-bottom:2px solid #d0d7de;
  padding-bottom:.2em;margin-top:1.6em}
 nav{font-size:.9em;margin:.4em 0 1em}nav a{margin-right:1em;color:#0b5cad;text-decoration:none}
@@ -129,6 +136,7 @@ ul.notes{padding-left:1.2em;font-size:.9em}ul.warning li{color:#8a4b00}ul.ok li{
 .verdict.ok{background:#dafbe1;color:#1a7f37}.verdict.bad{background:#ffebe9;color:#a40e26}
 .verdict.warn{background:#fff8c5;color:#7d4e00}
 footer{font-size:.85em;color:#444}
+.row{display:flex;flex-wrap:wrap;gap:0 28px;align-items:flex-start}
 """
 
 
@@ -180,7 +188,9 @@ def _notes(n: Notes) -> str:
     return f'<ul id="{_attr(n.id)}" class="notes {_attr(n.kind)}">{items}</ul>'
 
 
-def _block(b: Table | Figure | Notes | str) -> str:
+def _block(b: Table | Figure | Notes | Row | str) -> str:
+    if isinstance(b, Row):
+        return '<div class="row">' + "".join(_block(x) for x in b.blocks) + "</div>"
     if isinstance(b, Table):
         return _table(b)
     if isinstance(b, Figure):

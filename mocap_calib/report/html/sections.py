@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
+from mocap_calib.report.html.page import Cell, Figure, Notes, Row, Section, Table
 
 if TYPE_CHECKING:
     from mocap_calib.core.calib.result import CalibrationResult
@@ -69,6 +69,8 @@ def allan_sections(result: AllanResult) -> list[Section]:
 def _prefix_block(b: Any, prefix: str) -> Any:
     if isinstance(b, (Figure, Table, Notes)):
         return replace(b, id=prefix + b.id)
+    if isinstance(b, Row):
+        return Row([_prefix_block(x, prefix) for x in b.blocks])
     return b
 
 
@@ -81,10 +83,13 @@ def prefixed(sections: Sequence[Section], prefix: str) -> list[Section]:
 def rekeyed(sections: Sequence[Section], prefix: str) -> list[Section]:
     """Copies of ``sections`` whose table cells name their file keys under ``prefix`` (a
     result embedded in another file, e.g. a diagnosis report's ``final_calibration``)."""
-    def cells(t: Table) -> Table:
+    def block(b: Any) -> Any:
+        if isinstance(b, Row):
+            return Row([block(x) for x in b.blocks])
+        if not isinstance(b, Table):
+            return b
         rows = [[replace(c, key=prefix + c.key) if isinstance(c, Cell) and c.key is not None
-                 else c for c in row] for row in t.rows]
-        return replace(t, rows=rows)
+                 else c for c in row] for row in b.rows]
+        return replace(b, rows=rows)
 
-    return [replace(s, blocks=[cells(b) if isinstance(b, Table) else b for b in s.blocks])
-            for s in sections]
+    return [replace(s, blocks=[block(b) for b in s.blocks]) for s in sections]
