@@ -392,3 +392,33 @@ def test_allan_page_with_the_fitted_lines(tmp_path: Path) -> None:
     nd = [float(x) for x in page.ids["fig-allan-gyroscope"]["data-noise-density"].split(",")]
     assert nd == d["per_axis"]["gyroscope"]["noise_density"]
     assert all(math.isfinite(x) for x in nd)
+
+
+# --------------------------------------------------------------------------------------------
+# batch (the page the batch command writes through workflows.html_report.write_batch_report)
+# --------------------------------------------------------------------------------------------
+
+def test_batch_page_lists_every_session_with_its_result(
+        calibrated: tuple[dict[str, Any], str, Path], session: Path, tmp_path: Path) -> None:
+    from mocap_calib.workflows.html_report import write_batch_report
+
+    d, _, _ = calibrated
+    calib = session.parent / "calib.yaml"
+    for sid in ("a", "b"):
+        (tmp_path / sid).mkdir()
+        shutil.copy(calib, tmp_path / sid / "calib.yaml")
+    sessions = [{"id": "a", "imu_id": "imu1", "date": "2026-01-01", "status": "ok",
+                 "result": "a/calib.yaml", "seconds": 5.1},
+                {"id": "b", "imu_id": "imu1", "date": "2026-02-01", "status": "ok",
+                 "result": "b/calib.yaml", "seconds": 5.3},
+                {"id": "c", "imu_id": "imu2", "date": "2026-02-01", "status": "failed",
+                 "error": "c/imu.csv: no such file"}]
+    fleet = {"imus": {"imu1": {"sessions": [{"id": "a"}, {"id": "b"}], "latest_date": "2026-02-01",
+                               "outliers": [{"id": "b", "block": "p_MI", "z": 4.2}]}}}
+    out = write_batch_report(tmp_path / "batch.html", sessions, fleet)
+    text = out.read_text(encoding="utf-8")
+    page = check_page(text, d, ("fig-batch-trends", "s0-fig-consistency", "s1-fig-consistency"),
+                      ["time_offset", "gyro_bias/0", "plausibility/verdict"])
+    assert page.ids["fig-batch-trends"]["data-sessions"] == "2"
+    assert "c/imu.csv: no such file" in text and "b p_MI z 4.2" in text
+    assert f"{1e3 * d['time_offset']:.3f}" in text

@@ -144,3 +144,32 @@ def write_diagnosis_html(path: Path, report, inputs: Sequence[Path | None],
     sub = f"start model {report.start_model}, final model {report.final_model}"
     return write_report(path, "mocap-calib model diagnosis report", sections, inputs, clock, sub,
                         verdict)
+
+
+def write_batch_report(path: Path | str, sessions: Sequence[dict], fleet: dict | None,
+                       clock: RunClock | None = None) -> Path:
+    """The ``batch --html`` page: ``sessions`` are the batch file's entries (``result``: the
+    session's result YAML relative to the page's folder), ``fleet`` the fleet summary's plain
+    data (None: none). Results that cannot be read are listed without numbers."""
+    from mocap_calib.errors import CalibrationError
+    from mocap_calib.io.yaml_io import load_result
+    from mocap_calib.report.html import batch_sections
+
+    path = Path(path)
+    results, files = {}, []
+    for s in sessions:
+        rel = s.get("result")
+        if not rel:
+            continue
+        f = path.parent / rel
+        try:
+            results[str(s.get("id"))] = load_result(f)
+            files.append(f)
+        except (CalibrationError, OSError):
+            continue
+    n = len(sessions)
+    sub = f"{n} sessions, {len(results)} results, {n - len(results)} without"
+    verdict = ("all sessions calibrated", "ok") if len(results) == n else (
+        f"{n - len(results)} of {n} sessions without a result", "warn")
+    return write_report(path, "mocap-calib batch report", batch_sections(sessions, results, fleet),
+                        files, clock or RunClock(), sub, verdict)

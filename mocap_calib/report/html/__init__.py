@@ -2,8 +2,10 @@
 
 Generic: :func:`write_html` / :func:`render_html` take :class:`Section` lists (tables, figures,
 notes) and a :class:`Provenance`; :func:`prefixed` makes the ids of sections unique when several
-results share one page (e.g. a batch). Per result kind: :func:`calibration_sections`,
-:func:`diagnosis_sections`, :func:`multipos_sections`, :func:`allan_sections`.
+results share one page. Per result kind: :func:`calibration_sections`,
+:func:`diagnosis_sections`, :func:`multipos_sections`, :func:`allan_sections`,
+:func:`batch_sections`. The files are read and the figures computed in the workflow layer
+(``mocap_calib.workflows.html_report``, e.g. ``write_batch_report``).
 matplotlib is imported only when a figure is drawn.
 """
 
@@ -23,6 +25,7 @@ from mocap_calib.report.html.page import (
 )
 from mocap_calib.report.html.sections import (
     allan_sections,
+    batch_sections,
     calibration_sections,
     diagnosis_sections,
     multipos_sections,
@@ -31,4 +34,4 @@ from mocap_calib.report.html.sections import (
 
 __all__ = ["Cell", "Figure", "InputFile", "Notes", "Provenance", "Row", "Section", "Table",
            "render_html", "write_html", "prefixed", "calibration_sections",
-           "diagnosis_sections", "multipos_sections", "allan_sections"]
+           "diagnosis_sections", "multipos_sections", "allan_sections", "batch_sections"]

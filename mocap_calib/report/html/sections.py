@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -64,6 +64,19 @@ def allan_sections(result: AllanResult) -> list[Section]:
     from mocap_calib.report.html.intrinsics import allan_report_sections
 
     return allan_report_sections(result)
+
+
+def batch_sections(sessions: Sequence[Mapping[str, Any]],
+                   results: Mapping[str, CalibrationResult],
+                   fleet: Mapping[str, Any] | None = None) -> list[Section]:
+    """A batch page: one row per session (``sessions``: the batch file's entries, with ``id``,
+    ``imu_id``, ``date``, ``status``, ``seconds``, ``error``), the estimates per IMU over the
+    dates, the fleet's outliers (``fleet``: the fleet summary's plain data), then the result
+    and checks of every session with a result (``results`` by session id; ids prefixed
+    ``s<i>-``)."""
+    from mocap_calib.report.html.batch import batch_report_sections
+
+    return batch_report_sections(sessions, results, fleet)
 
 
 def _prefix_block(b: Any, prefix: str) -> Any:
