@@ -174,7 +174,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     s = prepare(imu, mocap, noise=opts.noise)
     notes = _session_notes(s)
     session_info = _session_info(imu, mocap, s)
-    effects0 = {e.name: e.zero() for e in model.units if e.sensor in ("gyro", "accel")}
+    effects0 = {e.name: e.zero() for e in model.units if e.in_effects}
     for pr in opts.priors:
         if pr.block in effects0:
             effects0[pr.block] = np.asarray(pr.value, dtype=float)

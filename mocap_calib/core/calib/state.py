@@ -105,7 +105,7 @@ def state_from_result(result: CalibrationResult, s: PreparedSession) -> ModelSta
     model = Model.parse(result.model)
     effects: dict[str, Array] = {}
     for eff in model.units:
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             value = (result.effects.get(eff.name) or {}).get(eff.param)
             effects[eff.name] = eff.zero() if value is None else eff.theta_from_report(value)
     g_dir = np.asarray(result.gravity_in_mocap, dtype=float)
