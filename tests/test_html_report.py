@@ -334,17 +334,30 @@ def test_diagnosis_page_renders_an_unexplained_signature(
 
     d, _ = diagnosed
     report = DiagnoseReport.from_dict(d)
-    unexplained = {"sensor": "gyro", "axes": "z", "band": "0.5-2 Hz",
-                   "correlations": {"angular_rate": 0.71, "angular_acceleration": -0.12,
-                                    "specific_force": 0.05},
-                   "segment_clock_offsets_s": [0.0049, 0.0051, 0.0062]}
+    # The layout of core/diagnosis/signature.py's unexplained_signature.
+    corr = {sig: {"max_abs_corr": c, "residual_axis": "z", "signal_axis": "z",
+                  "magnitude_corr": 0.5 * c}
+            for sig, c in (("angular_rate", 0.71), ("angular_acceleration", -0.12),
+                           ("specific_force", 0.05))}
+    unexplained = {
+        "gyro": {"ratio_per_axis": [1.1, 0.9, 3.2], "axes_over_floor": ["z"],
+                 "band_most_over_floor": "0.5-2 Hz", "correlation": corr,
+                 "rms_per_time_segment": [0.8, 1.0, 1.3, 0.9, 1.0, 1.0]},
+        "accel": {"ratio_per_axis": [1.0, 1.0, 1.1], "axes_over_floor": [],
+                  "band_most_over_floor": "0-0.5 Hz", "correlation": corr,
+                  "rms_per_time_segment": [1.0, 1.0, 1.0, 1.0, 1.0, 1.0]},
+        "clock_offset_per_segment": {"t_s": [3.3, 10.0, 16.7], "t_d_ms": [4.9, 5.1, 6.2],
+                                     "sigma_ms": [0.1, 0.1, 0.1], "slope_ppm": 98.0,
+                                     "largest_jump_sigmas": 7.8}}
     report.unexplained = unexplained  # type: ignore[attr-defined]
     text = render_html("t", diagnosis_sections(report))
     page = check_page(text, {**d, "unexplained": unexplained},
                       ("fig-diagnose-gap", "fig-unexplained"),
-                      ["unexplained/correlations/angular_rate", "unexplained/sensor",
-                       "unexplained/segment_clock_offsets_s/2"])
+                      ["unexplained/gyro/correlation/angular_rate/max_abs_corr",
+                       "unexplained/gyro/ratio_per_axis/2",
+                       "unexplained/clock_offset_per_segment/t_d_ms/2"])
     assert "sec-unexplained" in page.ids
+    assert "gyro: axes z, band 0.5-2 Hz" in page.captions["fig-unexplained"]
     # Read from a file, the final calibration has no residual series: the page says so.
     assert "fig-clock" not in page.ids and "not available" in text
 

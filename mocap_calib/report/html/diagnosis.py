@@ -66,48 +66,69 @@ def candidates_png(steps: list[dict[str, Any]], threshold: float) -> bytes:
         return to_png(fig)
 
 
-def _numbers(d: Any) -> dict[str, float] | None:
-    if isinstance(d, Mapping) and d and all(isinstance(v, (int, float)) and not
-                                            isinstance(v, bool) for v in d.values()):
-        return {str(k): float(v) for k, v in d.items()}
-    return None
+SIGNALS = ("angular_rate", "angular_acceleration", "specific_force")
+SHORT = {"angular_rate": "rate", "angular_acceleration": "ang. acc.", "specific_force": "force"}
 
 
-def _offsets(v: Any) -> list[float] | None:
-    if isinstance(v, (list, tuple)) and v:
-        if all(isinstance(x, (int, float)) for x in v):
-            return [float(x) for x in v]
-        if all(isinstance(x, Mapping) for x in v):
-            keys = [k for k in v[0] if "offset" in str(k) and isinstance(v[0][k], (int, float))]
-            if keys:
-                return [float(x[keys[0]]) for x in v]
-    return None
+def _corr_panel(ax: Any, u: Mapping[str, Any]) -> bool:
+    """Grouped bars: the strongest axis correlation and the magnitude correlation of each
+    sensor's residual with each signal."""
+    bars = []
+    for sensor in ("gyro", "accel"):
+        corr = (u.get(sensor) or {}).get("correlation") or {}
+        for sig in SIGNALS:
+            c = corr.get(sig) or {}
+            if "max_abs_corr" in c:
+                bars.append((f"{sensor}\n{SHORT[sig]}", float(c["max_abs_corr"]),
+                             float(c.get("magnitude_corr", np.nan)),
+                             f"{c.get('residual_axis', '')}~{c.get('signal_axis', '')}"))
+    if not bars:
+        return False
+    x = np.arange(len(bars))
+    ax.bar(x - 0.2, [b[1] for b in bars], 0.4, color="#1f77b4", label="strongest axis pair")
+    ax.bar(x + 0.2, [b[2] for b in bars], 0.4, color="#ff7f0e", label="magnitudes")
+    for xi, b in zip(x, bars, strict=True):
+        ax.annotate(b[3], (xi - 0.2, b[1]), ha="center", va="bottom", fontsize=6.5)
+    ax.set_xticks(x, [b[0] for b in bars], fontsize=6.5)
+    ax.axhline(0.0, color="k", lw=0.6)
+    ax.set_ylim(-1.05, 1.15)
+    ax.set_title("correlation of the residual with", y=1.0)
+    ax.legend(loc="lower left", fontsize=6.5)
+    return True
+
+
+def _clock_panel(ax: Any, c: Mapping[str, Any]) -> bool:
+    if not c.get("t_s"):
+        ax.text(0.5, 0.5, str(c.get("note", "no clock profile")), ha="center", va="center",
+                transform=ax.transAxes, fontsize=7, wrap=True)
+        ax.set_axis_off()
+        return False
+    ax.errorbar(c["t_s"], c["t_d_ms"], yerr=c.get("sigma_ms"), fmt="o-", ms=3, capsize=3,
+                color="#444")
+    ax.set_xlabel("segment middle (s)")
+    ax.set_title(f"t_d per segment (ms)\nslope {c.get('slope_ppm', 0):g} ppm, largest jump "
+                 f"{c.get('largest_jump_sigmas', 0):g} sigma", y=1.0, fontsize=7.5)
+    return True
 
 
 def unexplained_png(u: Mapping[str, Any]) -> bytes | None:
-    """Correlations of the unexplained residual (bars) and per-segment clock offsets."""
-    corr = next(((k, c) for k, v in u.items() if "corr" in str(k)
-                 and (c := _numbers(v)) is not None), None)
-    offs = next(((k, o) for k, v in u.items() if ("offset" in str(k) or "clock" in str(k))
-                 and (o := _offsets(v)) is not None), None)
-    if corr is None and offs is None:
-        return None
+    """Correlations with rate, angular acceleration and specific force; residual RMS per
+    time segment; clock offset per segment."""
     with styled():
-        fig = new_figure(9.5, 2.6, left=0.08, bottom=0.3, wspace=0.3)
-        axes = fig.subplots(1, 2)
-        if corr is not None:
-            k, c = corr
-            axes[0].bar(range(len(c)), list(c.values()), color="#1f77b4")
-            axes[0].set_xticks(range(len(c)), list(c), rotation=15, ha="right", fontsize=7)
-            axes[0].axhline(0.0, color="k", lw=0.6)
-            axes[0].set_title(k, y=1.0)
-        if offs is not None:
-            k, o = offs
-            axes[1].plot(np.arange(1, len(o) + 1), 1e3 * np.asarray(o), "o-", color="#444")
-            axes[1].set_xlabel("segment")
-            axes[1].set_ylabel("ms")
-            axes[1].set_title(k, y=1.0)
-        return to_png(fig)
+        fig = new_figure(9.5, 3.0, left=0.05, right=0.99, bottom=0.2, top=0.86, wspace=0.25)
+        a1, a2, a3 = fig.subplots(1, 3, width_ratios=[2.2, 1, 1.2])
+        drew = _corr_panel(a1, u)
+        for sensor, color in (("gyro", "#1f77b4"), ("accel", "#d62728")):
+            seg = (u.get(sensor) or {}).get("rms_per_time_segment") or []
+            if seg:
+                a2.plot(np.arange(1, len(seg) + 1), seg, "o-", color=color, ms=3, label=sensor)
+                drew = True
+        a2.axhline(1.0, color="k", lw=0.6)
+        a2.set_xlabel("time segment")
+        a2.set_title("residual RMS per segment\nover the overall RMS", y=1.0, fontsize=7.5)
+        a2.legend(loc="best", fontsize=6.5)
+        drew = _clock_panel(a3, u.get("clock_offset_per_segment") or {}) or drew
+        return to_png(fig) if drew else None
 
 
 def _step_rows(steps: list[dict[str, Any]]) -> list[list[str | Cell]]:
@@ -187,8 +208,13 @@ def diagnosis_steps_sections(report: DiagnoseReport) -> list[Section]:
                                "Signature of the residual no candidate explains")]
         png = unexplained_png(u)
         if png is not None:
-            ub.append(Figure("fig-unexplained", "Unexplained residual: its correlations with "
-                             "angular rate, angular acceleration and specific force, and the "
-                             "clock offset per segment", png))
+            where = "; ".join(f"{k}: axes {', '.join(v.get('axes_over_floor') or []) or '-'}, "
+                              f"band {v.get('band_most_over_floor')}"
+                              for k, v in u.items() if isinstance(v, Mapping)
+                              and "axes_over_floor" in v)
+            ub.append(Figure("fig-unexplained", "Unexplained residual (" + where + "): its "
+                             "correlations with angular rate, angular acceleration and "
+                             "specific force, its RMS per time segment, and the clock offset "
+                             "per segment", png))
         out.append(Section("sec-unexplained", "Unexplained residual", ub))
     return out
