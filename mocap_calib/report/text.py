@@ -170,8 +170,40 @@ def diagnose_table(report) -> str:
         lines.append("")
     lines.append(f"found: {', '.join(report.found) if report.found else 'none'}   "
                  f"(threshold log10 p < {report.threshold_log10_p:.2f})")
+    for x in report.implausible:
+        lines.append(f"implausible (step {x['step']}, not added): {x['reason']}")
+    lines += unexplained_lines(report.unexplained)
     for n in report.notes:
         lines.append(f"note: {n}")
     lines.append("")
     lines.append(summary_table(report.final))
     return "\n".join(lines)
+
+
+def unexplained_lines(u: dict | None) -> list[str]:
+    """The signature of a residual no candidate explains, one line per finding."""
+    if not u:
+        return []
+    out = ["UNEXPLAINED: the residual stays above the noise floor and no plausible candidate "
+           "explains it"]
+    for sensor in ("gyro", "accel"):
+        sg = u.get(sensor) or {}
+        axes = ", ".join(sg.get("axes_over_floor") or []) or "none"
+        corr = sg.get("correlation") or {}
+        best = max(corr.items(), key=lambda kv: abs(kv[1]["max_abs_corr"]), default=None)
+        line = (f"  {sensor}: residual/floor per axis {sg.get('ratio_per_axis')} (axes over: "
+                f"{axes}), most in {sg.get('band_most_over_floor')}")
+        if best is not None:
+            name, c = best
+            line += (f"; correlates with {name.replace('_', ' ')} ({c['max_abs_corr']:+.2f}, "
+                     f"residual {c['residual_axis']} vs {c['signal_axis']})")
+        out.append(line)
+        out.append(f"  {sensor}: RMS per time segment (of the whole) "
+                   f"{sg.get('rms_per_time_segment')}")
+    clock = u.get("clock_offset_per_segment") or {}
+    if "t_d_ms" in clock:
+        out.append(f"  clock offset per segment (ms): {clock['t_d_ms']} (slope "
+                   f"{clock['slope_ppm']} ppm, largest jump {clock['largest_jump_sigmas']} sigma)")
+    elif clock.get("note"):
+        out.append(f"  clock offset per segment: {clock['note']}")
+    return out

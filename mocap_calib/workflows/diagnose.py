@@ -8,8 +8,9 @@ from pathlib import Path
 from mocap_calib.core.calib.pipeline import CalibrationOptions, ProgressFn
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, DiagnoseReport
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, Model
+from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.errors import InputError
-from mocap_calib.io.yaml_io import check_writable, save_yaml
+from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
 from mocap_calib.workflows.provenance import RunClock
 from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
@@ -17,16 +18,19 @@ from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
 
 def diagnose_options(*, start: str = "base", candidates: str | None = None, alpha: float = 0.01,
                      max_steps: int = 4, gravity: float = 9.81,
-                     window: float = 5.0) -> DiagnoseOptions:
-    """Diagnosis options from the command line's values (checked)."""
+                     window: float = 5.0, plausible: Path | None = None) -> DiagnoseOptions:
+    """Diagnosis options from the command line's values (checked; ``plausible``: a file of
+    limits overriding the defaults of docs/diagnosis.md)."""
     if not 0.0 < alpha < 0.5:
         raise InputError(f"--alpha {alpha}: must be between 0 and 0.5, e.g. 0.01")
     if max_steps < 1:
         raise InputError(f"--max-steps {max_steps}: must be at least 1")
     cands = CANONICAL_EFFECTS if candidates is None else Model.parse(candidates).effects
+    limits = PlausibleLimits() if plausible is None else load_plausible(plausible)
     return DiagnoseOptions(start=Model.parse(start), candidates=tuple(cands), alpha=alpha,
-                           max_steps=max_steps,
-                           calibration=CalibrationOptions(gravity=gravity, window=window))
+                           max_steps=max_steps, plausible=limits,
+                           calibration=CalibrationOptions(gravity=gravity, window=window,
+                                                          plausible=limits))
 
 
 def run_diagnosis(spec: InputSpec, options, noise_file: Path | None = None,

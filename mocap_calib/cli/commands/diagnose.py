@@ -61,6 +61,10 @@ def diagnose(
     noise: Annotated[Path | None, typer.Option(
         help="Noise model YAML (Kalibr imu.yaml keys).", show_default=False)] = None,
     window: Annotated[float, typer.Option(help="Length of the position-factor windows, s.")] = 5.0,
+    plausible: Annotated[Path | None, typer.Option(
+        help="YAML file overriding the plausible effect magnitudes (docs/diagnosis.md); an "
+        "effect outside them is listed as implausible, never as found.",
+        show_default=False)] = None,
     pose_source: POSE_SOURCE = "auto",
     columns: COLUMNS = None,
     time_unit: TIME_UNIT = None,
@@ -79,7 +83,8 @@ def diagnose(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
     opts = diagnose_options(start=start, candidates=candidates, alpha=alpha,
-                            max_steps=max_steps, gravity=gravity, window=window)
+                            max_steps=max_steps, gravity=gravity, window=window,
+                            plausible=plausible)
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
                      quat_order, position_unit, imu_topic=imu_topic, mocap_topic=mocap_topic,
                      mocap_frame=mocap_frame, stamp=stamp, mocap_format=mocap_format,

@@ -27,6 +27,7 @@ from mocap_calib.core.calib.stage_position import (
     PositionInit,
     PositionResult,
     Prior,
+    effect_estimate,
     run_position_stage,
 )
 from mocap_calib.core.calib.stage_velocity import VelocityResult, run_velocity_stage
@@ -342,17 +343,12 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     effects: dict[str, dict[str, Any]] = {}
     for name in model.effects:
         eff = EFFECTS[name]
-        if name == "time_offset":
+        if eff.acts_on == "clock":  # the clock offset has its own result key
             continue
-        if name == "gravity_magnitude":
-            v, sg = pos.g_mag, sig("gravity_magnitude")
-            effects[name] = {eff.param: None if name in unob else float(v),
-                             "sigma": None if sg is None else float(sg[0])}
-            continue
-        theta = pos.effects[name]
-        sg = sig(name)
-        effects[name] = {eff.param: None if name in unob else eff.report_value(theta),
-                         "sigma": None if sg is None else eff.report_sigma(sg)}
+        value, sigma = effect_estimate(pos, name, s.clock_shift)
+        effects[name] = {eff.param: None if name in unob else value, "sigma": sigma}
+        if eff.acts_on == "clock_rate" and name not in unob:
+            effects[name]["ppm"] = 1e6 * float(value)
     t_d = pos.delta - s.clock_shift
     sig_td = sig("time_offset")
     solver = {"total_seconds": round(seconds, 3),

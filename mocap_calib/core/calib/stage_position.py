@@ -122,6 +122,27 @@ class PositionResult:
     history: list[dict[str, Any]]
 
 
+def block_value(pos: PositionResult, name: str, clock_shift: float) -> Array:
+    """The parameter vector of an effect at a position-stage solution (the clock offset as
+    ``t_d`` on the raw stamps, ``|g|`` as a 1-vector, the rest from the effect vectors)."""
+    kind = EFFECTS[name].acts_on
+    if kind == "clock":
+        return np.array([pos.delta - clock_shift])
+    if kind == "gravity":
+        return np.array([pos.g_mag])
+    return np.asarray(pos.effects[name], dtype=float)
+
+
+def effect_estimate(pos: PositionResult, name: str,
+                    clock_shift: float) -> tuple[object, object]:
+    """An effect's value and 1-sigma in the result file's form (None if no covariance)."""
+    eff = EFFECTS[name]
+    value = eff.report_value(block_value(pos, name, clock_shift))
+    cov = pos.cov.get(name)
+    sigma = None if cov is None else eff.report_sigma(np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    return value, sigma
+
+
 def _theta(values: gtsam.Values, model: Model, W: int, fixed: PositionInit, t_mid: float) -> Theta:
     u3 = values.atUnit3(KEY_G)
     effects = {}
@@ -263,7 +284,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         robust = False
     history = _History(pg, on_iteration)
     if one_step:
-        fit = _gauss_newton_step(pg)
+        fit = _gauss_newton_step(pg, adapt_noise)
     else:
         fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
                             robust, adapt_noise, history, progress)
@@ -327,12 +348,20 @@ class _Fit:
     correlation: CorrelationFit | None = None
 
 
-def _gauss_newton_step(pg: PositionGraph) -> _Fit:
-    """One Gauss-Newton step from the start values (noise model and weights as given); the
-    evaluation stays the one at the start."""
-    pg.problem.freeze_whitening(False)
+def _gauss_newton_step(pg: PositionGraph, adapt_noise: bool = False) -> _Fit:
+    """One Gauss-Newton step from the start values (weights as given); the evaluation stays
+    the one at the start. With ``adapt_noise`` the mocap noise (correlation and level) is
+    first chosen again at the start values, as a full run given this noise model would."""
+    pp = pg.problem
+    pp.freeze_whitening(False)
+    noise_scale = np.ones(2)
+    if adapt_noise:
+        old = pp.noise
+        pp.noise = fit_mocap_correlation(pp, pg.theta(pg.values)).noise
+        noise_scale = _variance_ratio(pp.noise, old)
+        pg.batch.invalidate()
     delta = pg.graph.linearize(pg.values).optimize()
-    return _Fit(pg.values.retract(delta), 1, np.ones(2), pg.evals[-1])
+    return _Fit(pg.values.retract(delta), 1, noise_scale, pg.evals[-1])
 
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from mocap_calib.core.calib.session import PreparedSession, local_derivative
 from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.imu_model import Intrinsics, correct
+from mocap_calib.core.model.imu_model import Intrinsics, correct, imu_times
 from mocap_calib.core.model.preint import compose, integrate_pieces, pieces
 
 Array = NDArray[np.float64]
@@ -88,7 +88,8 @@ def dead_reckoning(s: PreparedSession, st: ModelState, length: float = DR_LENGTH
     idx = i0[:, None] + np.arange(m + 1)
     tau = s.tau[idx]
     h = np.diff(tau, axis=1)
-    pc = pieces(s.u, tau[:, :-1], tau[:, 1:], st.delta)  # the window engine's integration
+    ut = imu_times(st.model, Intrinsics(np.zeros(3), np.zeros(3), st.effects, st.t_mid), s.u)
+    pc = pieces(ut, tau[:, :-1], tau[:, 1:], st.delta)  # the window engine's integration
     nodes = pc.nodes
     u_nodes = nodes - st.delta
     gyro, accel = pc(s.gyro), pc(s.accel)

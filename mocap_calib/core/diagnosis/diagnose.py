@@ -1,19 +1,23 @@
-"""Model diagnosis: find what the calibrated model misses, name it, add it, repeat.
+"""Model diagnosis: find what the calibrated model misses, name it, add it, repeat; or say
+honestly that the cause is none of the effects it knows.
 
 1. Calibrate the starting model (default: the base model, no time offset).
-2. Simulate what the IMU should have measured from the mocap through the calibrated model and
+2. Predict what the IMU should have measured from the mocap through the calibrated model and
    compare with what it measured (:mod:`mocap_calib.core.diagnosis.predict`): residual RMS per
-   sensor and axis in a low band, against the noise floor that noise alone gives through the same
-   processing, and residual spectra.
-3. For every candidate effect (the canonical ones), refit with the effect added and score it
-   with a likelihood-ratio test: ``T = (chi2_M - chi2_M+e) / s^2`` against ``chi2_k``
-   (``k`` = the effect's parameters), where ``s^2 = max(1, chi2/dof)`` of the extended fit
-   absorbs a misjudged overall noise level. The noise model and the robust weights are frozen
-   for all fits, so every fit minimises a cost of the same family. The threshold is
-   Bonferroni-corrected over the candidates tried.
-4. The most significant candidate (smallest p-value) must also *show* in the measurement
-   domain: its fit has to lower the low-band residual of the sensor it acts on. It is added,
-   and the loop repeats until no candidate passes; then the answer is "none".
+   sensor and axis in a low band, against the noise floor that noise alone (IMU noise, bias
+   walk, the mocap noise as estimated, correlated in time) gives through the same processing.
+3. For every candidate effect, refit with it added (noise model and robust weights frozen, so
+   every fit minimises a cost of the same family) and test it: the noise-scaled likelihood
+   ratio ``T = (chi2_M - chi2_M+e) / max(1, chi2/dof)`` and the Wald statistic of its
+   parameters with the sandwich covariance (robust to a noise model that is off); the smaller
+   counts, against ``chi2_k``, Bonferroni-corrected over the candidates tried.
+4. The most significant candidate must also *show* in the measurement domain (lower the
+   low-band residual of its sensor) and be *plausible* (its magnitude within the range a MEMS
+   IMU has, :mod:`mocap_calib.core.model.plausible`): an implausible one is listed under
+   ``implausible`` and the next candidate is considered. The first that passes is added; the
+   loop repeats until none passes.
+5. If the residual then still exceeds the floor, the report says so under ``unexplained``, with
+   a signature that points at the cause (:mod:`mocap_calib.core.diagnosis.signature`).
 """
 
 from __future__ import annotations
@@ -21,7 +25,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,22 +32,34 @@ from scipy import stats as sps
 
 from mocap_calib.core.calib.clock import search_clock
 from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
-from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.calib.session import PreparedSession
-from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, run_position_stage
+from mocap_calib.core.calib.stage_position import (
+    PositionInit,
+    PositionResult,
+    block_value,
+    effect_estimate,
+    run_position_stage,
+)
 from mocap_calib.core.calib.state import ModelState
-from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
+from mocap_calib.core.diagnosis.predict import analyse_residuals
+from mocap_calib.core.diagnosis.report import (
+    REPORT_KIND,
+    REPORT_VERSION,
+    CandidateScore,
+    DiagnoseReport,
+    DiagnoseStep,
+    Residuals,
+)
+from mocap_calib.core.diagnosis.signature import unexplained_signature
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]
 
-
-REPORT_KIND = "diagnosis"
-REPORT_VERSION = 1
+__all__ = ["DiagnoseOptions", "DiagnoseReport", "DiagnoseStep", "CandidateScore", "Residuals",
+           "REPORT_KIND", "REPORT_VERSION", "diagnose", "plausibility"]
 
 
 @dataclass
@@ -58,6 +73,9 @@ class DiagnoseOptions:
         max_steps: most effects to add.
         calibration: options of the underlying calibrations (noise, gravity, windows...).
         cutoff_hz: band of the measurement-domain comparison.
+        plausible: the magnitudes an effect may have (beyond: listed as implausible).
+        unexplained_ratio: a residual over floor ratio above which, with nothing left to
+            add, the gap is reported as unexplained.
     """
 
     start: Model = field(default_factory=Model)
@@ -66,167 +84,8 @@ class DiagnoseOptions:
     max_steps: int = 4
     calibration: CalibrationOptions = field(default_factory=CalibrationOptions)
     cutoff_hz: float = 2.0
-
-
-@dataclass
-class CandidateScore:
-    """One candidate's test."""
-
-    effect: str
-    dof: int
-    delta_chi2: float
-    scale: float
-    statistic: float
-    log10_p: float
-    significant: bool
-    residual_drop: float  # relative low-band residual drop on the effect's sensor (0.1 = 10 %)
-    params: object = None
-    sigma: object = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"effect": self.effect, "dof": self.dof, "delta_chi2": round(self.delta_chi2, 3),
-                "noise_scale": round(self.scale, 4), "statistic": round(self.statistic, 3),
-                "log10_p": round(self.log10_p, 3), "significant": self.significant,
-                "residual_drop": round(self.residual_drop, 4)}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> CandidateScore:
-        return cls(str(d["effect"]), int(d["dof"]), float(d["delta_chi2"]),
-                   float(d["noise_scale"]), float(d["statistic"]), float(d["log10_p"]),
-                   bool(d["significant"]), float(d["residual_drop"]))
-
-
-@dataclass
-class Residuals:
-    """Low-band residual RMS per sensor and axis with the noise floor."""
-
-    gyro_rms: Array
-    gyro_floor: Array
-    accel_rms: Array
-    accel_floor: Array
-    analysis: ResidualAnalysis | None = None
-    stored: dict[str, Any] | None = field(default=None, repr=False)  # as read from a file
-
-    @classmethod
-    def of(cls, ra: ResidualAnalysis) -> Residuals:
-        return cls(ra.gyro_rms, ra.gyro_floor, ra.accel_rms, ra.accel_floor, ra)
-
-    def ratio(self, sensor: str) -> float:
-        """RMS over axes divided by the floor over axes (1 = at the noise floor)."""
-        rms, floor = ((self.gyro_rms, self.gyro_floor) if sensor == "gyro"
-                      else (self.accel_rms, self.accel_floor))
-        return float(np.sqrt(np.sum(rms**2) / np.sum(floor**2)))
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {
-            "gyro_rms": self.gyro_rms.tolist(), "gyro_floor": self.gyro_floor.tolist(),
-            "gyro_ratio": round(self.ratio("gyro"), 4),
-            "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist(),
-            "accel_ratio": round(self.ratio("accel"), 4)}
-        if self.analysis is not None:
-            d["cutoff_hz"] = self.analysis.cutoff_hz
-            d["power_over_floor_by_band"] = self.analysis.band_ratios()
-        elif self.stored is not None:
-            d.update({k: v for k, v in self.stored.items() if k not in d})
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Residuals:
-        """The figures of :meth:`to_dict` (the residual series themselves are not stored)."""
-        return cls(*(np.asarray(d[k], dtype=float)
-                     for k in ("gyro_rms", "gyro_floor", "accel_rms", "accel_floor")),
-                   stored=d)
-
-
-@dataclass
-class DiagnoseStep:
-    """One step: the model, the candidates' scores, and what was added (if anything)."""
-
-    model: str
-    residuals: Residuals
-    chi2: float
-    dof: int
-    candidates: list[CandidateScore]
-    added: str | None = None
-    added_params: object = None
-    added_sigma: object = None
-    residuals_after: Residuals | None = None
-    series: dict[str, ResidualSeries] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"model": self.model, "chi2": round(self.chi2, 3), "dof": self.dof,
-                             "residuals": self.residuals.to_dict(),
-                             "candidates": [c.to_dict() for c in self.candidates]}
-        if self.added is not None:
-            best = next(c for c in self.candidates if c.effect == self.added)
-            d["added"] = {"effect": self.added, EFFECTS[self.added].param: self.added_params,
-                          "sigma": self.added_sigma, "statistic": round(best.statistic, 3),
-                          "dof": best.dof, "log10_p": round(best.log10_p, 3)}
-            if self.residuals_after is not None:
-                d["residuals_after"] = self.residuals_after.to_dict()
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> DiagnoseStep:
-        added = d.get("added") or {}
-        name = added.get("effect")
-        after = d.get("residuals_after")
-        return cls(str(d["model"]), Residuals.from_dict(d["residuals"]), float(d["chi2"]),
-                   int(d["dof"]), [CandidateScore.from_dict(c) for c in d["candidates"]],
-                   added=name, added_params=added.get(EFFECTS[name].param) if name else None,
-                   added_sigma=added.get("sigma"),
-                   residuals_after=None if after is None else Residuals.from_dict(after))
-
-
-@dataclass
-class DiagnoseReport:
-    """The outcome: effects found in order, every step, and the final calibration."""
-
-    found: list[str]
-    start_model: str
-    final_model: str
-    steps: list[DiagnoseStep]
-    final: CalibrationResult
-    final_residuals: Residuals
-    threshold_log10_p: float
-    notes: list[str] = field(default_factory=list)
-    seconds: float = 0.0
-
-    @property
-    def verdict(self) -> str:
-        return "none" if not self.found else "+".join(self.found)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            **header(REPORT_KIND, REPORT_VERSION),
-            "found": list(self.found),
-            "verdict": self.verdict,
-            "start_model": self.start_model,
-            "final_model": self.final_model,
-            "test": {"kind": "likelihood ratio, noise-scaled, Bonferroni over candidates",
-                     "threshold_log10_p": round(self.threshold_log10_p, 3)},
-            "steps": [s.to_dict() for s in self.steps],
-            "final_residuals": self.final_residuals.to_dict(),
-            "final_calibration": self.final.to_dict(),
-            "notes": list(self.notes),
-            "seconds": round(self.seconds, 2),
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> DiagnoseReport:
-        """Inverse of :meth:`to_dict` (figures only: no residual series).
-
-        Raises:
-            KindError: not a diagnosis report, or a newer version.
-            KeyError, ValueError, TypeError: a malformed report.
-        """
-        check_kind(d, REPORT_KIND, REPORT_VERSION)
-        return cls(list(d["found"]), str(d["start_model"]), str(d["final_model"]),
-                   [DiagnoseStep.from_dict(x) for x in d["steps"]],
-                   CalibrationResult.from_dict(d["final_calibration"]),
-                   Residuals.from_dict(d["final_residuals"]),
-                   float(d["test"]["threshold_log10_p"]), list(d.get("notes") or []),
-                   float(d.get("seconds", 0.0)))
+    plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
+    unexplained_ratio: float = 1.5
 
 
 def plausibility(effect: str, value: object) -> str | None:
@@ -245,18 +104,57 @@ def _log10_sf(t: float, k: int) -> float:
 
 def _sensor_of(effect: str) -> str:
     e = EFFECTS[effect]
-    return e.sensor if e.sensor in ("gyro", "accel") else ("accel" if effect ==
-                                                            "gravity_magnitude" else "both")
-
-
-def _state(pos: PositionResult, model: Model, t_mid: float) -> ModelState:
-    return ModelState.from_position(pos, model, t_mid)
+    if e.sensor in ("gyro", "accel"):
+        return e.sensor
+    return "accel" if e.acts_on == "gravity" else "both"
 
 
 def _drop(before: Residuals, after: Residuals, sensor: str) -> float:
     if sensor == "both":
         return max(_drop(before, after, "gyro"), _drop(before, after, "accel"))
     return 1.0 - after.ratio(sensor) / before.ratio(sensor)
+
+
+@dataclass
+class _Session:
+    """What every fit of one diagnosis shares."""
+
+    s: PreparedSession
+    windows: object
+    weights: Array
+    t_mid: float
+    opts: DiagnoseOptions
+    notes: list[str] = field(default_factory=list)
+    coarse_delta: float | None = None
+
+    def fit(self, m: Model, base: PositionResult, nz: NoiseModel,
+            extra: dict[str, Array] | None = None, adapt: bool = False) -> PositionResult:
+        init = PositionInit(
+            R_MI=base.R_MI, p_MI=base.p_MI, g_dir=base.g_dir, g_mag=base.g_mag,
+            delta=base.delta, gyro_bias=base.gyro_bias_mean, accel_bias=base.accel_bias_mean,
+            effects={**base.effects, **(extra or {})}, knots=base.knots)
+        for name, v in (extra or {}).items():
+            if EFFECTS[name].acts_on == "clock":
+                init.delta = float(v[0])
+        return run_position_stage(self.s, m, nz, self.windows, init, robust=False,
+                                  adapt_noise=adapt, weights=self.weights,
+                                  max_iterations=self.opts.calibration.max_iterations)
+
+    def residuals(self, pos: PositionResult, m: Model, nz: NoiseModel) -> Residuals:
+        return Residuals.of(analyse_residuals(self.s, ModelState.from_position(pos, m, self.t_mid),
+                                              nz, cutoff_hz=self.opts.cutoff_hz))
+
+    def start_values(self, cand: str) -> dict[str, Array]:
+        """Where a candidate's fit starts: the clock offset from the coarse search, the rest
+        from the nested model's value (zero)."""
+        eff = EFFECTS[cand]
+        if eff.acts_on != "clock":
+            return {}
+        if self.coarse_delta is None:
+            s = self.s
+            self.coarse_delta = search_clock(s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM,
+                                             s.clock_shift).time_offset + s.clock_shift
+        return {cand: np.array([self.coarse_delta])}
 
 
 def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None = None,
@@ -271,13 +169,59 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     opts = options or DiagnoseOptions()
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
-    notes: list[str] = []
+    ds, model, current = _start(imu, mocap, opts, say)
+    noise = current.noise
+    cur_res = ds.residuals(current, model, noise)
+    found: list[str] = []
+    implausible: list[dict] = []
+    steps: list[DiagnoseStep] = []
+    threshold = 0.0
+    for _ in range(opts.max_steps):
+        todo = [c for c in opts.candidates
+                if not model.has(c) and c not in {x["effect"] for x in implausible}]
+        if not todo:
+            break
+        threshold = float(np.log10(opts.alpha / len(todo)))
+        scores, fits = _score_candidates(ds, model, current, noise, cur_res, todo, threshold,
+                                         len(steps) + 1, say)
+        step = DiagnoseStep(str(model), cur_res, current.cost, current.dof, scores,
+                            series={"position": current.series})
+        steps.append(step)
+        best = _first_plausible(scores, opts.plausible, implausible, len(steps))
+        if best is None:
+            break
+        f, res = fits[best.effect]
+        step.added, step.added_params, step.added_sigma = best.effect, best.params, best.sigma
+        step.residuals_after = res
+        say(f"step {len(steps)}: {best.effect} explains the gap (T = {best.statistic:.1f} on "
+            f"{best.dof} dof, log10 p = {best.log10_p:.1f})")
+        found.append(best.effect)
+        model = model.with_effect(best.effect)
+        # The noise model again from the residuals left: its correlated part may have been
+        # absorbing the effect just added.
+        current = ds.fit(model, f, replace(noise, mocap_noise_corr_time=0.0,
+                                           mocap_noise_corr_fraction=0.0), adapt=True)
+        if current.noise != noise:
+            noise = current.noise
+            cur_res = ds.residuals(current, model, noise)
+        else:
+            cur_res = res
+    report = _finish(imu, mocap, ds, model, current, noise, cur_res, steps, say)
+    report.found, report.implausible, report.threshold_log10_p = found, implausible, threshold
+    report.seconds = time.perf_counter() - t0
+    return report
+
+
+def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
+           say: Callable[[str], None]) -> tuple[_Session, Model, PositionResult]:
+    """Fit the starting model, then refit it with frozen robust weights (so every later
+    comparison uses the same cost) and its mocap noise re-estimated."""
     model = opts.start
+    notes: list[str] = []
     # The starting fit only seeds the diagnosis: no segment or noise checks, and a model that
     # misses an effect may well look implausible (that is what the diagnosis is for).
     cal_opts = replace(opts.calibration, model=model, adapt_noise=False, consistency_segments=0,
                        sensitivity=False, accept_implausible=True)
-
     say(f"fitting the starting model {model}")
     try:
         start = calibrate(imu, mocap, cal_opts)
@@ -286,122 +230,90 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             raise
         model = model.with_effect("time_offset")
         notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
-        cal_opts = replace(cal_opts, model=model)
-        start = calibrate(imu, mocap, cal_opts)
-    ex = start.diagnostics.trace
-    s: PreparedSession = ex.session
-    noise: NoiseModel = ex.noise_used
-    t_mid = float(ex.model_state.t_mid)
-    windows = ex.windows
-    weights = ex.weights
-    coarse_delta = None
-
-    def fit(m: Model, base: PositionResult, extra: dict[str, Array], nz: NoiseModel,
-            adapt: bool = False) -> PositionResult:
-        init = PositionInit(
-            R_MI=base.R_MI, p_MI=base.p_MI, g_dir=base.g_dir, g_mag=base.g_mag,
-            delta=base.delta, gyro_bias=base.gyro_bias_mean, accel_bias=base.accel_bias_mean,
-            effects={**base.effects, **extra}, knots=base.knots)
-        if "time_offset" in extra:
-            init.delta = float(extra["time_offset"][0])
-        return run_position_stage(s, m, nz, windows, init, robust=False, adapt_noise=adapt,
-                                  weights=weights, max_iterations=opts.calibration.max_iterations)
-
-    # The current fit, as a PositionResult (refit the start model with frozen weights so every
-    # later comparison uses exactly the same cost).
+        start = calibrate(imu, mocap, replace(cal_opts, model=model))
+    tr = start.diagnostics.trace
+    ds = _Session(tr.session, tr.windows, tr.weights, float(tr.model_state.t_mid), opts, notes)
     # From the model state, not the public result: that holds None for what is unobservable.
-    st0: ModelState = ex.model_state
+    st0: ModelState = tr.model_state
     g_mag0 = float(np.linalg.norm(st0.g_W))
     init0 = PositionInit(
         R_MI=st0.R_MI, p_MI=st0.p_MI, g_dir=st0.g_W / g_mag0, g_mag=g_mag0, delta=st0.delta,
         gyro_bias=st0.bias[:, 0:3].mean(axis=0), accel_bias=st0.bias[:, 3:6].mean(axis=0),
         effects=dict(st0.effects), knots=st0.bias)
-    # Every step first re-estimates the mocap noise level with the current model (rarely known
-    # well; a missing effect inflates it, so it is redone after each effect is added); the
-    # candidates of the step are then fitted with that noise level frozen.
-    current = run_position_stage(s, model, noise, windows, init0, robust=False,
-                                 adapt_noise=True, weights=weights)
-    noise = current.noise
-    cur_res = Residuals.of(analyse_residuals(s, _state(current, model, t_mid), noise,
-                                             cutoff_hz=opts.cutoff_hz))
-    found: list[str] = []
-    steps: list[DiagnoseStep] = []
-    threshold = 0.0
-    for _step in range(opts.max_steps):
-        todo = [c for c in opts.candidates if not model.has(c)]
-        if not todo:
-            break
-        threshold = float(np.log10(opts.alpha / len(todo)))
-        scores: list[CandidateScore] = []
-        fits: dict[str, tuple[PositionResult, Residuals]] = {}
-        for cand in todo:
-            say(f"step {len(steps) + 1}: trying {cand}")
-            m = model.with_effect(cand)
-            extra: dict[str, Array] = {}
-            try:
-                if cand == "time_offset":
-                    if coarse_delta is None:
-                        coarse_delta = search_clock(
-                            s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM,
-                            s.clock_shift).time_offset + s.clock_shift
-                    extra["time_offset"] = np.array([coarse_delta])
-                f = fit(m, current, extra, noise)
-            except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
-                # A candidate that cannot be fitted (GTSAM raises RuntimeError on an
-                # indeterminate system) is not the answer.
-                notes.append(f"step {len(steps) + 1}: {cand} could not be fitted ({err})")
-                continue
-            k = EFFECTS[cand].dim
-            d = current.cost - f.cost
-            scale = max(1.0, f.cost / max(f.dof, 1))
-            stat = max(d, 0.0) / scale
-            log10_p = _log10_sf(stat, k)
-            # The measurement-domain check is only needed where the test is significant.
-            res = (Residuals.of(analyse_residuals(s, _state(f, m, t_mid), noise,
-                                                  cutoff_hz=opts.cutoff_hz))
-                   if log10_p < threshold else cur_res)
-            fits[cand] = (f, res)
-            eff = EFFECTS[cand]
-            if cand == "time_offset":
-                params, sig = float(f.delta - s.clock_shift), float(np.sqrt(
-                    f.cov["time_offset"][0, 0]))
-            elif cand == "gravity_magnitude":
-                params, sig = float(f.g_mag), float(np.sqrt(f.cov["gravity_magnitude"][0, 0]))
-            else:
-                params = eff.report_value(f.effects[cand])
-                sig = eff.report_sigma(np.sqrt(np.diag(f.cov[cand])))
-            drop = _drop(cur_res, res, _sensor_of(cand))
-            scores.append(CandidateScore(cand, k, float(d), float(scale), float(stat), log10_p,
-                                         log10_p < threshold and drop > 0.0, float(drop),
-                                         params, sig))
-        scores.sort(key=lambda c: c.log10_p)
-        step = DiagnoseStep(str(model), cur_res, current.cost, current.dof, scores,
-                            series={"position": current.series})
-        steps.append(step)
-        best = next((c for c in scores if c.significant), None)
-        if best is None:
-            break
-        f, res = fits[best.effect]
-        step.added = best.effect
-        step.added_params = best.params
-        step.added_sigma = best.sigma
-        step.residuals_after = res
-        say(f"step {len(steps)}: {best.effect} explains the gap (T = {best.statistic:.1f} on "
-            f"{best.dof} dof, log10 p = {best.log10_p:.1f})")
-        found.append(best.effect)
-        warning = plausibility(best.effect, best.params)
-        if warning is not None:
-            notes.append(f"step {len(steps)}: {warning}; it probably absorbs something outside "
-                         "the candidate list")
-        model = model.with_effect(best.effect)
-        current = fit(model, f, {}, noise, adapt=True)
-        if current.noise != noise:
-            noise = current.noise
-            cur_res = Residuals.of(analyse_residuals(s, _state(current, model, t_mid), noise,
-                                                     cutoff_hz=opts.cutoff_hz))
-        else:
-            cur_res = res
+    # Every step first re-estimates the mocap noise with the current model (a missing effect
+    # inflates it, so it is redone after each effect is added); the candidates of the step are
+    # then fitted with it frozen.
+    current = run_position_stage(ds.s, model, tr.noise_used, ds.windows, init0, robust=False,
+                                 adapt_noise=True, weights=ds.weights)
+    return ds, model, current
 
+
+def _score_candidates(ds: _Session, model: Model, current: PositionResult, noise: NoiseModel,
+                      cur_res: Residuals, todo: list[str], threshold: float, step: int,
+                      say: Callable[[str], None]
+                      ) -> tuple[list[CandidateScore], dict[str, tuple[PositionResult, Residuals]]]:
+    scores: list[CandidateScore] = []
+    fits: dict[str, tuple[PositionResult, Residuals]] = {}
+    for cand in todo:
+        say(f"step {step}: trying {cand}")
+        m = model.with_effect(cand)
+        try:
+            f = ds.fit(m, current, noise, ds.start_values(cand))
+        except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
+            # A candidate that cannot be fitted (GTSAM raises RuntimeError on an
+            # indeterminate system) is not the answer.
+            ds.notes.append(f"step {step}: {cand} could not be fitted ({err})")
+            continue
+        score = _test(ds, cand, f, current)
+        # The measurement-domain check is only needed where the test is significant.
+        res = ds.residuals(f, m, noise) if score.log10_p < threshold else cur_res
+        fits[cand] = (f, res)
+        score.residual_drop = float(_drop(cur_res, res, _sensor_of(cand)))
+        score.significant = bool(score.log10_p < threshold and score.residual_drop > 0.0)
+        scores.append(score)
+    scores.sort(key=lambda c: c.log10_p)
+    return scores, fits
+
+
+def _test(ds: _Session, cand: str, f: PositionResult, current: PositionResult) -> CandidateScore:
+    """The candidate's statistic: the smaller of the noise-scaled likelihood ratio and the
+    robust Wald statistic of its parameters against the nested model's values."""
+    k = EFFECTS[cand].dim
+    d = current.cost - f.cost
+    scale = max(1.0, f.cost / max(f.dof, 1))
+    lr = max(d, 0.0) / scale
+    shift = block_value(f, cand, 0.0) - (block_value(current, cand, 0.0)
+                                         if EFFECTS[cand].acts_on in ("clock", "gravity")
+                                         else 0.0)
+    cov = f.cov.get(cand)
+    wald = float(shift @ np.linalg.solve(cov, shift)) if cov is not None else lr
+    stat = min(lr, wald)
+    params, sig = effect_estimate(f, cand, ds.s.clock_shift)
+    return CandidateScore(cand, k, float(d), float(scale), float(stat), _log10_sf(stat, k),
+                          False, 0.0, params, sig, wald=wald)
+
+
+def _first_plausible(scores: list[CandidateScore], limits: PlausibleLimits,
+                     implausible: list[dict], step: int) -> CandidateScore | None:
+    """The most significant candidate whose magnitude is plausible; the implausible ones on
+    the way are listed (never added)."""
+    for c in scores:
+        if not c.significant:
+            continue
+        problem = effect_problem(c.effect, c.params, limits)
+        if problem is None:
+            return c
+        c.implausible = problem
+        implausible.append({"step": step, "effect": c.effect, "value": c.params,
+                            "reason": problem})
+    return None
+
+
+def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
+            current: PositionResult, noise: NoiseModel, cur_res: Residuals,
+            steps: list[DiagnoseStep], say: Callable[[str], None]) -> DiagnoseReport:
+    """The final calibration with the model found, and the signature of any gap left."""
+    opts = ds.opts
     say(f"final calibration with {model}")
     final = calibrate(imu, mocap, replace(opts.calibration, model=model, accept_implausible=True))
     fx = final.diagnostics.trace
@@ -409,5 +321,12 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
                                                cutoff_hz=opts.cutoff_hz))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
-    return DiagnoseReport(found, str(opts.start), str(model), steps, final, final_res, threshold,
-                          notes, time.perf_counter() - t0)
+    unexplained = None
+    if max(cur_res.ratio("gyro"), cur_res.ratio("accel")) > opts.unexplained_ratio \
+            and cur_res.analysis is not None:
+        say("describing the residual no candidate explains")
+        unexplained = unexplained_signature(
+            ds.s, ModelState.from_position(current, model, ds.t_mid), cur_res.analysis, current,
+            opts.unexplained_ratio)
+    return DiagnoseReport([], str(opts.start), str(model), steps, final, final_res, 0.0,
+                          ds.notes, 0.0, [], unexplained)

@@ -24,7 +24,7 @@ from scipy.interpolate import CubicSpline
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.imu_model import Intrinsics, forward
+from mocap_calib.core.model.imu_model import Intrinsics, accel_lag, forward, imu_times
 from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
@@ -67,14 +67,19 @@ def _pose_splines(tau: Array, R_WI: Array, p_WI: Array,
     return CubicSpline(tau, q, axis=0), CubicSpline(tau, p, axis=0)
 
 
-def _rate_and_accel(qs: CubicSpline, ps: CubicSpline, t: Array) -> tuple[Array, Array, Array]:
+def _rate_and_accel(qs: CubicSpline, ps: CubicSpline,
+                    t: Array) -> tuple[Array, Array, Array, Array]:
+    """Attitude, body rate, world acceleration and body angular acceleration at ``t``."""
     q = qs(t)
     dq = qs(t, 1)
     n2 = np.einsum("ni,ni->n", q, q)
     qc = q * np.array([1.0, -1.0, -1.0, -1.0])
     w = 2.0 * so3.quat_multiply(qc, dq)[:, 1:] / n2[:, None]
+    # d/dt of 2 vec(q* q') / |q|^2 (vec(q'* q') = 0).
+    dn2 = 2.0 * np.einsum("ni,ni->n", q, dq)
+    alpha = (2.0 * so3.quat_multiply(qc, qs(t, 2))[:, 1:] - w * dn2[:, None]) / n2[:, None]
     R = so3.quat_to_rotmat(q)
-    return R, w, ps(t, 2)
+    return R, w, ps(t, 2), alpha
 
 
 def gap_free_segments(tau: Array, gap: float, min_length: float) -> list[tuple[float, float]]:
@@ -104,37 +109,48 @@ def predict_imu(s: PreparedSession, st: ModelState, min_segment: float = 3.0,
     R_WI = R_WM @ st.R_MI
     p_WI = p_WM + R_WM @ st.p_MI
     spans = gap_free_segments(s.tau, s.gap, min_segment)
+    timing = Intrinsics(np.zeros(3), np.zeros(3), st.effects, st.t_mid)
+    # When each sample was taken (mocap clock): the clock effects move gyro and accel samples.
+    tau_g = imu_times(st.model, timing, s.u) + st.delta
+    lag = accel_lag(st.model, timing)
     idx_all: list[NDArray[np.int64]] = []
-    out_w, out_f = [], []
+    parts: list[tuple[Array, ...]] = []
     for a, b in spans:
         sel = (s.tau >= a) & (s.tau <= b)
         qs, ps = _pose_splines(s.tau[sel], R_WI[sel], p_WI[sel], smooth_hz)
-        # IMU samples whose mocap time lies inside the span (one sample of margin).
-        iu = np.flatnonzero((s.u + st.delta > a + 0.01) & (s.u + st.delta < b - 0.01))
+        # IMU samples whose mocap time lies inside the span (margin for the lag).
+        iu = np.flatnonzero((tau_g - lag > a + 0.01) & (tau_g > a + 0.01) & (tau_g < b - 0.01)
+                            & (tau_g - lag < b - 0.01))
         if len(iu) < 10:
             continue
-        R, w, a_W = _rate_and_accel(qs, ps, s.u[iu] + st.delta)
+        R, w, a_W, alpha = _rate_and_accel(qs, ps, tau_g[iu])
         f = np.einsum("nji,nj->ni", R, a_W - st.g_W)
+        Ra, wa, a_Wa, alpha_a = (R, w, a_W, alpha) if lag == 0.0 else _rate_and_accel(
+            qs, ps, tau_g[iu] - lag)
+        fa = f if lag == 0.0 else np.einsum("nji,nj->ni", Ra, a_Wa - st.g_W)
         idx_all.append(iu)
-        out_w.append(w)
-        out_f.append(f)
+        parts.append((w, f, alpha, wa, fa, alpha_a))
     if not idx_all:
         empty = np.zeros((0, 3))
         return ImuPrediction(np.zeros(0), [], empty, empty, empty, empty, empty, empty)
     iu = np.concatenate(idx_all)
-    w = np.concatenate(out_w)
-    f = np.concatenate(out_f)
+    w, f, alpha, wa, fa, alpha_a = (np.concatenate(x) for x in zip(*parts, strict=True))
     lengths = np.cumsum([0, *[len(i) for i in idx_all]])
     segments = [np.arange(lengths[i], lengths[i + 1]) for i in range(len(idx_all))]
     u = s.u[iu]
-    gyro_pred, accel_pred = model_forward(st, w, f, u)
+    gyro_pred, accel_pred = model_forward(st, w, f, u, alpha)
+    if lag != 0.0:  # the accelerometer saw the motion `lag` earlier than the gyro
+        _, accel_pred = model_forward(st, wa, fa, u, alpha_a)
     return ImuPrediction(u, segments, s.gyro[iu], s.accel[iu], gyro_pred, accel_pred, w, f)
 
 
-def model_forward(st: ModelState, w: Array, f: Array, u: Array) -> tuple[Array, Array]:
-    """Raw measurements the model predicts for true ``w``, ``f`` at IMU times ``u``."""
+def model_forward(st: ModelState, w: Array, f: Array, u: Array,
+                  alpha: Array | None = None) -> tuple[Array, Array]:
+    """Raw measurements the model predicts for true ``w``, ``f`` (and angular acceleration
+    ``alpha``) at IMU times ``u``."""
     b = st.bias_at(u + st.delta)
-    return forward(st.model, Intrinsics(b[:, 0:3], b[:, 3:6], st.effects, st.t_mid), w, f, u)
+    return forward(st.model, Intrinsics(b[:, 0:3], b[:, 3:6], st.effects, st.t_mid), w, f, u,
+                   alpha)
 
 
 def lowpass(x: Array, rate: float, cutoff: float, segments: list[NDArray[np.int64]]) -> Array:
@@ -273,8 +289,8 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
             err = rng.normal(size=st.bias_sigma.shape) * st.bias_sigma
             walk += np.stack([np.interp(pred.u + st.delta, st.bias_t, err[:, i])
                               for i in range(6)], axis=1)
-        R_noisy = s.R_WM @ so3.exp(rng.normal(0.0, noise.mocap_rotation_sigma, (len(s.tau), 3)))
-        p_noisy = s.p_WM + rng.normal(0.0, noise.mocap_position_sigma, (len(s.tau), 3))
+        R_noisy = s.R_WM @ so3.exp(mocap_noise(rng, s.tau, noise.mocap_rotation_sigma, noise))
+        p_noisy = s.p_WM + mocap_noise(rng, s.tau, noise.mocap_position_sigma, noise)
         pn = predict_imu(s, st, mocap=(R_noisy, p_noisy))
         moc = -np.concatenate([pn.gyro_pred - pred.gyro_pred, pn.accel_pred - pred.accel_pred],
                               axis=1)
@@ -291,6 +307,21 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
     return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
                             np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
                             {k: np.sqrt(v) for k, v in parts.items()}, pred.u + st.delta, keep)
+
+
+def mocap_noise(rng: np.random.Generator, tau: Array, sigma: float,
+                noise: NoiseModel) -> Array:
+    """(M, 3) mocap noise of marginal ``sigma`` at times ``tau``: white plus, as the noise model
+    says, a fraction correlated over ``mocap_noise_corr_time`` (AR(1), started stationary)."""
+    white = rng.normal(0.0, sigma, (len(tau), 3))
+    if not noise.mocap_correlated:
+        return white
+    rho = noise.mocap_noise_corr_fraction
+    a = float(np.exp(-np.median(np.diff(tau)) / noise.mocap_noise_corr_time))
+    e = rng.normal(0.0, sigma, (len(tau), 3))
+    ar = signal.lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], e, axis=0)
+    ar += np.outer(a ** np.arange(len(tau)), e[0] * (1.0 - np.sqrt(1.0 - a * a)))  # stationary
+    return np.sqrt(1.0 - rho) * white + np.sqrt(rho) * ar
 
 
 def _bias_walk_residual(rng: np.random.Generator, pred: ImuPrediction, noise: NoiseModel,
