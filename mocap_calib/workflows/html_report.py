@@ -139,8 +139,8 @@ def write_diagnosis_html(path: Path, report, inputs: Sequence[Path | None],
     from mocap_calib.report.html import diagnosis_sections
 
     sections = diagnosis_sections(report, calibration_extras(report.final))
-    found = report.verdict
-    verdict = (f"diagnosis: {found}", "ok" if found == "none" else "warn")
+    clean = not report.found and not getattr(report, "unexplained", None)
+    verdict = (f"diagnosis: {report.verdict}", "ok" if clean else "warn")
     sub = f"start model {report.start_model}, final model {report.final_model}"
     return write_report(path, "mocap-calib model diagnosis report", sections, inputs, clock, sub,
                         verdict)

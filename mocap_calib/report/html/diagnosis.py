@@ -13,7 +13,7 @@ from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
 from mocap_calib.report.html.tables import kv_rows, num
 
 if TYPE_CHECKING:
-    from mocap_calib.core.diagnosis.diagnose import DiagnoseReport
+    from mocap_calib.core.diagnosis.report import DiagnoseReport
 
 
 def gap_png(labels: list[str], gyro: list[float], accel: list[float],
@@ -155,7 +155,9 @@ def _candidate_rows(steps: list[dict[str, Any]]) -> list[list[str | Cell]]:
                          num(f"{p}/log10_p", c["log10_p"], digits=5),
                          num(f"{p}/noise_scale", c["noise_scale"], digits=4),
                          num(f"{p}/residual_drop", c["residual_drop"], digits=4),
-                         num(f"{p}/significant", c["significant"])])
+                         num(f"{p}/significant", c["significant"]),
+                         num(f"{p}/implausible", c["implausible"]) if c.get("implausible")
+                         else ""])
     return rows
 
 
@@ -178,8 +180,9 @@ def diagnosis_steps_sections(report: DiagnoseReport) -> list[Section]:
     blocks: list[Any] = [
         Notes("diagnosis-verdict", [f"verdict: {d['verdict']} (found: "
                                     f"{', '.join(d['found']) or 'nothing'}); start model "
-                                    f"{d['start_model']}, final model {d['final_model']}"],
-              "ok" if not d["found"] else "warning"),
+                                    f"{d['start_model']}, final model {d['final_model']}"]
+              + [f"implausible: {x}" for x in d.get("implausible") or []],
+              "ok" if not d["found"] and not d.get("unexplained") else "warning"),
         Table("diagnosis-steps", ("step", "model", "gyro RMS / floor", "accel RMS / floor",
                                   "chi2", "dof", "added", "best candidate"), _step_rows(steps),
               "The gap per sensor at every step (low-band residual over the noise floor)"),
@@ -190,7 +193,8 @@ def diagnosis_steps_sections(report: DiagnoseReport) -> list[Section]:
                        [(s.get("added") or {}).get("effect") for s in steps]),
                data={"steps": str(len(steps)), "threshold-log10-p": f"{thr!r}"}),
         Table("diagnosis-candidates", ("step", "candidate", "dof", "statistic T", "log10 p",
-                                       "noise scale", "residual drop", "significant"),
+                                       "noise scale", "residual drop", "significant",
+                                       "implausible"),
               _candidate_rows(steps), f"Every candidate's likelihood-ratio test (threshold "
               f"log10 p < {thr:.3f}, Bonferroni over the candidates)"),
     ]
