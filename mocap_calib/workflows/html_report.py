@@ -53,7 +53,9 @@ def stage_spectrum(series: ResidualSeries, stats: StageStats) -> StageSpectrum |
 
 #: The IMU-domain spectra use at most this much of the session (its middle), so that the report
 #: stays cheap for long sessions; a few minutes give Welch estimates with dozens of averages.
-SPECTRUM_SPAN_S = 180.0
+SPECTRUM_SPAN_S = 120.0
+#: At most this many 2 s dead-reckoning segments (every 10 s, or sparser in long sessions).
+MAX_DR_SEGMENTS = 30
 
 
 def middle_span(s: PreparedSession, span_s: float, delta: float) -> PreparedSession:
@@ -99,7 +101,8 @@ def calibration_extras(result: CalibrationResult) -> CalibrationExtras:
         ab = _welch(pred.u, pred.accel_meas - a0, 1024)
         if gb is not None and ab is not None:
             ex.imu_before = (gb[0], gb[1], ab[1])
-    ex.dead_reckoning = dead_reckoning(s, st)
+    every = max(10.0, float(s.tau[-1] - s.tau[0]) / MAX_DR_SEGMENTS)
+    ex.dead_reckoning = dead_reckoning(s, st, every=every)
     ex.seconds = time.perf_counter() - t0
     return ex
 

@@ -91,8 +91,9 @@ def trajectory_section(r: CalibrationResult, extras: CalibrationExtras) -> Secti
              f"calibrated, {1e3 * np.median(before):.1f} mm raw")
     blocks: list[Any] = [
         Figure("fig-trajectory", f"3D path of the marker (mocap) and {len(segs)} IMU "
-               f"dead-reckoning segments of 2 s through the calibrated model; {len(gaps)} mocap "
-               "gaps marked at their ends", plots.trajectory_png(s.p_WM, segs, gap_pts, rem_pts),
+               f"dead-reckoning segments of 2 s from the mocap state through the calibrated "
+               f"model; {len(gaps)} mocap gaps marked at their ends",
+               plots.trajectory_png(s.p_WM, segs, gap_pts, rem_pts),
                data={"gaps": str(len(gaps)), "imu-segments": str(len(segs))}),
         Figure("fig-gaps", f"Mocap coverage over time: {len(gaps)} gaps longer than "
                f"{1e3 * s.gap:.0f} ms, {len(rem)} removed spikes; IMU dead-reckoning drift after "
