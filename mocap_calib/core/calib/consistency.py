@@ -255,7 +255,8 @@ def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
             scaled_priors = [replace(p, sigma=np.asarray(p.sigma) * f) for p in priors or []]
             alt = run_position_stage(s, model, scaled, pos.windows, _init(pos, everything),
                                      scaled_priors, robust=False, adapt_noise=True,
-                                     weights=pos.weights, max_iterations=max_iterations, one_step=one_step)
+                                     weights=pos.weights, max_iterations=max_iterations,
+                                     one_step=one_step)
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             out.note = f"noise x{f:.3g}: refit failed ({err})"
             continue
