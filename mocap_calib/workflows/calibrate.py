@@ -34,6 +34,7 @@ class InputSpec:
     accel_unit: str | None = None
     quat_order: str | None = None
     position_unit: str | None = None
+    rigid_body: str | None = None  # one body of a multi-body mocap export (a swarm's take)
 
 
 @dataclass
@@ -50,6 +51,9 @@ def load_session(spec: InputSpec) -> LoadedSession:
         raise InputError("give a mav0 folder, or both --imu and --mocap")
     if spec.path is not None and (spec.imu is not None or spec.mocap is not None):
         raise InputError("give either a mav0 folder or --imu/--mocap, not both")
+    if spec.rigid_body is not None:  # until the multi-body readers exist (issue 11)
+        raise InputError(f"--rigid-body {spec.rigid_body}: this version reads mocap files "
+                         "with one body only; export that body alone and drop --rigid-body")
     imu, mocap, notes = load_inputs(
         spec.imu, spec.mocap, spec.path, pose_source=spec.pose_source, columns=spec.columns,
         time_unit=spec.time_unit, gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit,

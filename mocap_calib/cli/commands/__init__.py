@@ -2,7 +2,8 @@
 
 import importlib
 
-for _name in ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift"):
+for _name in ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift",
+              "batch"):
     try:
         importlib.import_module(f"{__name__}.{_name}")
     except ModuleNotFoundError as _err:  # a command not written yet
