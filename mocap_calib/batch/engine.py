@@ -19,8 +19,8 @@ import multiprocessing
 import os
 import signal
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from collections.abc import Callable, Generator, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
@@ -28,8 +28,6 @@ from typing import Any
 from mocap_calib.errors import CalibrationError, InputError
 
 ENGINES = ("local", "dask")
-#: A job in flight when its worker process died twice (crash, out of memory) is given up.
-MAX_POOL_BREAKS = 2
 
 
 @dataclass
@@ -63,12 +61,6 @@ def guarded_call(fn: Callable[[Any], Any], job: Any) -> tuple[bool, Any, str, fl
     return False, None, msg, time.perf_counter() - t0
 
 
-def _ignore_sigint() -> None:
-    # Ctrl-C is handled by the parent, which stops the workers itself; a worker interrupted
-    # mid-job would only add tracebacks.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 class Engine:
     """Base: a context manager whose :meth:`run` yields outcomes as jobs finish."""
 
@@ -85,21 +77,45 @@ class Engine:
         raise NotImplementedError
 
 
+_started: Any = None  # in a local worker: where it reports the job it starts
+
+
+def _init_worker(started: Any) -> None:
+    global _started
+    _started = started
+    # Ctrl-C is handled by the parent, which stops the workers itself; a worker interrupted
+    # mid-job would only add tracebacks.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _tracked_call(fn: Callable[[Any], Any], job: Any, index: int) -> tuple[bool, Any, str, float]:
+    _started.put(index)  # a SimpleQueue: written before the job runs, even if it then crashes
+    return guarded_call(fn, job)
+
+
 class LocalEngine(Engine):
     """A pool of ``workers`` processes on this machine (spawned: no state leaks from the
-    parent, and GTSAM's threads are never forked)."""
+    parent, and GTSAM's threads are never forked).
+
+    A job that kills its worker (a crash, the out-of-memory killer) breaks the whole pool. The
+    jobs that had started then are run again one at a time, alone, so the one that crashes is
+    named and the others finish; the jobs that had not started go to a fresh pool.
+    """
 
     name = "local"
 
     def __init__(self, workers: int | None = None) -> None:
         self.workers = max(1, int(workers or os.cpu_count() or 1))
+        self._ctx = multiprocessing.get_context("spawn")
         self._pool: ProcessPoolExecutor | None = None
+        self._started: Any = None
 
-    def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_ignore_sigint)
+    def _new_pool(self, workers: int | None = None) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(workers or self.workers, mp_context=self._ctx,
+                                   initializer=_init_worker, initargs=(self._started,))
 
     def __enter__(self) -> LocalEngine:
+        self._started = self._ctx.SimpleQueue()
         self._pool = self._new_pool()
         return self
 
@@ -120,43 +136,55 @@ class LocalEngine(Engine):
                 proc.terminate()
         self._pool.shutdown(wait=False, cancel_futures=True)
 
+    def _drain(self, started: set[int]) -> None:
+        while not self._started.empty():
+            started.add(self._started.get())
+
     def run(self, fn: Callable[[Any], Any], jobs: Sequence[Any]) -> Iterator[Outcome]:
         if self._pool is None:
             raise RuntimeError("use the engine in a 'with' block")
-        breaks = [0] * len(jobs)
-        pending: dict[Future, int] = {
-            self._pool.submit(guarded_call, fn, job): i for i, job in enumerate(jobs)}
+        todo = list(range(len(jobs)))
+        while todo:
+            suspects, todo = yield from self._run_pool(fn, jobs, todo)
+            for i in suspects:
+                yield self._alone(fn, jobs[i], i)
+
+    def _run_pool(self, fn: Callable[[Any], Any], jobs: Sequence[Any], todo: list[int]
+                  ) -> Generator[Outcome, None, tuple[list[int], list[int]]]:
+        """Run ``todo`` on the pool; on a break return (started, not started) of the rest."""
+        assert self._pool is not None
+        pending = {self._pool.submit(_tracked_call, fn, jobs[i], i): i for i in todo}
+        started: set[int] = set()
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            broken: list[int] = []
+            lost: list[int] = []
             for fut in done:
                 i = pending.pop(fut)
                 try:
                     ok, value, err, secs = fut.result()
                 except BrokenProcessPool:
-                    broken.append(i)
+                    lost.append(i)
                     continue
                 yield Outcome(i, ok, value, err, secs)
-            if not broken:
-                continue
-            # A worker died: every job in flight is lost. Start a fresh pool and try them again;
-            # a job present at MAX_POOL_BREAKS deaths is the likely culprit and is given up.
-            for fut in list(pending):
-                i = pending.pop(fut)
-                if fut.done() and fut.exception() is None:
-                    ok, value, err, secs = fut.result()
-                    yield Outcome(i, ok, value, err, secs)
-                else:
-                    broken.append(i)
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = self._new_pool()
-            for i in sorted(broken):
-                breaks[i] += 1
-                if breaks[i] >= MAX_POOL_BREAKS:
-                    yield Outcome(i, False, error="its worker process died (a crash or out of "
-                                  "memory); run this session alone with 'mocap-calib calibrate'")
-                else:
-                    pending[self._pool.submit(guarded_call, fn, jobs[i])] = i
+            if lost:
+                lost += pending.values()
+                self._drain(started)
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = self._new_pool()
+                lost.sort()
+                return [i for i in lost if i in started], [i for i in lost if i not in started]
+        return [], []
+
+    def _alone(self, fn: Callable[[Any], Any], job: Any, i: int) -> Outcome:
+        pool = self._new_pool(1)
+        try:
+            ok, value, err, secs = pool.submit(_tracked_call, fn, job, i).result()
+            return Outcome(i, ok, value, err, secs)
+        except BrokenProcessPool:
+            return Outcome(i, False, error="its worker process died (a crash or out of memory); "
+                           "run this session alone with 'mocap-calib calibrate' to see why")
+        finally:
+            pool.shutdown(wait=True)
 
 
 class DaskEngine(Engine):

@@ -158,7 +158,9 @@ class _Checker:
                 continue
             if key not in ARG_KEYS:
                 self.unknown(where, key)
-            elif v is not None:
+            elif v is None:
+                out[key] = None  # unsets a default
+            else:
                 checked = self.value(where, key, v)
                 if checked is not None:
                     out[key] = checked
@@ -191,7 +193,7 @@ def _session(chk: _Checker, n: int, raw: Any, defaults: dict[str, Any],
         chk.bad(where, "missing or unreadable date" if raw.get("date") is None else
                 f"unreadable date {raw.get('date')!r}", "write it as 2024-03-01 or "
                 "2024-03-01T14:30:00")
-    opts = {**defaults, **chk.options(where, raw)}
+    opts = {k: v for k, v in {**defaults, **chk.options(where, raw)}.items() if v is not None}
     if opts.get("mav0") is None and (opts.get("imu") is None or opts.get("mocap") is None):
         chk.bad(where, "no inputs", "give mav0 (a folder) or both imu and mocap")
     elif opts.get("mav0") is not None and (opts.get("imu") or opts.get("mocap")):
@@ -215,7 +217,8 @@ def load_manifest(path: str | Path) -> Manifest:
     chk = _Checker(path)
     for key in data:
         if key not in ("sessions", "defaults"):
-            chk.bad("top level", f"unknown key '{key}'", "use 'sessions' and 'defaults'")
+            chk.bad("top level", f"unknown key '{key}'", "the manifest has 'sessions' (a list) "
+                    "and optionally 'defaults'")
     defaults_raw = data.get("defaults") or {}
     if not isinstance(defaults_raw, dict):
         chk.bad("defaults", "is not a mapping", "write 'key: value' lines under defaults")

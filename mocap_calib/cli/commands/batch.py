@@ -39,16 +39,16 @@ def batch(
     from mocap_calib.batch.manifest import ManifestError
     from mocap_calib.batch.progress import ProgressBar
     from mocap_calib.batch.runner import run_batch
-    from mocap_calib.errors import CalibrationError
+    from mocap_calib.errors import CalibrationError, InputError
 
     try:
         report = run_batch(manifest, out, engine=engine, workers=workers, scheduler=scheduler,
                            prior_from_history=prior_from_history, html=html,
                            progress=ProgressBar(quiet=quiet))
-    except ManifestError as err:
-        for line in err.problems:
+    except ManifestError as err:  # one line each; main() prints the last and sets the code
+        for line in err.problems[:-1]:
             typer.echo(f"error: {line}", err=True)
-        raise typer.Exit(err.exit_code) from None
+        raise InputError(err.problems[-1]) from None
     counts = {k: sum(s.status == k for s in report.sessions) for k in ("ok", "skipped", "failed")}
     typer.echo(f"{len(report.sessions)} sessions: {counts['ok']} calibrated, "
                f"{counts['skipped']} unchanged since the last run, {counts['failed']} failed")
