@@ -35,8 +35,11 @@ def main(argv: list[str] | None = None) -> int:
     _register_commands()
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
     try:
-        app(args=argv, standalone_mode=False)
-        code = 0
+        rv = app(args=argv, standalone_mode=False)
+        # typer turns Ctrl-C into Exit(130) and, not standalone, returns that code
+        code = rv if isinstance(rv, int) else 0
+        if code == 130:
+            print("error: interrupted", file=sys.stderr)
     except CalibrationError as err:
         if debug:
             raise
