@@ -209,3 +209,55 @@ def test_prior_from_history(fleet, local_run, tmp_path) -> None:
             assert np.all(res.sigma_translation < alone.sigma_translation), s.id
         else:
             assert np.array_equal(res.translation, alone.translation)
+
+
+def test_swarm_one_mocap_take_several_imus(tmp_path) -> None:
+    """Three IMUs on one marker body, mounted with different rotations and biases, against
+    one shared mocap file: one calibration per IMU, each against its own truth."""
+    from mocap_calib.core.calib.result import CalibrationResult
+    from mocap_calib.core.model import so3
+    from mocap_calib.core.model.types import ImuSamples
+    from mocap_calib.io.euroc import write_euroc_imu, write_euroc_poses
+    from mocap_calib.sim.flight import SimConfig, simulate_flight
+
+    sim = simulate_flight(SimConfig(seed=77, duration=25.0, effects={"time_offset": [0.006]}))
+    write_euroc_poses(tmp_path / "take.csv", sim.mocap)
+    rng = np.random.default_rng(5)
+    sessions = []
+    for k in range(3):
+        R_IK = so3.exp(rng.normal(size=3))  # IMU k's axes in the first IMU's frame
+        extra_g, extra_a = rng.uniform(-0.01, 0.01, 3), rng.uniform(-0.05, 0.05, 3)
+        imu = ImuSamples(sim.imu.t, sim.imu.gyro @ R_IK + extra_g,
+                         sim.imu.accel @ R_IK + extra_a, sim.imu.time_origin_ns)
+        write_euroc_imu(tmp_path / f"imu{k}.csv", imu)
+        t = CalibrationResult.from_dict(sim.truth)
+        t.gyro_bias = R_IK.T @ t.gyro_bias + extra_g
+        t.accel_bias = R_IK.T @ t.accel_bias + extra_a
+        t.rotation_wxyz = so3.rotmat_to_quat(t.R_marker_imu @ R_IK)
+        sessions.append((f"imu{k}", t))
+    (tmp_path / "swarm.yaml").write_text(
+        "defaults: {mocap: take.csv, date: 2024-05-01}\nsessions:\n" + "".join(
+            f"  - {{id: {sid}, imu_id: {sid}, imu: {sid}.csv}}\n" for sid, _ in sessions))
+    report = run_batch(tmp_path / "swarm.yaml", tmp_path / "out", workers=2)
+    assert [s.status for s in report.sessions] == ["ok"] * 3
+    for sid, truth in sessions:
+        res = load_result(tmp_path / "out" / sid / "calib.yaml")
+        rows = {r.name: r for r in compare(res, truth)}
+        assert set(rows) >= {"R_MI", "p_MI", "gyro_bias", "accel_bias", "time_offset"}
+        for row in rows.values():
+            assert row.z is not None and row.z < 5.0, (sid, row)
+    # one file, hashed once, still part of every session's hash: changing it redoes all
+    status = yaml.safe_load((tmp_path / "out" / "batch.yaml").read_text())["sessions"]
+    assert len({s["input_hash"] for s in status}) == 3
+
+
+def test_html_flag_waits_for_the_report(tmp_path, capsys) -> None:
+    pytest.importorskip("mocap_calib.batch.html")
+    from mocap_calib.batch.html import _writer
+
+    (tmp_path / "m.yaml").write_text("sessions:\n  - {id: a, imu_id: x, date: 2024-01-01, "
+                                     f"mav0: {tmp_path}}}\n")
+    code = main(["batch", str(tmp_path / "m.yaml"), "--out", str(tmp_path / "o"), "--html"])
+    if _writer() is None:  # until the HTML report exists: refused before any work
+        assert code == 2 and not (tmp_path / "o").exists()
+        assert "--html: this version has no HTML batch report" in capsys.readouterr().err
