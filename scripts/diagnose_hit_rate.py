@@ -6,6 +6,9 @@ with no hidden effect must give "none", and a pair of effects hidden together mu
 found. Also reported: the final low-band residual RMS over the noise floor.
 
 Usage: python scripts/diagnose_hit_rate.py [--seeds N] [--duration S] [--jobs J] [--extra-nulls M]
+                                          [--engine local|dask] [--scheduler ADDRESS]
+The cases run on the batch engine: a local process pool, or Dask (`pip install
+'mocap-calib[cluster]'`; a LocalCluster, or the cluster at --scheduler).
 """
 
 from __future__ import annotations
@@ -14,8 +17,8 @@ import argparse
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 
+from mocap_calib.batch.engine import map_jobs
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 
 PAIR = ("gyro_scale_misalignment", "accel_scale_misalignment")
@@ -44,6 +47,8 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=1000)
     ap.add_argument("--extra-nulls", type=int, default=0,
                     help="more sessions with nothing hidden, for a tighter false-alarm rate")
+    ap.add_argument("--engine", default="local", help="local or dask")
+    ap.add_argument("--scheduler", default=None, help="Dask scheduler address")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     cases = [((e,), s, args.duration) for e in CANONICAL_EFFECTS for s in seeds]
@@ -51,8 +56,11 @@ def main() -> None:
     cases += [(PAIR, s, args.duration) for s in seeds]
     extra = range(args.first_seed + args.seeds, args.first_seed + args.seeds + args.extra_nulls)
     cases += [((), s, args.duration) for s in extra]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(run_case, cases))
+    outcomes = map_jobs(run_case, cases, args.engine, args.jobs, args.scheduler)
+    for o in outcomes:
+        if not o.ok:
+            print(f"case {cases[o.index][:2]} failed: {o.error}", flush=True)
+    results = [o.value for o in outcomes if o.ok]
     hits = total = false_alarms = nulls = pair_ok = pairs = 0
     ratios = []
     per_effect: dict[str, list[int]] = {}
