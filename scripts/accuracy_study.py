@@ -58,12 +58,13 @@ def main() -> None:
         for name, (err, z) in o.value.items():
             per.setdefault(name, []).append([err, z])
     print(f"{sum(o.ok for o in outcomes)}/{len(jobs)} sessions of {args.duration:g} s")
-    print(f"{'parameter':<18} {'worst error':>12}  max |err|/sigma per session: "
-          f"{'median':>6} {'max':>6}")
+    print("worst error (unit of workflows.compare); per session the largest |err|/sigma over "
+          "the axes: its median and max over the sessions")
+    print(f"{'parameter':<18} {'worst error':>12} {'median':>7} {'max':>7}")
     for name, vals in per.items():
         a = np.asarray(vals)
-        print(f"{name:<18} {a[:, 0].max():12.3g}  {'':28} {np.nanmedian(a[:, 1]):6.2f} "
-              f"{np.nanmax(a[:, 1]):6.2f}")
+        print(f"{name:<18} {a[:, 0].max():12.3g} {np.nanmedian(a[:, 1]):7.2f} "
+              f"{np.nanmax(a[:, 1]):7.2f}")
 
 
 if __name__ == "__main__":
