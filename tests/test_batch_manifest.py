@@ -132,12 +132,20 @@ def test_engine_runs_any_function_and_survives_failures() -> None:
     assert not outs[5].ok and "worker process died" in outs[5].error
 
 
-def test_engine_choice_errors() -> None:
+def test_engine_choice_errors(monkeypatch) -> None:
     for args, words in ((("cloud",), "unknown --engine 'cloud'"),
                         (("local", 0), "--workers 0"),
-                        (("local", 1, "tcp://x:1"), "--scheduler needs --engine dask")):
+                        (("local", 1, "tcp://x:1"), "--scheduler needs --engine dask"),
+                        (("dask", 2, "tcp://x:1"), "drop --workers")):
         with pytest.raises(InputError, match=words):
             map_jobs(_square, [1], *args)
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "distributed" else real(name, *a))
+    with pytest.raises(InputError, match=r"pip install 'mocap-calib\[cluster\]'"):
+        map_jobs(_square, [1], "dask")
 
 
 def test_progress_line() -> None:
@@ -146,3 +154,20 @@ def test_progress_line() -> None:
     assert line == ("[############............] 4/8 done, 2 running, 1 skipped, 1 failed, "
                     "ETA 1:15  (b ok)")
     assert "ETA --:--" in render(BatchProgress(total=3))
+
+
+def test_dask_is_imported_only_by_the_dask_engine() -> None:
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from mocap_calib.cli.main import _register_commands\n"
+            "_register_commands()\n"
+            "import mocap_calib.batch.runner, mocap_calib.batch.fleet, mocap_calib.batch.progress\n"
+            "from mocap_calib.batch.engine import make_engine\n"
+            "make_engine('local', 1)\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"

@@ -14,6 +14,7 @@ or, for a study that just wants the values back in order: ``map_jobs(fn, jobs, w
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import multiprocessing
 import os
@@ -258,6 +259,11 @@ def make_engine(name: str = "local", workers: int | None = None,
             raise InputError("--scheduler needs --engine dask")
         return LocalEngine(workers)
     if name == "dask":
+        if importlib.util.find_spec("distributed") is None:
+            raise InputError("--engine dask needs Dask: pip install 'mocap-calib[cluster]'")
+        if scheduler and workers is not None:
+            raise InputError("--workers with --scheduler: the cluster has its own workers; "
+                             "drop --workers")
         return DaskEngine(workers, scheduler)
     raise InputError(f"unknown --engine '{name}'; choose {' or '.join(ENGINES)}")
 
