@@ -178,10 +178,11 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
 
 
 def write_fleet(folder: Path, done: Sequence[tuple[SessionEntry, CalibrationResult]]
-                ) -> list[Path]:
-    """Write ``history.csv``, ``trends.csv`` and ``fleet.yaml`` into ``folder``."""
+                ) -> tuple[list[Path], list[dict[str, Any]]]:
+    """Write ``history.csv``, ``trends.csv`` and ``fleet.yaml`` into ``folder``; return the
+    files and the outliers (``imu_id``, ``id``, ``date``, ``block``, ``z``)."""
     if not done:
-        return []
+        return [], []
     rows, summary = fleet_summary(done)
     trend_rows = [{"imu_id": imu, "block": block, "component": c, "unit": tr["unit"],
                    "sigma": tr["sigma"][c], "slope_per_day": tr["slope_per_day"][c],
@@ -193,4 +194,6 @@ def write_fleet(folder: Path, done: Sequence[tuple[SessionEntry, CalibrationResu
         files.append(_write_csv(folder / "trends.csv", trend_rows))
     files.append(write_atomic(folder / "fleet.yaml", lambda p: save_yaml(
         p, summary, "mocap-calib fleet summary: history, trends and outliers per IMU")))
-    return files
+    outliers = [{"imu_id": imu, **o} for imu, rec in summary["imus"].items()
+                for o in rec["outliers"]]
+    return files, outliers

@@ -80,6 +80,7 @@ class BatchReport:
     out_dir: Path
     sessions: list[SessionStatus]
     files: list[Path] = field(default_factory=list)
+    outliers: list[dict[str, Any]] = field(default_factory=list)  # see fleet.write_fleet
 
     @property
     def failed(self) -> list[SessionStatus]:
@@ -247,7 +248,8 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
     if batch.engine is not None:
         batch.engine.__exit__(None, None, None)
     done = [(manifest.sessions[i], r) for i, r in sorted(batch.results.items())]
-    files = [out / "batch.yaml", *write_fleet(out / "fleet", done)]
+    fleet_files, outliers = write_fleet(out / "fleet", done)
+    files = [out / "batch.yaml", *fleet_files]
     if html:
         files.append(write_html(out, [s.to_dict() for s in batch.status], out / "fleet"))
-    return BatchReport(out, batch.status, files)
+    return BatchReport(out, batch.status, files, outliers)

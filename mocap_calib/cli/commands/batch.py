@@ -54,6 +54,9 @@ def batch(
                f"{counts['skipped']} unchanged since the last run, {counts['failed']} failed")
     for s in report.failed:
         typer.echo(f"  {s.id}: {s.error}")
+    for o in report.outliers:
+        typer.echo(f"outlier: {o['id']} ({o['imu_id']}, {o['date']}): {o['block']} is "
+                   f"{o['z']:.1f} sigma from the rest of its history")
     for path in report.files:
         typer.echo(f"wrote {path}")
     if report.failed:
