@@ -158,6 +158,7 @@ class LocalEngine(Engine):
         started: set[int] = set()
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            self._drain(started)  # also keeps the start reports from filling their pipe
             lost: list[int] = []
             for fut in done:
                 i = pending.pop(fut)
