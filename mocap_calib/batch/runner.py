@@ -238,12 +238,15 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
                    prior_from_history, progress)
     try:
         out.mkdir(parents=True, exist_ok=True)
+        batch.save_status()
         for indices in _rounds(manifest.sessions, prior_from_history):
             batch.run_round(indices)
         batch.save_status()
-    except BaseException as err:
+    except BaseException as err:  # Ctrl-C included: stop the workers, keep the status true
         if batch.engine is not None:
             batch.engine.__exit__(type(err), err, None)
+        if out.is_dir():
+            batch.save_status()
         raise
     if batch.engine is not None:
         batch.engine.__exit__(None, None, None)
