@@ -1,7 +1,7 @@
 """One exception tree for everything a user can get wrong or the data cannot support.
 
 The CLI turns these into a one-line message and an exit code in one place
-(:func:`mocap_calib.cli.main.run_guarded`); library users catch :class:`CalibrationError`.
+(:func:`mocap_calib.cli.main.main`); library users catch :class:`CalibrationError`.
 """
 
 from __future__ import annotations
@@ -29,6 +29,23 @@ class ConvergenceError(CalibrationError):
     """The solver did not reach a trustworthy solution."""
 
     exit_code = 4
+
+
+class PlausibilityError(ConvergenceError):
+    """The solver finished but its answer fails a physical plausibility check."""
+
+    exit_code = 4
+
+
+class Interrupted(CalibrationError):
+    """Stopped by a signal (Ctrl-C: SIGINT, exit 130; SIGTERM, exit 143); nothing is written."""
+
+    def __init__(self, signum: int) -> None:
+        import signal
+
+        name = signal.Signals(signum).name
+        super().__init__(f"interrupted ({name}); no result was written")
+        self.exit_code = 128 + int(signum)
 
 
 def input_error(what: str, fix: str, source: str | None = None,

@@ -115,3 +115,39 @@ def test_wrong_rate_is_an_input_error() -> None:
     keep = np.random.default_rng(1).random(len(imu)) > 0.05  # drop 5 % of the samples
     with pytest.raises(InputError, match="uniform sampling"):
         characterise_noise(imu.select(keep))
+
+
+def _same(a: object, b: object) -> None:
+    """Dataclasses (or arrays) equal field by field, NaN equal to NaN."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(a):
+        for f in dataclasses.fields(a):  # type: ignore[arg-type]
+            _same(getattr(a, f.name), getattr(b, f.name))
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b)
+        assert np.asarray(b).dtype.kind == a.dtype.kind
+    else:
+        assert a == b
+
+
+def test_noise_file_round_trip_and_kind() -> None:
+    """to_dict / from_dict restore the same result (an unresolved random walk included), the
+    file says what it is, and a newer version or another kind is refused."""
+    import yaml
+
+    from mocap_calib.core.intrinsics.noise_result import AllanResult
+    from mocap_calib.core.model.versioned import KindError
+
+    imu, _ = simulate_static(4, 1200.0, RATE_HZ, noise=NoiseModel(gyroscope_random_walk=1e-7))
+    res = characterise_noise(imu, require_random_walk=False, aggregate="max")
+    assert not np.all(res.gyroscope.random_walk_resolved)
+    d = res.to_dict()
+    assert list(d)[:2] == ["kind", "version"] and d["kind"] == "noise"
+    # Through YAML text, as the file is written and read.
+    back = AllanResult.from_dict(yaml.safe_load(yaml.safe_dump(d)))
+    _same(res, back)
+    with pytest.raises(KindError, match="newer mocap-calib"):
+        AllanResult.from_dict({**d, "version": d["version"] + 1})
+    with pytest.raises(KindError, match="intrinsics file, not a noise file"):
+        AllanResult.from_dict({**d, "kind": "intrinsics"})

@@ -156,7 +156,9 @@ def test_ctrl_c_leaves_no_half_written_file(fleet, tmp_path) -> None:
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
-    assert "Traceback" not in err and err.strip().endswith("error: interrupted"), err
+    assert "Traceback" not in err, err
+    assert err.strip().splitlines()[-1] == (f"error: interrupted (SIGINT); the finished sessions "
+                                            f"are in {out}; the same command finishes the rest")
     assert not list(out.rglob("*.tmp"))
     for p in out.glob("*/calib.yaml"):
         load_result(p)
@@ -211,44 +213,61 @@ def test_prior_from_history(fleet, local_run, tmp_path) -> None:
             assert np.array_equal(res.translation, alone.translation)
 
 
+def _motive_take(path: Path, bodies: dict) -> Path:
+    """A Motive CSV (quaternions, meters) with one rigid body per drone; the capture start time
+    is the simulator's mocap epoch (1.6e9 s)."""
+    names = list(bodies)
+    n = min(len(m) for m in bodies.values())
+    meta = ["Format Version", "1.23", "Take Name", "swarm", "Capture Frame Rate", "100.000000",
+            "Export Frame Rate", "100.000000", "Capture Start Time",
+            "2020-09-13 12.26.40.000 PM", "Rotation Type", "Quaternion", "Length Units",
+            "Meters", "Coordinate Space", "Global"]
+    lines = [",".join(meta), "",
+             ",".join(["", "Type", *["Rigid Body"] * 7 * len(names)]),
+             ",".join(["", "Name", *[b for b in names for _ in range(7)]]),
+             ",".join(["", "ID", *[str(i + 1) for i in range(len(names)) for _ in range(7)]]),
+             ",".join(["", "", *(["Rotation"] * 4 + ["Position"] * 3) * len(names)]),
+             ",".join(["Frame", "Time (Seconds)", *list("XYZWXYZ") * len(names)])]
+    cols = [np.concatenate([m.quat_wxyz[:n, [1, 2, 3, 0]], m.position[:n]], axis=1)
+            for m in bodies.values()]
+    for k in range(n):
+        cells = [repr(float(v)) for c in cols for v in c[k]]
+        lines.append(",".join([str(k), f"{k / 100:.6f}", *cells]))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def test_swarm_one_mocap_take_several_imus(tmp_path) -> None:
-    """Three IMUs on one marker body, mounted with different rotations and biases, against
-    one shared mocap file: one calibration per IMU, each against its own truth."""
+    """Three drones flown together: one Motive take holds their three rigid bodies, each IMU
+    log picks its own with rigid_body; every calibration matches its drone's truth."""
     from mocap_calib.core.calib.result import CalibrationResult
-    from mocap_calib.core.model import so3
-    from mocap_calib.core.model.types import ImuSamples
-    from mocap_calib.io.euroc import write_euroc_imu, write_euroc_poses
+    from mocap_calib.io.euroc import write_euroc_imu
     from mocap_calib.sim.flight import SimConfig, simulate_flight
 
-    sim = simulate_flight(SimConfig(seed=77, duration=25.0, effects={"time_offset": [0.006]}))
-    write_euroc_poses(tmp_path / "take.csv", sim.mocap)
-    rng = np.random.default_rng(5)
-    sessions = []
-    for k in range(3):
-        R_IK = so3.exp(rng.normal(size=3))  # IMU k's axes in the first IMU's frame
-        extra_g, extra_a = rng.uniform(-0.01, 0.01, 3), rng.uniform(-0.05, 0.05, 3)
-        imu = ImuSamples(sim.imu.t, sim.imu.gyro @ R_IK + extra_g,
-                         sim.imu.accel @ R_IK + extra_a, sim.imu.time_origin_ns)
-        write_euroc_imu(tmp_path / f"imu{k}.csv", imu)
-        t = CalibrationResult.from_dict(sim.truth)
-        t.gyro_bias = R_IK.T @ t.gyro_bias + extra_g
-        t.accel_bias = R_IK.T @ t.accel_bias + extra_a
-        t.rotation_wxyz = so3.rotmat_to_quat(t.R_marker_imu @ R_IK)
-        sessions.append((f"imu{k}", t))
+    sims = {f"cf{k + 1}": simulate_flight(SimConfig(seed=70 + k, duration=25.0,
+                                                    effects={"time_offset": [0.004]}))
+            for k in range(3)}
+    _motive_take(tmp_path / "take.csv", {name: s.mocap for name, s in sims.items()})
+    for name, s in sims.items():
+        write_euroc_imu(tmp_path / f"{name}.csv", s.imu)
     (tmp_path / "swarm.yaml").write_text(
         "defaults: {mocap: take.csv, date: 2024-05-01}\nsessions:\n" + "".join(
-            f"  - {{id: {sid}, imu_id: {sid}, imu: {sid}.csv}}\n" for sid, _ in sessions))
+            f"  - {{id: {n}-0501, imu_id: {n}, imu: {n}.csv, rigid_body: {n}}}\n" for n in sims))
     report = run_batch(tmp_path / "swarm.yaml", tmp_path / "out", workers=2)
-    assert [s.status for s in report.sessions] == ["ok"] * 3
-    for sid, truth in sessions:
-        res = load_result(tmp_path / "out" / sid / "calib.yaml")
-        rows = {r.name: r for r in compare(res, truth)}
+    assert [s.status for s in report.sessions] == ["ok"] * 3, [s.error for s in report.sessions]
+    for name, s in sims.items():
+        res = load_result(tmp_path / "out" / f"{name}-0501" / "calib.yaml")
+        assert any(f"[{name}]" in note for note in res.session["inputs"])
+        rows = {r.name: r for r in compare(res, CalibrationResult.from_dict(s.truth))}
         assert set(rows) >= {"R_MI", "p_MI", "gyro_bias", "accel_bias", "time_offset"}
         for row in rows.values():
-            assert row.z is not None and row.z < 5.0, (sid, row)
-    # one file, hashed once, still part of every session's hash: changing it redoes all
-    status = yaml.safe_load((tmp_path / "out" / "batch.yaml").read_text())["sessions"]
-    assert len({s["input_hash"] for s in status}) == 3
+            assert row.z is not None and row.z < 5.0, (name, row)
+    # A wrong body name is that session's one-line error, not the batch's.
+    text = (tmp_path / "swarm.yaml").read_text().replace("rigid_body: cf3", "rigid_body: cf9")
+    (tmp_path / "swarm.yaml").write_text(text)
+    report = run_batch(tmp_path / "swarm.yaml", tmp_path / "out", workers=1)
+    assert [s.status for s in report.sessions] == ["skipped", "skipped", "failed"]
+    assert "cf9" in report.sessions[2].error and "\n" not in report.sessions[2].error
 
 
 def test_html_flag_waits_for_the_report(tmp_path, capsys) -> None:

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from mocap_calib.cli.main import main
-from mocap_calib.workflows.calibrate import simulate_to_folder
+from mocap_calib.workflows.simulate import simulate_to_folder
 
 
 @pytest.fixture(scope="module")
@@ -88,3 +88,38 @@ def test_unwritable_output_fails_before_calibrating(session: Path, tmp_path: Pat
     (tmp_path / "a_folder").mkdir()
     code = main(["calibrate", str(session), "--out", str(tmp_path / "a_folder"), "-q"])
     _one_line_error(code, capsys.readouterr().err)
+
+
+def test_stalled_solve_exits_4_naming_the_stage(session: Path, tmp_path: Path, capsys) -> None:
+    """With one LM iteration (and the one retry) a stage cannot finish: exit 4, no result."""
+    out = tmp_path / "c.yaml"
+    code = main(["calibrate", str(session), "--out", str(out), "--max-iterations", "1", "-q"])
+    err = capsys.readouterr().err
+    _one_line_error(code, err, 4)
+    assert "did not converge" in err and "--max-iterations" in err
+    assert not out.exists()
+
+
+def test_run_lm_reports_whether_it_converged() -> None:
+    """A curved problem (Rosenbrock) that LM cannot finish in 2 iterations, but can in 200."""
+    import gtsam
+
+    from mocap_calib.core.calib.graph import run_lm
+
+    key = gtsam.symbol("x", 0)
+
+    def err(this, v, H):  # residuals (1 - x, 10 (y - x^2))
+        x, y = v.atVector(key)
+        if H is not None:
+            H[0] = np.array([[-1.0, 0.0], [-20.0 * x, 10.0]])
+        return np.array([1.0 - x, 10.0 * (y - x * x)])
+
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), [key], err))
+    init = gtsam.Values()
+    init.insert(key, np.array([-1.5, 2.0]))
+    _, rep = run_lm(graph, init, max_iterations=2, retry=False)
+    assert not rep.converged and rep.reason == "iteration limit"
+    sol, rep = run_lm(graph, init, max_iterations=200)
+    assert rep.converged
+    np.testing.assert_allclose(sol.atVector(key), [1.0, 1.0], atol=1e-4)

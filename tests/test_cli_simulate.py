@@ -241,12 +241,12 @@ def test_usage_errors_exit_2_without_traceback(tmp_path: Path,
 def test_unexpected_exception_is_internal_error_70(tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str],
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
-    import mocap_calib.workflows.calibrate as workflows
+    import mocap_calib.cli.commands.simulate as cmd
 
     def boom(*args: object, **kwargs: object) -> None:
         raise RuntimeError("simulated bug")
 
-    monkeypatch.setattr(workflows, "simulate_to_folder", boom)
+    monkeypatch.setattr(cmd, "simulate_to_folder", boom)
     monkeypatch.delenv("MOCAP_CALIB_DEBUG", raising=False)
     code, out, err = run_cli(["simulate", str(tmp_path / "o")], capsys)
     assert code == 70

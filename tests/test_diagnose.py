@@ -73,11 +73,21 @@ def test_report_round_trips_through_yaml(tmp_path) -> None:
     after = step["residuals_after"]["power_over_floor_by_band"]["gyro"]
     assert max(after["0.5-2 Hz"]) < 2.0
     assert d["final_calibration"]["time_offset"] == pytest.approx(0.006, abs=2e-4)
+    # Typed and versioned: the file reads back into a report that writes the same data.
+    from mocap_calib.core.diagnosis.diagnose import DiagnoseReport
+    from mocap_calib.core.model.versioned import KindError
+
+    assert (d["kind"], d["version"]) == ("diagnosis", 1)
+    back = DiagnoseReport.from_dict(d)
+    assert back.found == ["time_offset"]
+    assert load_yaml(save_yaml(tmp_path / "r2.yaml", back.to_dict())) == d
+    with pytest.raises(KindError, match="newer"):
+        DiagnoseReport.from_dict({**d, "version": 2})
 
 
 def test_cli_diagnose_bad_options_exit_2(capsys, tmp_path) -> None:
     from mocap_calib.cli.main import main
-    from mocap_calib.workflows.calibrate import simulate_to_folder
+    from mocap_calib.workflows.simulate import simulate_to_folder
 
     simulate_to_folder(tmp_path / "s", seed=1, duration=20.0)
     for args in (["--alpha", "2"], ["--start", "base+warp_drive"], ["--max-steps", "0"]):

@@ -6,7 +6,7 @@ import gtsam
 import numpy as np
 
 from mocap_calib.core.calib.stage_attitude import attitude_errors
-from mocap_calib.core.calib.stage_velocity import _Data, velocity_errors
+from mocap_calib.core.calib.stage_velocity import _Data, velocity_factor
 from mocap_calib.core.model import so3
 
 
@@ -30,6 +30,8 @@ def test_attitude_factor_jacobians():
 
 
 def test_velocity_factor_jacobians_with_gtsam_unit3():
+    """The Jacobians the velocity stage's factors hand to GTSAM (``velocity_factor``, which
+    its factors call) against numerical derivatives of the same function's error."""
     rng = np.random.default_rng(1)
     n = 5
     data = _Data(rng.normal(size=(n, 3)), rng.normal(size=(n, 3, 3)),
@@ -40,22 +42,18 @@ def test_velocity_factor_jacobians_with_gtsam_unit3():
     p = rng.normal(size=3) * 0.1
     u3 = gtsam.Unit3(rng.normal(size=3))
     g = 9.81
-    e = velocity_errors(data, b, p, g * u3.point3(), b0)
-    # Analytic Jacobians as the stage builds them.
-    Hb = np.einsum("nij,njk->nik", data.R_i, data.A)
-    Hp = data.LM
-    Hg = -g * data.dt[:, None, None] * u3.basis()[None]
+    e, Hb, Hp, Hg = velocity_factor(data, b, p, u3, g, b0)
     eps = 1e-7
     for i in range(3):
         d = np.eye(3)[i] * eps
-        np.testing.assert_allclose((velocity_errors(data, b + d, p, g * u3.point3(), b0) - e) / eps,
+        np.testing.assert_allclose((velocity_factor(data, b + d, p, u3, g, b0)[0] - e) / eps,
                                    Hb[:, :, i], atol=1e-5)
-        np.testing.assert_allclose((velocity_errors(data, b, p + d, g * u3.point3(), b0) - e) / eps,
+        np.testing.assert_allclose((velocity_factor(data, b, p + d, u3, g, b0)[0] - e) / eps,
                                    Hp[:, :, i], atol=1e-5)
     for i in range(2):
-        g2 = g * u3.retract(np.eye(2)[i] * eps).point3()
-        np.testing.assert_allclose((velocity_errors(data, b, p, g2, b0) - e) / eps, Hg[:, :, i],
-                                   atol=1e-4)
+        u2 = u3.retract(np.eye(2)[i] * eps)
+        np.testing.assert_allclose((velocity_factor(data, b, p, u2, g, b0)[0] - e) / eps,
+                                   Hg[:, :, i], atol=1e-4)
 
 
 def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():

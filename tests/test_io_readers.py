@@ -25,12 +25,6 @@ from mocap_calib.io.generic import BROAD, ColumnMap, parse_columns, read_generic
 from mocap_calib.io.loader import load_inputs, sniff_format
 from mocap_calib.io.tum import read_tum, write_tum
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-EUROC = DATA / "euroc_V2_03_difficult"
-BROAD_CSV = DATA / "broad_21_undisturbed_fast_combined" / "data.csv"
-needs_euroc = pytest.mark.skipif(not (EUROC / "mav0").is_dir(), reason="no EuRoC data")
-needs_broad = pytest.mark.skipif(not BROAD_CSV.is_file(), reason="no BROAD data")
-
 T0_NS = 1_413_394_881_575_760_384  # an EuRoC-like epoch stamp
 
 
@@ -210,12 +204,11 @@ def test_generic_decimal_comma(tmp_path: Path) -> None:
     assert np.array_equal(imu.accel[0], [0.1, 0.2, 9.81]) and imu.gyro[2, 2] == 2.0
 
 
-@needs_broad
-def test_broad_preset_counts() -> None:
-    raw = np.loadtxt(BROAD_CSV, delimiter=",", skiprows=1)
+def test_broad_preset_counts(broad21_csv: Path) -> None:
+    raw = np.loadtxt(broad21_csv, delimiter=",", skiprows=1)
     nan_quat_rows = int(np.isnan(raw[:, 10:14]).any(axis=1).sum())
     assert nan_quat_rows > 0
-    imu, mocap = read_generic(BROAD_CSV, BROAD)
+    imu, mocap = read_generic(broad21_csv, BROAD)
     assert imu is not None and mocap is not None
     assert len(imu) == len(raw)
     assert mocap.dropped_rows == nan_quat_rows
@@ -231,7 +224,7 @@ def test_broad_preset_counts() -> None:
                             "quat=opt_qw|opt_qx|opt_qy|opt_qz,pos=opt_px|opt_py|opt_pz")
     by_index = "t=0,gyro=1:4,accel=4:7,quat=10:14,pos=14:17"
     for cm in (by_name, by_index):
-        i2, m2 = read_generic(BROAD_CSV, cm)
+        i2, m2 = read_generic(broad21_csv, cm)
         assert i2 is not None and m2 is not None
         assert_imu_equal(i2, imu)
         assert_mocap_equal(m2, mocap)
@@ -244,10 +237,9 @@ def _data_rows(path: Path) -> int:
         return sum(1 for line in f if line.strip() and not line.startswith("#"))
 
 
-@needs_euroc
-def test_real_mav0_both_pose_sources() -> None:
-    mav0 = EUROC / "mav0"
-    vicon = read_mav0(EUROC)
+def test_real_mav0_both_pose_sources(euroc_dir: Path) -> None:
+    mav0 = euroc_dir / "mav0"
+    vicon = read_mav0(euroc_dir)
     assert vicon.pose_source == "vicon0" and vicon.root == mav0
     assert len(vicon.imu) == _data_rows(mav0 / "imu0" / "data.csv")
     assert len(vicon.mocap) == _data_rows(mav0 / "vicon0" / "data.csv")
@@ -266,14 +258,13 @@ def test_real_mav0_both_pose_sources() -> None:
     assert_imu_equal(gt.imu, vicon.imu)
 
 
-@needs_euroc
-def test_real_euroc_rewrites_bit_identically(tmp_path: Path) -> None:
-    m = read_mav0(EUROC)
+def test_real_euroc_rewrites_bit_identically(euroc_dir: Path, tmp_path: Path) -> None:
+    m = read_mav0(euroc_dir)
     root = write_mav0(tmp_path, m.imu, m.mocap)
     back = read_mav0(root)
     assert_imu_equal(back.imu, m.imu)
     assert_mocap_equal(back.mocap, m.mocap)
-    gt = read_euroc_poses(EUROC / "mav0" / "state_groundtruth_estimate0" / "data.csv")
+    gt = read_euroc_poses(euroc_dir / "mav0" / "state_groundtruth_estimate0" / "data.csv")
     assert_mocap_equal(read_tum(write_tum(tmp_path / "gt.txt", gt)), gt)
 
 
@@ -315,9 +306,8 @@ def test_load_inputs_formats(tmp_path: Path) -> None:
     assert any(n.startswith("ignored --columns") for n in notes)
 
 
-@needs_broad
-def test_load_inputs_broad_same_file() -> None:
-    imu, mocap, notes = load_inputs(BROAD_CSV, BROAD_CSV, None, columns="broad")
+def test_load_inputs_broad_same_file(broad21_csv: Path) -> None:
+    imu, mocap, notes = load_inputs(broad21_csv, broad21_csv, None, columns="broad")
     assert len(imu) == 53612
     assert f"dropped {mocap.dropped_rows} mocap rows with NaN (occlusions)" in notes
     assert mocap.dropped_rows > 0

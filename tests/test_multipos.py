@@ -12,11 +12,14 @@ from mocap_calib.core.intrinsics.multipos import (
     MultiposResult,
     calibrate_multipos,
     detect_static_intervals,
-    quat_cumprod,
-    quat_product,
-    rk4_increments,
 )
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.preint import (
+    quat_cumprod,
+    quat_increments,
+    quat_product,
+    sample_nodes,
+)
 from mocap_calib.core.model.types import ImuSamples, NoiseModel
 from mocap_calib.errors import InputError, ObservabilityError
 from mocap_calib.sim.multipos import simulate_multipos
@@ -111,9 +114,9 @@ def test_rk4_product_matches_closed_form() -> None:
     axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     w = np.outer(2.0 * s, axis)
     angle = 2.0 * 0.75  # integral of 2 sin^2 over [0, 1.5]
-    q = quat_product(rk4_increments(w, np.diff(t)))
+    q = quat_product(quat_increments(sample_nodes(w), np.diff(t)))
     assert so3.angle_deg(so3.quat_to_rotmat(q).T @ so3.exp(angle * axis)) < 1e-5
-    qc = quat_cumprod(rk4_increments(w, np.diff(t)))
+    qc = quat_cumprod(quat_increments(sample_nodes(w), np.diff(t)))
     assert np.allclose(qc[-1], q)
 
 
@@ -242,3 +245,46 @@ def test_trend_prior_extrapolates_and_widens() -> None:
     assert np.isclose(one.sigmas["accel_bias"][0], 2e-3)
     with pytest.raises(InputError, match="at_time_s"):
         MultiposPrior.from_history(hist)
+
+
+def test_intrinsics_round_trip_and_kind() -> None:
+    """to_dict / from_dict restore the same result; the file says what it is; a newer version
+    or another kind is refused; a file written before 'kind' existed is still read."""
+    import dataclasses
+
+    import yaml
+
+    from mocap_calib.core.model.versioned import KindError
+
+    res = _calibrated(1)
+    d = res.to_dict()
+    assert list(d)[:2] == ["kind", "version"] and d["kind"] == "intrinsics"
+    back = MultiposResult.from_dict(yaml.safe_load(yaml.safe_dump(d)))
+    for f in dataclasses.fields(res):
+        a, b = getattr(res, f.name), getattr(back, f.name)
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+        else:
+            assert a == b, f.name
+    legacy = {k: v for k, v in d.items() if k not in ("kind", "version")}
+    assert MultiposResult.from_dict(legacy).gyro_bias.tolist() == res.gyro_bias.tolist()
+    with pytest.raises(KindError, match="newer mocap-calib"):
+        MultiposResult.from_dict({**d, "version": d["version"] + 1})
+    with pytest.raises(KindError, match="noise file, not a intrinsics file"):
+        MultiposResult.from_dict({**d, "kind": "noise"})
+
+
+def test_one_integrator_for_the_engine_and_the_mocap_free_tools() -> None:
+    """The closed-form RK4 rotation increments (multipos, drift) and the calibration engine's
+    piecewise RK4 (``integrate_pieces``) are the same integrator: on the same nodes they give
+    the same rotation."""
+    from mocap_calib.core.model.preint import integrate_pieces
+
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.004, 0.006, 60))
+    w = np.stack([np.sin(3 * t), np.cos(2 * t), 0.5 * t], axis=1) + rng.normal(0, 0.1, (60, 3))
+    nodes = sample_nodes(w)
+    hs = np.diff(t)
+    inc = integrate_pieces(nodes, np.zeros_like(nodes), hs)
+    R = so3.quat_to_rotmat(quat_product(quat_increments(nodes, hs)))
+    assert so3.angle_deg(inc.dR.T @ R) < 1e-10

@@ -19,10 +19,11 @@ import pytest
 from mocap_calib.cli.main import main
 from mocap_calib.core.calib.pipeline import calibrate
 from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.diagnosis.dead_reckoning import dead_reckoning
 from mocap_calib.errors import InputError
 from mocap_calib.report.text import summary_table
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight
-from mocap_calib.viz.recording import dead_reckoning, write_calibration_recording
+from mocap_calib.viz.recording import write_calibration_recording
 
 AXES = ("x", "y", "z")
 STAGES = ("attitude", "velocity", "position")
@@ -133,7 +134,7 @@ def test_after_residual_rms_equals_result(rec: Recording,
 
 def test_time_axis_spans_session(rec: Recording, calibrated: tuple[Any, Any]) -> None:
     _, result = calibrated
-    tau = result.diagnostics.extras["session"].tau
+    tau = result.diagnostics.trace.session.tau
     t = rec.times()
     assert t.min() == pytest.approx(tau[0], abs=1e-6)
     assert t.max() >= tau[-1] - 0.05  # the last pose may fall between decimated samples
@@ -170,8 +171,8 @@ def test_imu_difference_is_measured_minus_predicted(rec: Recording) -> None:
 
 def test_dead_reckoning_after_follows_mocap(calibrated: tuple[Any, CalibrationResult]) -> None:
     _, result = calibrated
-    ex = result.diagnostics.extras
-    dr = dead_reckoning(ex["session"], ex["model_state"])
+    ex = result.diagnostics.trace
+    dr = dead_reckoning(ex.session, ex.model_state)
     assert dr is not None and len(dr.tau) >= 2
     after, before = dr.position_error("after"), dr.position_error("before")
     assert np.median(after) < 0.1  # m after 2 s: mocap and IMU noise only
@@ -193,7 +194,7 @@ def test_without_diagnostics(calibrated: tuple[SimulatedSession, CalibrationResu
 
 def test_view_without_display_prints_instruction(rrd: Path, monkeypatch: pytest.MonkeyPatch,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    from mocap_calib.cli.commands import view
+    from mocap_calib.workflows import view
 
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
@@ -227,7 +228,7 @@ def test_importing_viz_does_not_import_rerun() -> None:
 
 def test_view_spawns_viewer_with_display(rrd: Path, monkeypatch: pytest.MonkeyPatch,
                                          capsys: pytest.CaptureFixture[str]) -> None:
-    from mocap_calib.cli.commands import view
+    from mocap_calib.workflows import view
 
     calls: list[list[str]] = []
     monkeypatch.setattr(view, "has_display", lambda: True)

@@ -81,12 +81,17 @@ def test_jacobians_match_numerical_derivatives(short_session):
             assert err < 2e-3 * scale + 1e-6, f"{name}[{i}]: error {err:.3g} vs scale {scale:.3g}"
 
 
-def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session):
+@pytest.mark.parametrize("noise", [
+    NoiseModel(),
+    # Mocap noise correlated over 50 ms (70 % of its variance): six more filter states.
+    NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+               mocap_noise_corr_fraction=0.7)], ids=["white", "correlated"])
+def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session, noise):
     sim, s, v = short_session
     model = Model.parse("base+time_offset")
     win = make_windows(s, s.clock_shift + 0.003, 0.15, 200.0, v, min_samples=10)
-    pp = PositionProblem(s, model, NoiseModel(), win)
-    pp.weights[0, 5] = 0.3  # a robust weight must enter as an inflated noise
+    pp = PositionProblem(s, model, noise, win)
+    pp.weights[0, 5] = 0.3  # a robust weight must enter as an inflated (white) noise
     tr = sim.truth
     knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1)) + 1e-3
     out = pp.evaluate(_theta(sim, s, win.count, None, eff={}, knots=knots), store=True)
@@ -104,14 +109,23 @@ def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session):
             Q[6:9, 3:6] += qpv[k] * np.eye(3)
             P = F[k] @ P @ F[k].T + Q
             Ps.append(P)
+        # The correlated mocap noise, written out as its own Gauss-Markov sequence.
+        if noise.mocap_correlated:
+            Fm, Qm, Pm = ex["Fm"][w], ex["Qm"][w], [ex["Pm0"][w]]
+            for k in range(m1 - 1):
+                Pm.append(Fm[k] @ Pm[-1] @ Fm[k].T + Qm[k])
         n = 6 * m1
         C = np.zeros((n, n))
         for k in range(m1):
             Phi = np.eye(15)
+            Phm = np.eye(6)
             for j in range(k, m1):
                 if j > k:
                     Phi = F[j - 1] @ Phi
+                    Phm = ex["Fm"][w][j - 1] @ Phm if noise.mocap_correlated else Phm
                 block = (Phi @ Ps[k])[0:6, 0:6]
+                if noise.mocap_correlated:
+                    block = block + Phm @ Pm[k]
                 C[6 * j:6 * j + 6, 6 * k:6 * k + 6] = block
                 C[6 * k:6 * k + 6, 6 * j:6 * j + 6] = block.T
             C[6 * k:6 * k + 6, 6 * k:6 * k + 6] += Rn[k] / wt[k]
@@ -122,6 +136,7 @@ def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session):
         np.testing.assert_allclose(out.gram[w], dense, rtol=1e-6,
                                    atol=1e-9 * np.abs(dense).max())
         assert out.chi2[w] == pytest.approx(r @ np.linalg.solve(C, r), rel=1e-6)
+        assert out.logdet[w] == pytest.approx(np.linalg.slogdet(C)[1], rel=1e-9, abs=1e-6)
 
 
 def test_compressed_factor_reproduces_the_quadratic_cost():
@@ -154,3 +169,22 @@ def test_noise_model_is_consistent_at_the_truth(length):
     dof = float(np.sum(6 * win.mask.sum(axis=1) - 9))
     ratio = out.chi2.sum() / dof
     assert abs(ratio - 1.0) < 4.0 * np.sqrt(2.0 / dof) + 0.01
+
+
+@pytest.mark.parametrize("noise", [
+    NoiseModel(),
+    NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+               mocap_noise_corr_fraction=0.7)], ids=["white", "correlated"])
+def test_likelihood_pass_equals_the_full_evaluation(short_session, noise):
+    """The noise-model choice uses a filter pass without Jacobian columns: it must give the
+    full evaluation's chi2 + log det, window by window."""
+    sim, s, v = short_session
+    win = make_windows(s, s.clock_shift + 0.003, 0.5, 200.0, v, min_samples=10)
+    pp = PositionProblem(s, Model.parse("base+time_offset"), noise, win)
+    pp.weights[1, 7] = 0.2
+    tr = sim.truth
+    knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1)) + 1e-3
+    th = _theta(sim, s, win.count, None, eff={}, knots=knots)
+    full = pp.evaluate(th)
+    (light,) = pp.likelihoods(th, [noise])
+    np.testing.assert_allclose(light, full.chi2 + full.logdet, rtol=1e-8)

@@ -14,8 +14,6 @@ from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import load_noise, load_result, save_result
 
-EUROC_IMU_SENSOR = Path("/work/shared/data/euroc_V2_03_difficult/mav0/imu0/sensor.yaml")
-
 ARRAY_FIELDS = ("gyro_bias", "accel_bias", "rotation_wxyz", "translation", "gravity_in_mocap",
                 "sigma_gyro_bias", "sigma_accel_bias", "sigma_rotation", "sigma_translation",
                 "sigma_gravity")
@@ -85,7 +83,8 @@ def test_result_round_trip_is_exact(tmp_path: Path) -> None:
 def test_result_file_has_conventions_keys(tmp_path: Path) -> None:
     res = make_result()
     data = yaml.safe_load(save_result(tmp_path / "calib.yaml", res).read_text())
-    assert list(data)[:6] == ["gyro_bias", "accel_bias", "T_marker_imu", "gravity_in_mocap",
+    assert list(data)[:8] == ["kind", "version", "gyro_bias", "accel_bias", "T_marker_imu",
+                              "gravity_in_mocap",
                               "time_offset", "sigma"]
     assert set(data["T_marker_imu"]) == {"rotation_wxyz", "translation"}
     assert set(data["sigma"]) == {"gyro_bias", "accel_bias", "rotation", "translation",
@@ -207,7 +206,7 @@ def test_structurally_wrong_results_are_input_error(tmp_path: Path, text: str) -
 
 
 def test_truth_file_loads_as_result(tmp_path: Path) -> None:
-    from mocap_calib.workflows.calibrate import simulate_to_folder
+    from mocap_calib.workflows.simulate import simulate_to_folder
 
     simulate_to_folder(tmp_path / "sim", seed=3, duration=3.0, effects=["time_offset=0.01"])
     truth_path = tmp_path / "sim" / "truth.yaml"
@@ -260,9 +259,8 @@ def test_load_noise_partial_file_keeps_base(tmp_path: Path) -> None:
     assert n == NoiseModel(0.5, 2.0, 3.0, 4.0, 5.0, 6.0)
 
 
-@pytest.mark.skipif(not EUROC_IMU_SENSOR.is_file(), reason="EuRoC V2_03 not available")
-def test_load_noise_reads_euroc_sensor_yaml() -> None:
-    n = load_noise(EUROC_IMU_SENSOR, OTHER_BASE)
+def test_load_noise_reads_euroc_sensor_yaml(euroc_dir: Path) -> None:
+    n = load_noise(euroc_dir / "mav0" / "imu0" / "sensor.yaml", OTHER_BASE)
     assert n.gyroscope_noise_density == 1.6968e-04
     assert n.gyroscope_random_walk == 1.9393e-05
     assert n.accelerometer_noise_density == 2.0000e-3
@@ -290,3 +288,31 @@ def test_load_noise_rejects_bad_values(tmp_path: Path, value: str, fragment: str
 def test_load_noise_rejects_files_without_noise_keys(tmp_path: Path, text: str) -> None:
     with pytest.raises(InputError, match="no noise keys"):
         load_noise(write(tmp_path, text, "imu.yaml"))
+
+
+def test_result_kind_and_version_are_checked() -> None:
+    from mocap_calib.core.model.versioned import KindError
+
+    d = make_result().to_dict()
+    assert (d["kind"], d["version"]) == ("calibration", 1)
+    assert CalibrationResult.from_dict(d).to_dict() == d
+    with pytest.raises(KindError, match="newer"):
+        CalibrationResult.from_dict({**d, "version": 99})
+    with pytest.raises(KindError, match="diagnosis file"):
+        CalibrationResult.from_dict({**d, "kind": "diagnosis"})
+
+
+def test_other_kind_of_file_is_named(tmp_path: Path) -> None:
+    p = tmp_path / "noise.yaml"
+    p.write_text("kind: noise\nversion: 1\ngyroscope_noise_density: 1e-4\n")
+    with pytest.raises(InputError, match="noise file, not a calibration file"):
+        load_result(p)
+
+
+def test_text_report_keeps_the_precision_of_a_huge_clock_offset() -> None:
+    from mocap_calib.report.text import summary_table
+
+    res = make_result()
+    res.time_offset, res.sigma_time_offset = -1_035_123.456789, 5e-5
+    row = next(x for x in summary_table(res).splitlines() if x.startswith("time_offset"))
+    assert "-1035123456.789" in row and "e+" not in row

@@ -73,7 +73,7 @@ def _kind(name: str) -> str:
     t = str(_TYPES[name])
     if "tuple" in t:
         return "paths"
-    for k in ("Path", "bool", "float", "str"):
+    for k in ("Path", "bool", "float", "int", "str"):
         if k in t:
             return k.lower()
     raise AssertionError(name)
@@ -136,6 +136,11 @@ class _Checker:
                 self.bad(where, f"{key} must be a number, got {value!r}", "give a number")
                 return None
             return float(value)
+        if kind == "int":
+            if isinstance(value, bool) or not isinstance(value, int):
+                self.bad(where, f"{key} must be a whole number, got {value!r}", "give e.g. 30")
+                return None
+            return value
         if isinstance(value, bool) or not isinstance(value, (str, int, float)):
             self.bad(where, f"{key} must be text, got {value!r}", "give a string")
             return None

@@ -3,12 +3,12 @@ runs on it.
 
 :class:`CalibrateArgs` holds the options of ``mocap-calib calibrate`` by their long names with
 underscores (the manifest's keys) and :func:`calibrate_args` does what that command does with
-them (build the input spec, the options and the noise overrides; read and calibrate).
+them (build the input spec, the options and the noise overrides; read and calibrate). A test
+checks that the two option lists stay the same.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,12 +19,11 @@ from mocap_calib.core.calib.result import CalibrationResult
 @dataclass(frozen=True)
 class CalibrateArgs:
     """The options of ``mocap-calib calibrate`` with its defaults (``mav0`` is its folder
-    argument); ``rigid_body`` picks one body of a multi-body mocap export."""
+    argument; ``out``, ``rrd``, ``report`` and ``quiet`` belong to the batch itself)."""
 
     mav0: Path | None = None
     imu: Path | None = None
     mocap: Path | None = None
-    rigid_body: str | None = None
     model: str = "base+time_offset"
     gravity: float = 9.81
     noise: Path | None = None
@@ -40,6 +39,7 @@ class CalibrateArgs:
     prior: tuple[Path, ...] = ()
     start: float | None = None
     end: float | None = None
+    max_iterations: int = 30
     no_robust: bool = False
     pose_source: str = "auto"
     columns: str | None = None
@@ -48,6 +48,14 @@ class CalibrateArgs:
     accel_unit: str | None = None
     quat_order: str | None = None
     position_unit: str | None = None
+    imu_topic: str | None = None
+    mocap_topic: str | None = None
+    mocap_frame: str | None = None
+    stamp: str = "header"
+    mocap_format: str | None = None
+    rigid_body: str | None = None
+    rotation: str | None = None
+    mocap_rate: float | None = None
 
 
 @dataclass(frozen=True)
@@ -62,32 +70,33 @@ class SessionJob:
 
 
 def calibrate_args(args: CalibrateArgs, extra_priors: list | None = None) -> CalibrationResult:
-    """Calibrate one session as ``mocap-calib calibrate`` would with these options.
+    """Calibrate one session as ``mocap-calib calibrate`` does with these options (the same
+    workflow calls as that command, without writing files)."""
+    from dataclasses import replace
 
-    Mirrors the CLI command's body; when the workflow gains one ``run_calibrate(...)`` that
-    takes the options, this becomes a call to it.
-    """
-    from mocap_calib.core.calib.pipeline import CalibrationOptions
-    from mocap_calib.core.model.effects import Model
-    from mocap_calib.workflows.calibrate import InputSpec, run_calibration
+    from mocap_calib.workflows.calibrate import (
+        InputSpec,
+        calibration_options,
+        noise_overrides,
+        run_calibration,
+    )
 
-    spec = InputSpec(args.mav0, args.imu, args.mocap, args.pose_source, args.columns,
-                     args.time_unit, args.gyro_unit, args.accel_unit, args.quat_order,
-                     args.position_unit, rigid_body=args.rigid_body)
-    opts = CalibrationOptions(
-        model=Model.parse(args.model), gravity=args.gravity,
-        attitude_spacing=args.keyframe_spacing, velocity_spacing=args.keyframe_spacing,
-        window=args.window, time_offset=args.time_offset, robust=not args.no_robust,
-        start=args.start, end=args.end, priors=list(extra_priors or []))
-    overrides = {
-        "gyroscope_noise_density": args.gyro_noise, "gyroscope_random_walk": args.gyro_walk,
-        "accelerometer_noise_density": args.accel_noise,
-        "accelerometer_random_walk": args.accel_walk,
-        "mocap_position_sigma": None if args.mocap_noise_mm is None else args.mocap_noise_mm * 1e-3,
-        "mocap_rotation_sigma": (None if args.mocap_noise_deg is None
-                                 else math.radians(args.mocap_noise_deg)),
-    }
-    result, _ = run_calibration(spec, opts, args.noise, overrides, list(args.prior))
+    a = args
+    spec = InputSpec(a.mav0, a.imu, a.mocap, a.pose_source, a.columns, a.time_unit, a.gyro_unit,
+                     a.accel_unit, a.quat_order, a.position_unit, imu_topic=a.imu_topic,
+                     mocap_topic=a.mocap_topic, mocap_frame=a.mocap_frame, stamp=a.stamp,
+                     mocap_format=a.mocap_format, rigid_body=a.rigid_body, rotation=a.rotation,
+                     mocap_rate=a.mocap_rate)
+    opts = calibration_options(model=a.model, gravity=a.gravity,
+                               keyframe_spacing=a.keyframe_spacing, window=a.window,
+                               time_offset=a.time_offset, robust=not a.no_robust, start=a.start,
+                               end=a.end, max_iterations=a.max_iterations)
+    if extra_priors:
+        opts = replace(opts, priors=[*opts.priors, *extra_priors])
+    overrides = noise_overrides(gyro_noise=a.gyro_noise, gyro_walk=a.gyro_walk,
+                                accel_noise=a.accel_noise, accel_walk=a.accel_walk,
+                                mocap_noise_mm=a.mocap_noise_mm, mocap_noise_deg=a.mocap_noise_deg)
+    result, _ = run_calibration(spec, opts, a.noise, overrides, list(a.prior))
     return result
 
 

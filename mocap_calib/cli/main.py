@@ -8,15 +8,20 @@ message on stderr and the error's exit code, here and nowhere else.
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import typer
 
-from mocap_calib.errors import CalibrationError
+from mocap_calib.errors import CalibrationError, Interrupted
 
 app = typer.Typer(
     name="mocap-calib",
-    help="Calibrate an IMU from motion-capture sessions (EuRoC/ASL CSVs, TUM, generic CSV).",
+    help="Calibrate an IMU from motion-capture sessions (EuRoC/ASL CSVs, TUM, generic CSV, ROS "
+    "bags, MCAP, PX4 ULog, Motive and Vicon exports).",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -30,16 +35,43 @@ def _register_commands() -> None:
     from mocap_calib.cli import commands  # noqa: F401
 
 
+def _raise_interrupted(signum: int, _frame: object) -> None:
+    raise Interrupted(signum)
+
+
+@contextmanager
+def _signals_raise() -> Iterator[None]:
+    """SIGINT and SIGTERM raise :class:`Interrupted` (not KeyboardInterrupt, which click would
+    turn into an exit code of its own), so every command stops the same way and writes
+    nothing: outputs are written atomically, at the end."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s in old:
+        signal.signal(s, _raise_interrupted)
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _is_usage_error(err: BaseException) -> bool:
+    """click's usage errors (bad option, missing argument): they can show themselves and carry
+    an exit code. Recognised by that, not by click's class, whose module typer vendors."""
+    return callable(getattr(err, "show", None)) and isinstance(getattr(err, "exit_code", None),
+                                                                int)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return (and exit with) its exit code."""
-    _register_commands()
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
     try:
-        rv = app(args=argv, standalone_mode=False)
-        # typer turns Ctrl-C into Exit(130) and, not standalone, returns that code
-        code = rv if isinstance(rv, int) else 0
-        if code == 130:
-            print("error: interrupted", file=sys.stderr)
+        with _signals_raise():
+            _register_commands()
+            app(args=argv, standalone_mode=False)
+        code = 0
     except CalibrationError as err:
         if debug:
             raise
@@ -48,14 +80,12 @@ def main(argv: list[str] | None = None) -> int:
     except typer.Exit as ex:  # --help, explicit exits
         code = ex.exit_code
     except (typer.Abort, KeyboardInterrupt):
-        print("error: interrupted", file=sys.stderr)
+        print("error: interrupted; no result was written", file=sys.stderr)
         code = 130
     except Exception as err:  # click usage errors and anything unexpected
-        from typer._click.exceptions import ClickException
-
-        if isinstance(err, ClickException):
-            err.show()
-            code = err.exit_code
+        if _is_usage_error(err):
+            err.show()  # type: ignore[attr-defined]
+            code = err.exit_code  # type: ignore[attr-defined]
         elif isinstance(err, MemoryError):
             print("error: out of memory; calibrate a shorter part of the session "
                   "(--start/--end)", file=sys.stderr)

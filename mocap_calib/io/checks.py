@@ -44,6 +44,12 @@ MAX_RATE_HZ = 1e5
 GYRO_P99_MAX = 25.0
 #: If even the quietest 5 % of samples turn faster than this (rad/s), it is deg/s.
 GYRO_P5_MAX = 3.0
+#: Above this median |accel| (m/s^2 after the unit conversion) the readings are raw counts.
+ACCEL_COUNTS_MIN = 200.0
+#: A gyro faster than this (deg/s) at its 99th percentile is beyond any MEMS gyro's range.
+GYRO_COUNTS_DEG_MIN = 4000.0
+_COUNTS_FIX = ("'mocap-calib multipos --raw' calibrates raw counts; the other commands need "
+               "SI units: convert the log (or pass --gyro-unit / --accel-unit)")
 #: Positions spanning more than this (m) in one axis are almost surely millimetres.
 POSITION_RANGE_MAX = 100.0
 
@@ -249,9 +255,14 @@ def check_imu_gaps(ns: IntArray, lines: Lines) -> None:
             "separately (--start/--end) or re-record", i + 1)
 
 
+def _integral(x: Array) -> bool:
+    return bool(np.all(x == np.round(x)))
+
+
 def check_imu_units(gyro: Array, accel: Array, gyro_unit: str, accel_unit: str,
                     lines: Lines) -> None:
-    """Raise when gyro or accel magnitudes suggest a unit other than the declared one.
+    """Raise when gyro or accel magnitudes suggest a unit other than the declared one; raw
+    sensor counts are named as such (never taken for deg/s).
 
     Args:
         gyro: (N, 3) rates converted to rad/s with ``gyro_unit``.
@@ -261,6 +272,9 @@ def check_imu_units(gyro: Array, accel: Array, gyro_unit: str, accel_unit: str,
         lines: Where the rows came from.
     """
     a = float(np.median(np.linalg.norm(accel, axis=1)))
+    if a > ACCEL_COUNTS_MIN:
+        raise lines.error(f"IMU readings look like raw sensor counts (median accelerometer "
+                          f"magnitude {a:.4g}, far above |g| in any unit)", _COUNTS_FIX)
     if accel_unit == "m/s^2" and 0.5 <= a <= 2.0:
         raise lines.error(f"median accelerometer magnitude is {a:.3g} m/s^2",
                           "the accelerometer looks like it is in g; pass --accel-unit g")
@@ -268,14 +282,21 @@ def check_imu_units(gyro: Array, accel: Array, gyro_unit: str, accel_unit: str,
         raise lines.error(f"median accelerometer magnitude is {a:.3g} m/s^2 after converting "
                           "from g", "the accelerometer looks like it is already in m/s^2; "
                           "pass --accel-unit m/s^2")
-    if gyro_unit == "rad/s":
-        w = np.linalg.norm(gyro, axis=1)
-        p5, p99 = (float(v) for v in np.percentile(w, [5.0, 99.0]))
-        if p99 > GYRO_P99_MAX or p5 > GYRO_P5_MAX:
-            raise lines.error(
-                f"gyro magnitudes are implausible in rad/s (99th percentile {p99:.3g}, "
-                f"5th percentile {p5:.3g})",
-                "the gyro looks like it is in deg/s; pass --gyro-unit deg/s")
+    w = np.linalg.norm(gyro, axis=1)
+    p5, p99 = (float(v) for v in np.percentile(w, [5.0, 99.0]))
+    figures = f"99th percentile {p99:.3g} rad/s, 5th percentile {p5:.3g} rad/s"
+    as_deg = p99 if gyro_unit == "rad/s" else float(np.degrees(p99))  # the file's numbers
+    if as_deg > GYRO_COUNTS_DEG_MIN:
+        # Read as deg/s these would still turn faster than any gyro can: counts, not deg/s.
+        raise lines.error(f"gyro magnitudes are implausible in {gyro_unit} ({figures}) and "
+                          "in deg/s alike: they look like raw sensor counts", _COUNTS_FIX)
+    if gyro_unit == "rad/s" and (p99 > GYRO_P99_MAX or p5 > GYRO_P5_MAX):
+        if _integral(gyro) and _integral(accel):
+            raise lines.error(f"gyro magnitudes are implausible in rad/s ({figures}) and all "
+                              "readings are integers: they look like raw sensor counts",
+                              _COUNTS_FIX)
+        raise lines.error(f"gyro magnitudes are implausible in rad/s ({figures})",
+                          "the gyro looks like it is in deg/s; pass --gyro-unit deg/s")
 
 
 def check_position_unit(position: Array, position_unit: str, lines: Lines) -> None:
@@ -290,7 +311,7 @@ def check_position_unit(position: Array, position_unit: str, lines: Lines) -> No
 
 def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
                  time_unit: str = "ns", gyro_unit: str = "rad/s",
-                 accel_unit: str = "m/s^2") -> ImuSamples:
+                 accel_unit: str = "m/s^2", raw: bool = False) -> ImuSamples:
     """Check a parsed IMU table and build :class:`ImuSamples` from it.
 
     Args:
@@ -301,6 +322,7 @@ def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
         time_unit: Unit the file's time column was declared in (for hints).
         gyro_unit: Declared gyro unit (for hints).
         accel_unit: Declared accel unit (for hints).
+        raw: the readings are raw counts (no unit check).
 
     Returns:
         The samples, times relative to the first stamp.
@@ -312,7 +334,8 @@ def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
     require_rows(len(ns), MIN_IMU_ROWS, "IMU", lines)
     check_time_unit(ns, time_unit, "IMU", lines)
     check_imu_gaps(ns, lines)
-    check_imu_units(gyro, accel, gyro_unit, accel_unit, lines)
+    if not raw:
+        check_imu_units(gyro, accel, gyro_unit, accel_unit, lines)
     origin = int(ns[0])
     return ImuSamples((ns - origin) / 1e9, gyro, accel, origin, lines.source)
 

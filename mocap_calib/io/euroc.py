@@ -78,7 +78,7 @@ def _check_header(layout: Layout, kind: str) -> None:
 
 
 def read_euroc_imu(path: Path | str, *, time_unit: str = "ns", gyro_unit: str = "rad/s",
-                   accel_unit: str = "m/s^2") -> ImuSamples:
+                   accel_unit: str = "m/s^2", raw: bool = False) -> ImuSamples:
     """Read an EuRoC ``imu0/data.csv``.
 
     Args:
@@ -86,6 +86,7 @@ def read_euroc_imu(path: Path | str, *, time_unit: str = "ns", gyro_unit: str = 
         time_unit: Unit of the stamps (EuRoC: ns).
         gyro_unit: rad/s (EuRoC) or deg/s.
         accel_unit: m/s^2 (EuRoC) or g.
+        raw: the readings are raw counts (no unit conversion or check).
 
     Returns:
         The IMU samples.
@@ -96,7 +97,7 @@ def read_euroc_imu(path: Path | str, *, time_unit: str = "ns", gyro_unit: str = 
     layout = sniff_layout(path)
     _check_header(layout, "imu")
     imu, _ = read_indexed(layout, time=0, gyro=(1, 2, 3), accel=(4, 5, 6), time_unit=time_unit,
-                          gyro_unit=gyro_unit, accel_unit=accel_unit)
+                          gyro_unit=gyro_unit, accel_unit=accel_unit, raw=raw)
     assert imu is not None
     return imu
 

@@ -463,7 +463,8 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
                  accel: Sequence[int] | None = None, quat: Sequence[int] | None = None,
                  position: Sequence[int] | None = None, time_unit: str = "s",
                  gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", quat_order: str = "wxyz",
-                 position_unit: str = "m") -> tuple[ImuSamples | None, MocapPoses | None]:
+                 position_unit: str = "m", raw: bool = False
+                 ) -> tuple[ImuSamples | None, MocapPoses | None]:
     """Read the streams whose (resolved, 0-based) columns are given, convert and check them.
 
     The building block of every reader: EuRoC and TUM call it with their fixed columns.
@@ -480,6 +481,7 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
         accel_unit: m/s^2 or g.
         quat_order: wxyz or xyzw.
         position_unit: m or mm.
+        raw: the IMU readings are raw counts: no unit conversion or check.
 
     Returns:
         (IMU samples or None, mocap poses or None).
@@ -504,7 +506,7 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
         g = block(gyro) * (np.pi / 180.0 if gyro_unit == "deg/s" else 1.0)
         a = block(accel) * (G0 if accel_unit == "g" else 1.0)
         imu = validate_imu(ns, g, a, lines, time_unit=time_unit, gyro_unit=gyro_unit,
-                           accel_unit=accel_unit)
+                           accel_unit=accel_unit, raw=raw)
     if quat is not None and position is not None:
         q = block(quat)
         if quat_order == "xyzw":
@@ -545,7 +547,7 @@ def resolve_column(col: Col, layout: Layout) -> int:
 def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str = "s",
                  gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", quat_order: str = "wxyz",
                  position_unit: str = "m", streams: Collection[str] | None = None,
-                 ) -> tuple[ImuSamples | None, MocapPoses | None]:
+                 raw: bool = False) -> tuple[ImuSamples | None, MocapPoses | None]:
     """Read an IMU and/or a mocap stream from a delimited text file with a column map.
 
     Args:
@@ -558,6 +560,7 @@ def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str =
         position_unit: m or mm.
         streams: Streams to read (``"imu"``, ``"mocap"``); each must be in the column map.
             None reads whatever the column map describes.
+        raw: the IMU readings are raw counts (no unit conversion or check).
 
     Returns:
         (IMU samples or None, mocap poses or None), in SI units with ``[w, x, y, z]``.
@@ -588,7 +591,7 @@ def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str =
         quat=res(colmap.quat, "mocap" in streams),
         position=res(colmap.position, "mocap" in streams),
         time_unit=time_unit, gyro_unit=gyro_unit, accel_unit=accel_unit, quat_order=quat_order,
-        position_unit=position_unit)
+        position_unit=position_unit, raw=raw)
 
 
 # --- writing --------------------------------------------------------------------------------

@@ -2,6 +2,10 @@
 
 Format sniffing, per path:
 
+- a ROS 1 bag, a ROS 2 bag folder (db3 or MCAP storage), a bare ``.mcap`` -> bag
+  (:mod:`mocap_calib.io.bags`); a PX4 ``.ulg`` -> ULog (:mod:`mocap_calib.io.ulog`);
+- a CSV whose first line is Motive's metadata or a Vicon section name -> mocap export
+  (:mod:`mocap_calib.io.mocap_exports`), or any file given with ``--mocap-format``;
 - a folder -> EuRoC ``mav0`` (the folder itself or its parent);
 - a file whose header is EuRoC's ``imu0`` header -> EuRoC IMU;
 - a file whose header is EuRoC's pose header (vicon0 or ground truth) -> EuRoC poses;
@@ -21,6 +25,7 @@ from typing import Any
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
+from mocap_calib.io.bags import RecordingOptions, bag_kind, open_bag, read_bag_imu, read_bag_mocap
 from mocap_calib.io.euroc import (
     POSE_FOLDERS,
     find_mav0,
@@ -31,12 +36,21 @@ from mocap_calib.io.euroc import (
     read_mav0,
 )
 from mocap_calib.io.generic import WHITESPACE, read_generic, sniff_layout
+from mocap_calib.io.imu_tk import read_imu_tk_pair
+from mocap_calib.io.mocap_exports import ExportOptions, read_export, sniff_export
 from mocap_calib.io.tum import read_tum
+from mocap_calib.io.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
 
 #: Human-readable names of the formats :func:`sniff_format` returns.
 FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
                 "euroc_poses": "EuRoC pose CSV", "tum": "TUM trajectory",
-                "generic": "generic CSV"}
+                "generic": "generic CSV", "rosbag1": "ROS 1 bag", "rosbag2": "ROS 2 bag",
+                "mcap": "MCAP file", "ulog": "PX4 ULog", "motive": "Motive CSV export",
+                "vicon-nexus": "Vicon Nexus CSV export",
+                "vicon-tracker": "Vicon Tracker CSV export"}
+#: Formats holding time-stamped messages of several streams (read by topic).
+RECORDINGS = ("rosbag1", "rosbag2", "mcap", "ulog")
+EXPORTS = ("motive", "vicon-nexus", "vicon-tracker")
 
 _NEEDS_COLUMNS = ("say which columns hold what with --columns, e.g. "
                   "--columns 't=0,gyro=1:4,accel=4:7,quat=7:11,pos=11:14' or --columns broad")
@@ -49,8 +63,16 @@ def sniff_format(path: Path | str) -> str:
         InputError: if the path does not exist or the file is empty.
     """
     path = Path(path)
+    kind = bag_kind(path)
+    if kind is not None:
+        return kind
     if path.is_dir():
         return "mav0"
+    if is_ulog(path):
+        return "ulog"
+    export = sniff_export(path) if path.is_file() else None
+    if export is not None:
+        return export
     layout = sniff_layout(path)
     kind = header_kind(layout.names)
     if kind == "imu":
@@ -79,7 +101,8 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
                 pose_source: str = "auto", columns: str | None = None,
                 time_unit: str | None = None, gyro_unit: str | None = None,
                 accel_unit: str | None = None, quat_order: str | None = None,
-                position_unit: str | None = None,
+                position_unit: str | None = None, recording: RecordingOptions | None = None,
+                export: ExportOptions | None = None,
                 ) -> tuple[ImuSamples, MocapPoses, list[str]]:
     """Read the IMU and mocap streams from whatever the user passed.
 
@@ -94,6 +117,8 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
         accel_unit: m/s^2 or g; None for the format's own.
         quat_order: wxyz or xyzw; None for the format's own.
         position_unit: m or mm; None for the format's own.
+        recording: topics, TF child frame and stamp source for bags and ULogs.
+        export: format, rigid body, rotation form and rate for Motive/Vicon exports.
 
     Returns:
         (IMU samples, mocap poses, one-line notes for the user).
@@ -104,7 +129,8 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
     units: dict[str, str] = {k: v for k, v in (
         ("time_unit", time_unit), ("gyro_unit", gyro_unit), ("accel_unit", accel_unit),
         ("quat_order", quat_order), ("position_unit", position_unit)) if v is not None}
-    reader = _Reader(columns, pose_source, units)
+    reader = _Reader(columns, pose_source, units, recording or RecordingOptions(),
+                     export or ExportOptions())
     if mav0 is not None:
         if imu is not None or mocap is not None:
             raise input_error("--mav0 and --imu/--mocap both given",
@@ -127,11 +153,49 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
 class _Reader:
     """Reads streams with the user's options, collecting notes."""
 
-    def __init__(self, columns: str | None, pose_source: str, units: dict[str, str]) -> None:
+    def __init__(self, columns: str | None, pose_source: str, units: dict[str, str],
+                 recording: RecordingOptions, export: ExportOptions) -> None:
         self.columns = columns
         self.pose_source = pose_source
         self.units = units
+        self.recording = recording
+        self.export = export
         self.notes: list[str] = []
+
+    def _ignore_options(self, path: Path, fmt: str) -> None:
+        """Units and column maps do not apply to self-describing recordings."""
+        given = [f"--{k.replace('_', '-')}" for k in self.units]
+        if self.columns is not None:
+            given.insert(0, "--columns")
+        if given:
+            self.notes.append(f"ignored {', '.join(given)} for {path}: it is a "
+                              f"{FORMAT_NAMES[fmt]} (SI units)")
+
+    def _recording(self, path: Path, fmt: str, imu: bool, mocap: bool
+                   ) -> tuple[ImuSamples | None, MocapPoses | None]:
+        """Read the IMU and/or mocap streams of a bag or ULog (opened once)."""
+        self._ignore_options(path, fmt)
+        got_imu = got_mocap = None
+        if fmt == "ulog":
+            if imu:
+                got_imu = read_ulog_imu(path, self.recording.imu_topic, self.notes)
+            if mocap:
+                got_mocap = read_ulog_mocap(path, self.recording.mocap_topic, self.notes)
+        else:
+            with open_bag(path) as bag:
+                if imu:
+                    got_imu = read_bag_imu(bag, self.recording, self.notes)
+                if mocap:
+                    got_mocap = read_bag_mocap(bag, self.recording, self.notes)
+        if got_imu is not None:
+            self._note_imu(got_imu, fmt, path)
+        if got_mocap is not None:
+            self._note_mocap(got_mocap, fmt, path)
+        return got_imu, got_mocap
+
+    def _export(self, path: Path, fmt: str) -> MocapPoses:
+        self._ignore_options(path, fmt)
+        return self._note_mocap(read_export(path, self.export, self.notes), fmt, path)
 
     def _kw(self, *names: str) -> dict[str, Any]:
         return {n: self.units[n] for n in names if n in self.units}
@@ -180,6 +244,14 @@ class _Reader:
         fmt = sniff_format(path)
         if fmt == "mav0":
             return self.mav0(path)
+        if fmt in RECORDINGS:
+            imu, mocap = self._recording(path, fmt, True, True)
+            assert imu is not None and mocap is not None
+            return imu, mocap, self.notes
+        if fmt in EXPORTS:
+            raise input_error(f"the same file is given as --imu and --mocap but it is a "
+                              f"{FORMAT_NAMES[fmt]} (poses only)", "pass the IMU log with "
+                              "--imu", str(path))
         if fmt == "euroc_imu" or fmt == "euroc_poses" or (fmt == "tum" and self.columns is None):
             held = "IMU samples" if fmt == "euroc_imu" else "poses"
             raise input_error(f"the same file is given as --imu and --mocap but it holds only "
@@ -193,6 +265,13 @@ class _Reader:
 
     def imu(self, path: Path) -> ImuSamples:
         fmt = sniff_format(path)
+        if fmt in RECORDINGS:
+            imu, _ = self._recording(path, fmt, True, False)
+            assert imu is not None
+            return imu
+        if fmt in EXPORTS:
+            raise input_error(f"--imu is given a mocap export ({FORMAT_NAMES[fmt]})",
+                              "pass it with --mocap and the IMU log with --imu", str(path))
         if fmt == "mav0":
             file = find_mav0(path) / "imu0" / "data.csv"
             self._ignore_columns(path, fmt)
@@ -210,7 +289,15 @@ class _Reader:
         return self._note_imu(imu, "generic", path)
 
     def mocap(self, path: Path) -> MocapPoses:
+        if self.export.mocap_format is not None:
+            return self._export(path, self.export.mocap_format)
         fmt = sniff_format(path)
+        if fmt in RECORDINGS:
+            _, mocap = self._recording(path, fmt, False, True)
+            assert mocap is not None
+            return mocap
+        if fmt in EXPORTS:
+            return self._export(path, fmt)
         kw = self._kw("time_unit", "quat_order", "position_unit")
         if fmt == "mav0":
             self._ignore_columns(path, fmt)
@@ -229,3 +316,120 @@ class _Reader:
         _, mocap = self._generic(path, ["mocap"])
         assert mocap is not None
         return self._note_mocap(mocap, "generic", path)
+
+
+def is_recording(path: Path | str) -> bool:
+    """True for a ROS bag (1 or 2), a bare MCAP file or a PX4 ULog."""
+    path = Path(path)
+    return bag_kind(path) is not None or (not path.is_dir() and is_ulog(path))
+
+
+def _load_recording_imu(path: Path, topic: str | None, stamp: str
+                        ) -> tuple[ImuSamples, list[str]]:
+    """IMU samples of a bag or ULog without mocap."""
+    fmt = sniff_format(path)
+    if fmt not in RECORDINGS:
+        raise input_error(f"not a bag or ULog ({FORMAT_NAMES.get(fmt, fmt)})",
+                          "pass a .bag, a ROS 2 bag folder, a .mcap or a .ulg file", str(path))
+    reader = _Reader(None, "auto", {}, RecordingOptions(imu_topic=topic, stamp=stamp),
+                     ExportOptions())
+    imu, _ = reader._recording(path, fmt, True, False)
+    assert imu is not None
+    return imu, reader.notes
+
+
+def load_imu_file(path: Path | str | None, *, columns: str | None = None,
+                  time_unit: str | None = None, gyro_unit: str | None = None,
+                  accel_unit: str | None = None, raw: bool = False,
+                  accel_file: Path | str | None = None, gyro_file: Path | str | None = None,
+                  topic: str | None = None, stamp: str = "header"
+                  ) -> tuple[ImuSamples, list[str]]:
+    """Read an IMU log without mocap (:func:`load_inputs` needs both streams).
+
+    Format as for :func:`load_inputs`: a ROS bag, MCAP or PX4 ULog (``topic``, ``stamp``); a
+    folder is an EuRoC ``mav0``; a file with the EuRoC ``imu0`` header is EuRoC; anything else
+    is a generic CSV that needs ``columns``. Or imu_tk's two files (``accel_file``,
+    ``gyro_file``; :mod:`mocap_calib.io.imu_tk`). New formats (and options) are added here, as
+    keywords, so every IMU-only command gets them.
+
+    Args:
+        path: ``--imu`` file or folder (None with ``accel_file`` and ``gyro_file``).
+        columns: ``--columns`` string for generic CSVs.
+        time_unit: s, ms, us or ns; None for the format's own (imu_tk's files: s).
+        gyro_unit: rad/s or deg/s; None for the format's own.
+        accel_unit: m/s^2 or g; None for the format's own.
+        raw: the readings are raw sensor counts: read as they are, no unit check.
+        accel_file: imu_tk's accelerometer file.
+        gyro_file: imu_tk's gyroscope file.
+        topic: bags and ULogs: the IMU topic (None: the only ``sensor_msgs/Imu`` topic, or
+            ``sensor_combined``).
+        stamp: bags: ``header`` or ``receive``.
+
+    Returns:
+        The samples and one-line notes for the user.
+
+    Raises:
+        InputError: no path, missing file, pose file given, unknown format, bad rows, no or
+            ambiguous IMU topic.
+    """
+    if raw and (gyro_unit is not None or accel_unit is not None):
+        raise input_error("--gyro-unit/--accel-unit given with --raw",
+                          "raw counts have no unit: leave those options out")
+    units: dict[str, str] = {k: v for k, v in (
+        ("time_unit", time_unit), ("gyro_unit", gyro_unit), ("accel_unit", accel_unit))
+        if v is not None}
+    if accel_file is not None or gyro_file is not None:
+        return _load_imu_tk(path, accel_file, gyro_file, units, raw)
+    if path is None:
+        raise input_error("no --imu given", "pass the IMU log with --imu FILE (or imu_tk's two "
+                          "files with --accel FILE --gyro FILE)")
+    path = Path(path)
+    if is_recording(path):
+        if raw:
+            raise input_error("--raw given for a bag or ULog", "their IMU messages are in SI "
+                              "units: leave out --raw", str(path))
+        return _load_recording_imu(path, topic, stamp)
+    fmt = sniff_format(path)
+    notes: list[str] = []
+    if fmt in ("mav0", "euroc_imu"):
+        file = find_mav0(path) / "imu0" / "data.csv" if fmt == "mav0" else path
+        if columns is not None:
+            notes.append(f"ignored --columns for {path}: it is an {FORMAT_NAMES[fmt]}")
+        imu = read_euroc_imu(file, raw=raw, **units)
+    elif fmt == "euroc_poses" or (fmt == "tum" and columns is None):
+        raise input_error(f"--imu is given a pose file ({FORMAT_NAMES[fmt]}), not an IMU log",
+                          "pass the IMU file (EuRoC imu0/data.csv layout or a CSV with "
+                          "--columns)", str(path))
+    else:
+        if columns is None:
+            raise input_error("format not recognised (not an EuRoC imu0 CSV)",
+                              "say which columns hold what with --columns, e.g. "
+                              "--columns 't=0,gyro=1:4,accel=4:7' (imu_tk's two files: "
+                              "--accel FILE --gyro FILE)", str(path))
+        read, _ = read_generic(path, columns, streams=["imu"], raw=raw, **units)
+        assert read is not None
+        imu, file = read, path
+    if raw:
+        notes.append("readings taken as raw sensor counts")
+    notes.append(_describe("IMU", len(imu), imu.rate_hz, imu.duration, fmt, file))
+    return imu, notes
+
+
+def _load_imu_tk(path: Path | str | None, accel_file: Path | str | None,
+                 gyro_file: Path | str | None, units: dict[str, str], raw: bool
+                 ) -> tuple[ImuSamples, list[str]]:
+    if path is not None:
+        raise input_error("--imu and --accel/--gyro both given",
+                          "pass either one IMU log (--imu) or imu_tk's two files "
+                          "(--accel FILE --gyro FILE)")
+    if accel_file is None or gyro_file is None:
+        missing = "--accel" if accel_file is None else "--gyro"
+        raise input_error(f"no {missing} given", "imu_tk's layout needs both files: "
+                          "--accel FILE --gyro FILE")
+    imu, notes = read_imu_tk_pair(accel_file, gyro_file, raw=raw,
+                                  **{"time_unit": "s", **units})
+    if raw:
+        notes.append("readings taken as raw sensor counts")
+    notes.append(f"IMU: {len(imu)} samples at {imu.rate_hz:.1f} Hz over {imu.duration:.1f} s "
+                 f"(imu_tk files {accel_file}, {gyro_file})")
+    return imu, notes

@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mocap_calib.core.calib.result import RESULT_VERSION, CalibrationResult
+from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.model.versioned import KindError
 from mocap_calib.errors import InputError
 
 
@@ -56,12 +57,17 @@ def save_yaml(path: str | Path, data: dict[str, Any], header: str | None = None)
 def save_text(path: str | Path, text: str) -> Path:
     """Write a text file, or raise a one-line :class:`InputError`."""
     path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
+        # Atomic: a reader (or an interrupted run) sees the old file or the new one, never half.
+        tmp.write_text(text)
+        os.replace(tmp, path)
     except OSError as err:
         raise InputError(f"{path}: cannot write ({err.strerror or err}); choose another "
                          "output path") from None
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 
@@ -109,19 +115,13 @@ def load_result(path: str | Path) -> CalibrationResult:
     """Read a result written by :func:`save_result` (or a truth file of the simulator)."""
     data = load_yaml(path, "calibration result")
     try:
-        version = int(data.get("version", RESULT_VERSION))
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: 'version' must be an integer, got {data.get('version')!r}; "
-                         "regenerate the file with mocap-calib") from None
-    if version > RESULT_VERSION:
-        raise InputError(f"{path}: written by a newer mocap-calib (result version {version}, this "
-                         f"one reads up to {RESULT_VERSION}); upgrade mocap-calib")
-    for key in ("gyro_bias", "accel_bias", "T_marker_imu", "gravity_in_mocap"):
-        if key not in data:
-            raise InputError(f"{path}: missing key '{key}'; is this a mocap-calib result file?")
-    try:
         return CalibrationResult.from_dict(data)
-    except (TypeError, ValueError, KeyError, AttributeError) as err:
+    except KindError as err:
+        raise InputError(f"{path}: {err}; give a result written by 'mocap-calib calibrate'"
+                         ) from None
+    except KeyError as err:
+        raise InputError(f"{path}: {err.args[0]}") from None
+    except (TypeError, ValueError, AttributeError) as err:
         raise InputError(f"{path}: malformed result ({err}); regenerate it with mocap-calib "
                          "calibrate") from None
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from mocap_calib.core.calib.result import CalibrationResult
@@ -15,6 +17,31 @@ def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:
     if a.size == 1:
         return f"{a[0]:.{digits}g}"
     return "[" + ", ".join(f"{x:.{digits}g}" for x in a) + "]"
+
+
+def _fmt_time_ms(t: float | None, sigma: float | None) -> str:
+    """A clock offset in ms with as many decimals as its sigma needs (two significant digits
+    of the sigma; microseconds without one), however large the offset (clocks of different
+    epochs differ by years)."""
+    if t is None:
+        return "unobservable"
+    s_ms = 1e-3 if sigma is None or not sigma > 0 else sigma * 1e3
+    decimals = int(np.clip(1 - np.floor(np.log10(s_ms)), 0, 9))
+    return f"{t * 1e3:.{decimals}f}"
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]],
+          right: Sequence[bool] | None = None) -> str:
+    """The one text-table layout: columns padded to their widest cell, a rule under the header;
+    ``right`` aligns numeric columns right."""
+    right = right or [False] * len(header)
+    w = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(r: Sequence[str]) -> str:
+        return "  ".join(f"{c:>{w[i]}}" if right[i] else f"{c:<{w[i]}}"
+                         for i, c in enumerate(r)).rstrip()
+
+    return "\n".join([line(header), "-" * (sum(w) + 2 * (len(w) - 1)), *map(line, rows)])
 
 
 def summary_table(r: CalibrationResult) -> str:
@@ -35,7 +62,7 @@ def summary_table(r: CalibrationResult) -> str:
         tilt = np.degrees(np.arccos(np.clip(-r.gravity_in_mocap[2], -1, 1)))
         rows.append(("mocap z tilt from vertical", f"{tilt:.4g}", "", "deg"))
     sto = None if r.sigma_time_offset is None else r.sigma_time_offset * 1e3
-    rows.append(("time_offset", _fmt(None if r.time_offset is None else r.time_offset * 1e3),
+    rows.append(("time_offset", _fmt_time_ms(r.time_offset, r.sigma_time_offset),
                  "fixed" if sto is None and r.time_offset is not None else _fmt(sto, digits=2),
                  "ms"))
     for name, rec in r.effects.items():
@@ -49,14 +76,8 @@ def summary_table(r: CalibrationResult) -> str:
                                  "" if sig is None else _fmt(np.asarray(sig)[i], digits=2), ""))
             else:
                 rows.append((f"{name}.{key}", _fmt(val), _fmt(sig, digits=2), ""))
-    w = [max(len(row[i]) for row in rows + [("parameter", "estimate", "1-sigma", "unit")])
-         for i in range(4)]
-    lines = [f"{'parameter':<{w[0]}}  {'estimate':<{w[1]}}  {'1-sigma':<{w[2]}}  unit",
-             "-" * (sum(w) + 8)]
-    lines += [f"{a:<{w[0]}}  {b:<{w[1]}}  {c:<{w[2]}}  {d}" for a, b, c, d in rows]
-    lines.append("")
-    lines.append(f"{'stage':<9} {'factors':>8} {'residual RMS per axis (after)':<34} "
-                 f"{'outliers':>8} {'iter':>5} {'chi2/dof':>9} {'time':>7}")
+    lines = [table(("parameter", "estimate", "1-sigma", "unit"), rows), ""]
+    stage_rows = []
     for s in r.stages:
         unit = s.unit
         rms = s.rms_after
@@ -66,8 +87,11 @@ def summary_table(r: CalibrationResult) -> str:
             rms_txt = "[" + ", ".join(f"{x:.3g}" for x in rms) + "] deg"
         else:
             rms_txt = "[" + ", ".join(f"{x:.3g}" for x in rms) + f"] {unit}"
-        lines.append(f"{s.name:<9} {s.n_factors:>8} {rms_txt:<34} {s.outliers:>8} "
-                     f"{s.iterations:>5} {s.chi2_per_dof:>9.3f} {s.seconds:>6.1f}s")
+        stage_rows.append((s.name, str(s.n_factors), rms_txt, str(s.outliers), str(s.iterations),
+                           f"{s.chi2_per_dof:.3f}", f"{s.seconds:.1f}s"))
+    lines.append(table(("stage", "factors", "residual RMS per axis (after)", "outliers", "iter",
+                        "chi2/dof", "time"), stage_rows,
+                       (False, True, False, True, True, True, True)))
     if r.unobservable:
         lines.append("")
         for k, why in r.unobservable.items():
@@ -91,13 +115,15 @@ def diagnose_table(report) -> str:
         lines.append(f"  low-band residual RMS / noise floor: gyro {r.ratio('gyro'):.3f} "
                      f"(per axis {g_axes}), accel {r.ratio('accel'):.3f} (per axis {a_axes})")
         if step.candidates:
-            lines.append(f"  {'candidate':<26} {'T':>12} {'dof':>4} {'log10 p':>9} "
-                         f"{'resid. drop':>11}  verdict")
+            cand_rows = []
             for c in step.candidates[:4]:
                 verdict = "ADDED" if c.effect == step.added else (
                     "significant" if c.significant else "")
-                lines.append(f"  {c.effect:<26} {c.statistic:>12.1f} {c.dof:>4} "
-                             f"{c.log10_p:>9.1f} {100 * c.residual_drop:>10.1f}%  {verdict}")
+                cand_rows.append((c.effect, f"{c.statistic:.1f}", str(c.dof), f"{c.log10_p:.1f}",
+                                  f"{100 * c.residual_drop:.1f}%", verdict))
+            tab = table(("candidate", "T", "dof", "log10 p", "resid. drop", "verdict"), cand_rows,
+                        (False, True, True, True, True, False))
+            lines += ["  " + x for x in tab.splitlines()]
             if len(step.candidates) > 4:
                 lines.append(f"  ... {len(step.candidates) - 4} more, none better")
         if step.added is not None:

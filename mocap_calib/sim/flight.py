@@ -13,10 +13,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
 from mocap_calib.sim.trajectory import random_trajectory
 
@@ -106,6 +108,7 @@ class SimConfig:
     mocap_time_origin_ns: int = 1_600_000_000_000_000_000
     aggressiveness: float = 1.0
     rig_seed: int | None = None  # draw T_MI and the room's tilt from this seed (a fixed rig)
+    mocap_noise_corr: float = 0.0  # s: AR(1) mocap noise with this time constant (0: white)
 
     def validate(self) -> None:
         if not self.duration > 1.0:
@@ -118,6 +121,9 @@ class SimConfig:
                 raise InputError(f"{name} {rate}: must be between 1 and 10000 Hz")
         if self.mocap_rate > self.imu_rate:
             raise InputError("--mocap-rate must not exceed --imu-rate")
+        if not 0.0 <= self.mocap_noise_corr <= 10.0:
+            raise InputError(f"--mocap-noise-corr {self.mocap_noise_corr}: give a time constant "
+                             "in s between 0 (white) and 10, e.g. 0.3")
         for name, values in self.effects.items():
             spec = name if values is None else f"{name}={','.join(repr(v) for v in values)}"
             parse_effect(spec)
@@ -152,6 +158,16 @@ def _vector_effect(rng: np.random.Generator, values: list[float] | None, default
     mag = default if values is None else values[0]
     d = rng.normal(size=3)
     return mag * d / np.linalg.norm(d)
+
+
+def ar1(white: Array, tau_samples: float) -> Array:
+    """AR(1) noise with the marginal sigma of ``white`` (rows: samples) and time constant
+    ``tau_samples`` (in samples): n_k = a n_{k-1} + sqrt(1 - a^2) e_k, started stationary."""
+    a = float(np.exp(-1.0 / tau_samples))
+    out = lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], white, axis=0)
+    # Stationary start: the first sample carries the full variance.
+    out += np.outer(a ** np.arange(len(white)), white[0] * (1.0 - np.sqrt(1.0 - a * a)))
+    return out
 
 
 def _random_rotation(rng: np.random.Generator) -> Array:
@@ -244,8 +260,13 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
     R_WIm = traj.rotation(t_moc)
     R_WM = R_WIm @ R_MI.T
     p_WM = traj.position(t_moc) - R_WM @ p_MI
-    R_meas = R_WM @ so3.exp(rng.normal(0.0, noise.mocap_rotation_sigma, (n_moc, 3)))
-    p_meas = p_WM + rng.normal(0.0, noise.mocap_position_sigma, (n_moc, 3))
+    n_rot = rng.normal(0.0, noise.mocap_rotation_sigma, (n_moc, 3))
+    n_pos = rng.normal(0.0, noise.mocap_position_sigma, (n_moc, 3))
+    if cfg.mocap_noise_corr > 0:
+        n_rot = ar1(n_rot, cfg.mocap_noise_corr * cfg.mocap_rate)
+        n_pos = ar1(n_pos, cfg.mocap_noise_corr * cfg.mocap_rate)
+    R_meas = R_WM @ so3.exp(n_rot)
+    p_meas = p_WM + n_pos
 
     outlier_rows: list[int] = []
     if "mocap_outliers" in effects:
@@ -279,6 +300,7 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
                        cfg.mocap_time_origin_ns, "simulated mocap")
 
     truth: dict[str, Any] = {
+        **header("calibration", 1),
         "gyro_bias": b_g.mean(axis=0).tolist(),
         "accel_bias": b_a.mean(axis=0).tolist(),
         "T_marker_imu": {
@@ -300,6 +322,7 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
             "duration": float(cfg.duration),
             "imu_rate": float(cfg.imu_rate),
             "mocap_rate": float(cfg.mocap_rate),
+            "mocap_noise_corr_s": float(cfg.mocap_noise_corr),
             "bias_definition": "mean of the true bias over the IMU samples",
             "gyro_bias_initial": b_g[0].tolist(),
             "accel_bias_initial": b_a[0].tolist(),

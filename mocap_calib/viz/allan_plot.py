@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.intrinsics.allan import AllanResult, SensorNoise
+from mocap_calib.core.intrinsics.noise_result import AllanResult, SensorNoise
 
 Array = NDArray[np.float64]
 

@@ -30,19 +30,21 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
-from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
-from mocap_calib.core.diagnosis.predict import ModelState, predict_imu
+from mocap_calib.core.calib.session import PreparedSession, prepare
+from mocap_calib.core.calib.state import ModelState, state_from_result
+from mocap_calib.core.diagnosis.dead_reckoning import (
+    DR_LENGTH_S,
+    DeadReckoning,
+    dead_reckoning,
+)
+from mocap_calib.core.diagnosis.predict import predict_imu
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import Model
-from mocap_calib.core.model.imu_model import Intrinsics, correct
-from mocap_calib.core.model.preint import StepIncrements, integrate_pieces, pieces
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
 from mocap_calib.report.text import summary_table
@@ -55,9 +57,6 @@ POSE_RATE_HZ = 50.0
 #: Highest rate (Hz) of the IMU signal series: block means, which low-pass the raw signals to
 #: about the 10 Hz bandwidth of the prediction from (low-passed) mocap poses.
 IMU_RATE_HZ = 25.0
-#: Length (s) of one dead-reckoning segment, and spacing (s) of their starts.
-DR_LENGTH_S = 2.0
-DR_EVERY_S = 10.0
 
 #: ``(label, {stage: ResidualSeries})`` per diagnose step (see ``diagnose_steps``).
 DiagnoseSteps = Sequence[tuple[str, Mapping[str, ResidualSeries]]]
@@ -152,101 +151,6 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
     return path
 
 
-@dataclass(frozen=True)
-class DeadReckoning:
-    """IMU dead-reckoning segments started from the mocap state.
-
-    Attributes:
-        tau: (S, m+1) mocap times of the segment samples.
-        R_ref, p_ref: (S, m+1, 3, 3), (S, m+1, 3) IMU pose from the mocap (``T_WM T_MI``).
-        R_before, p_before: integrated from the raw IMU (zero biases, no effects).
-        R_after, p_after: integrated through the calibrated model (knot biases, effects).
-    """
-
-    tau: Array
-    R_ref: Array
-    p_ref: Array
-    R_before: Array
-    p_before: Array
-    R_after: Array
-    p_after: Array
-
-    def position_error(self, which: str) -> Array:
-        """(S,) position error at the segment ends (m), ``which`` = before / after."""
-        p = self.p_before if which == "before" else self.p_after
-        return np.linalg.norm(p[:, -1] - self.p_ref[:, -1], axis=1)
-
-    def attitude_error(self, which: str) -> Array:
-        """(S,) attitude error at the segment ends (deg)."""
-        R = self.R_before if which == "before" else self.R_after
-        return so3.angle_deg(np.einsum("sji,sjk->sik", R[:, -1], self.R_ref[:, -1]))
-
-
-def dead_reckoning(s: PreparedSession, st: ModelState, length: float = DR_LENGTH_S,
-                   every: float = DR_EVERY_S) -> DeadReckoning | None:
-    """Integrate the IMU for ``length`` seconds from the mocap state, every ``every`` seconds.
-
-    Each segment starts at a mocap sample with the IMU attitude and position ``T_WM T_MI`` and
-    the IMU-origin velocity from a local quadratic fit of ``p_WI``; it is integrated with the
-    core's preintegration (Hermite-interpolated IMU, RK4 between mocap samples) under the
-    estimated gravity ``g_W`` and clock offset. Segments crossing a mocap gap or the IMU's ends
-    are skipped.
-
-    Returns:
-        The segments, or None if the session has room for none.
-    """
-    M = len(s.tau)
-    m = max(2, int(round(length * s.mocap_rate)))
-    if M <= m + 1:
-        return None
-    R_WI = s.R_WM @ st.R_MI
-    p_WI = s.p_WM + s.R_WM @ st.p_MI
-    half = max(2, int(round(0.05 * s.mocap_rate)))
-    _, v_WI, valid = local_derivative(s.tau, p_WI, half, s.gap)
-    cand = np.searchsorted(s.tau, np.arange(s.tau[0] + 0.5 * every, s.tau[-1] - length, every))
-    cand = np.unique(cand[cand + m < M])
-    if len(cand) == 0:
-        return None
-    ok = (valid[cand] & s.segments_without_gaps(cand, cand + m)
-          & s.imu_covers(s.tau[cand], s.tau[cand + m], st.delta))
-    i0 = cand[ok]
-    if len(i0) == 0:
-        return None
-    idx = i0[:, None] + np.arange(m + 1)
-    tau = s.tau[idx]
-    h = np.diff(tau, axis=1)
-    pc = pieces(s.u, tau[:, :-1], tau[:, 1:], st.delta)  # the window engine's integration
-    nodes = pc.nodes
-    u_nodes = nodes - st.delta
-    gyro, accel = pc(s.gyro), pc(s.accel)
-    b = st.bias_at(nodes.ravel()).reshape(nodes.shape + (6,))
-    corr = correct(st.model, Intrinsics(b[..., 0:3], b[..., 3:6], st.effects, st.t_mid),
-                   gyro, accel, u_nodes, sensitivities=False)
-    start = (R_WI[i0], p_WI[i0], v_WI[i0])
-    R_b, p_b = _chain(integrate_pieces(gyro, accel, pc.hs), h, *start, st.g_W)
-    R_a, p_a = _chain(integrate_pieces(corr.w, corr.f, pc.hs), h, *start, st.g_W)
-    return DeadReckoning(tau, R_WI[idx], p_WI[idx], R_b, p_b, R_a, p_a)
-
-
-# ---------------------------------------------------------------------------- computation
-def _chain(inc: StepIncrements, h: Array, R0: Array, p0: Array, v0: Array,
-           g_W: Array) -> tuple[Array, Array]:
-    """Compose step increments into attitudes and positions (as the window engine does)."""
-    S, m = h.shape
-    R = np.empty((S, m + 1, 3, 3))
-    p = np.empty((S, m + 1, 3))
-    v = v0.copy()
-    R[:, 0], p[:, 0] = R0, p0
-    for k in range(m):
-        hk = h[:, k, None]
-        Rk = R[:, k]
-        p[:, k + 1] = (p[:, k] + v * hk + 0.5 * g_W * hk**2
-                       + np.einsum("sij,sj->si", Rk, inc.dp[:, k]))
-        v = v + g_W * hk + np.einsum("sij,sj->si", Rk, inc.dv[:, k])
-        R[:, k + 1] = Rk @ inc.dR[:, k]
-    return R, p
-
-
 def _stride(rate: float, max_rate: float) -> int:
     """Decimation factor that brings ``rate`` to at most ``max_rate``."""
     return max(1, int(np.ceil(rate / max_rate - 1e-9)))
@@ -266,31 +170,10 @@ def _session_and_state(result: CalibrationResult, imu: ImuSamples,
                        mocap: MocapPoses) -> tuple[PreparedSession, ModelState]:
     """The session and model state the solver used, or rebuilt from the result's values."""
     diag = result.diagnostics
-    if diag is not None and "session" in diag.extras and "model_state" in diag.extras:
-        return diag.extras["session"], diag.extras["model_state"]
-    need = {"gyro_bias": result.gyro_bias, "accel_bias": result.accel_bias,
-            "T_marker_imu": result.rotation_wxyz, "translation": result.translation,
-            "gravity_in_mocap": result.gravity_in_mocap, "time_offset": result.time_offset}
-    missing = [k for k, v in need.items() if v is None]
-    if missing:
-        raise InputError(f"the result has no value for {', '.join(missing)}; a recording "
-                         "without the solver's diagnostics needs the full calibration")
+    if diag is not None and diag.trace is not None:
+        return diag.trace.session, diag.trace.model_state
     s = prepare(imu, mocap, noise=result.noise)
-    model = Model.parse(result.model)
-    effects: dict[str, Array] = {}
-    for eff in model.units:
-        if eff.sensor in ("gyro", "accel"):
-            value = (result.effects.get(eff.name) or {}).get(eff.param)
-            effects[eff.name] = eff.zero() if value is None else eff.theta_from_report(value)
-    g_dir = np.asarray(result.gravity_in_mocap, dtype=float)
-    st = ModelState(
-        R_MI=so3.quat_to_rotmat(np.asarray(result.rotation_wxyz, dtype=float)),
-        p_MI=np.asarray(result.translation, dtype=float),
-        g_W=result.gravity_magnitude * g_dir / np.linalg.norm(g_dir),
-        delta=s.clock_shift + float(result.time_offset or 0.0), model=model, effects=effects,
-        bias_t=np.array([s.tau[0]]), bias=np.r_[result.gyro_bias, result.accel_bias][None],
-        t_mid=0.5 * float(s.u[0] + s.u[-1]))
-    return s, st
+    return s, state_from_result(result, s)
 
 
 def _named_steps(steps: DiagnoseSteps) -> list[tuple[str, Mapping[str, ResidualSeries]]]:

@@ -1,8 +1,4 @@
-"""Library functions behind the CLI commands: read the inputs, run the core, return results.
-
-This is the outer layer that may use both ``io`` and ``core``; the CLI parses options, calls
-one function here and writes what it returns.
-"""
+"""``calibrate``: read the inputs, calibrate, write the result, report and recording."""
 
 from __future__ import annotations
 
@@ -12,84 +8,51 @@ from pathlib import Path
 import numpy as np
 
 from mocap_calib.core.calib.pipeline import CalibrationOptions, IterationFn, ProgressFn, calibrate
-from mocap_calib.core.calib.priors import priors_from_results
 from mocap_calib.core.calib.result import CalibrationResult
-from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.errors import InputError
-from mocap_calib.io.loader import load_inputs
-from mocap_calib.io.yaml_io import load_noise, load_result
+from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.io.yaml_io import check_writable, save_result, save_text
+from mocap_calib.report.text import summary_table
+from mocap_calib.workflows.session import (
+    InputSpec,
+    LoadedSession,
+    load_priors,
+    load_session,
+    resolve_noise,
+)
+
+__all__ = ["InputSpec", "LoadedSession", "load_session", "resolve_noise", "run_calibration",
+           "calibrate_to_files", "calibration_options", "noise_overrides", "effects_help"]
 
 
-@dataclass
-class InputSpec:
-    """Where the two streams come from and how to read them."""
-
-    path: Path | None = None
-    imu: Path | None = None
-    mocap: Path | None = None
-    pose_source: str = "auto"
-    columns: str | None = None
-    time_unit: str | None = None
-    gyro_unit: str | None = None
-    accel_unit: str | None = None
-    quat_order: str | None = None
-    position_unit: str | None = None
-    rigid_body: str | None = None  # one body of a multi-body mocap export (a swarm's take)
+def effects_help() -> str:
+    """One line per effect of the ladder, for ``--model``'s help."""
+    return "; ".join(f"{e.name} ({e.description})" for e in EFFECTS.values())
 
 
-@dataclass
-class LoadedSession:
-    imu: ImuSamples
-    mocap: MocapPoses
-    notes: list[str] = field(default_factory=list)
-    sensor_noise: NoiseModel | None = None
+def calibration_options(*, model: str = "base+time_offset", gravity: float = 9.81,
+                        keyframe_spacing: float = 0.5, window: float = 5.0,
+                        time_offset: float | None = None, robust: bool = True,
+                        start: float | None = None, end: float | None = None,
+                        max_iterations: int = 30) -> CalibrationOptions:
+    """Calibration options from the command line's values."""
+    return CalibrationOptions(
+        model=Model.parse(model), gravity=gravity, attitude_spacing=keyframe_spacing,
+        velocity_spacing=keyframe_spacing, window=window, time_offset=time_offset,
+        robust=robust, start=start, end=end, max_iterations=max_iterations)
 
 
-def load_session(spec: InputSpec) -> LoadedSession:
-    """Read both streams (and, from a ``mav0`` folder, the IMU's ``sensor.yaml`` noise)."""
-    if spec.path is None and (spec.imu is None or spec.mocap is None):
-        raise InputError("give a mav0 folder, or both --imu and --mocap")
-    if spec.path is not None and (spec.imu is not None or spec.mocap is not None):
-        raise InputError("give either a mav0 folder or --imu/--mocap, not both")
-    if spec.rigid_body is not None:  # until the multi-body readers exist (issue 11)
-        raise InputError(f"--rigid-body {spec.rigid_body}: this version reads mocap files "
-                         "with one body only; export that body alone and drop --rigid-body")
-    imu, mocap, notes = load_inputs(
-        spec.imu, spec.mocap, spec.path, pose_source=spec.pose_source, columns=spec.columns,
-        time_unit=spec.time_unit, gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit,
-        quat_order=spec.quat_order, position_unit=spec.position_unit)
-    sensor_noise = None
-    if spec.path is not None:
-        from mocap_calib.io.euroc import find_mav0
-
-        root = find_mav0(spec.path)
-        sensor = root / "imu0" / "sensor.yaml"
-        if sensor.is_file():
-            try:
-                sensor_noise = load_noise(sensor)
-                notes.append(f"noise densities from {sensor}")
-            except InputError:
-                sensor_noise = None
-    return LoadedSession(imu, mocap, notes, sensor_noise)
-
-
-def resolve_noise(session: LoadedSession, noise_file: Path | None,
-                  overrides: dict[str, float | None]) -> NoiseModel:
-    """Noise model: defaults < the mav0's ``imu0/sensor.yaml`` < ``--noise`` file < options."""
-    noise = session.sensor_noise or NoiseModel()
-    if noise_file is not None:
-        noise = load_noise(noise_file, noise)
-    given = {k: v for k, v in overrides.items() if v is not None}
-    for k, v in given.items():
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"noise option {k.replace('_', '-')} must be positive, got {v}")
-    return replace(noise, **given) if given else noise
-
-
-def load_priors(paths: list[Path], at_ns: int) -> list:
-    """Prior factors from one or more earlier results (a trend with two or more)."""
-    results = [load_result(p) for p in paths]
-    return priors_from_results(results, at_ns if len(results) > 1 else None)
+def noise_overrides(*, gyro_noise: float | None = None, gyro_walk: float | None = None,
+                    accel_noise: float | None = None, accel_walk: float | None = None,
+                    mocap_noise_mm: float | None = None,
+                    mocap_noise_deg: float | None = None) -> dict[str, float | None]:
+    """Noise-model fields given on the command line (None: not given), in SI units."""
+    return {
+        "gyroscope_noise_density": gyro_noise, "gyroscope_random_walk": gyro_walk,
+        "accelerometer_noise_density": accel_noise, "accelerometer_random_walk": accel_walk,
+        "mocap_position_sigma": None if mocap_noise_mm is None else mocap_noise_mm * 1e-3,
+        "mocap_rotation_sigma": (None if mocap_noise_deg is None
+                                 else float(np.radians(mocap_noise_deg))),
+    }
 
 
 def run_calibration(spec: InputSpec, options: CalibrationOptions, noise_file: Path | None = None,
@@ -111,82 +74,46 @@ def run_calibration(spec: InputSpec, options: CalibrationOptions, noise_file: Pa
     return result, session
 
 
-def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0,
-                       duration: float = 90.0, imu_rate: float = 200.0, mocap_rate: float = 100.0,
-                       effects: list[str] | None = None) -> list[tuple[Path, str]]:
-    """Simulate a session and write it in the EuRoC layout plus ``truth.yaml``.
+@dataclass
+class CalibrateOutputs:
+    """Files a ``calibrate`` run writes (``out`` always, the others when given)."""
 
-    Returns:
-        ``(path, description)`` of every file written.
-    """
-    from mocap_calib.io.euroc import write_euroc_imu, write_mav0
-    from mocap_calib.io.yaml_io import save_yaml
-    from mocap_calib.sim.flight import SimConfig, parse_effect, simulate_flight
-
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"{out_dir}: exists and is not a folder; choose another OUT_DIR")
-    parsed = dict(parse_effect(e) for e in (effects or []))
-    header = "mocap-calib simulation truth (SI units). See docs/conventions.md."
-    if protocol == "flight":
-        sim = simulate_flight(SimConfig(seed=seed, duration=duration, imu_rate=imu_rate,
-                                        mocap_rate=mocap_rate, effects=parsed))
-        mav0 = write_mav0(out_dir, sim.imu, sim.mocap)
-        truth = save_yaml(out_dir / "truth.yaml", sim.truth, header)
-        return [(mav0 / "imu0" / "data.csv", f"{len(sim.imu)} IMU samples at {imu_rate:g} Hz"),
-                (mav0 / "vicon0" / "data.csv",
-                 f"{len(sim.mocap)} mocap poses at {mocap_rate:g} Hz"),
-                (truth, "true calibration, effects and noise")]
-    if parsed:
-        raise InputError(f"--effect applies to --protocol flight only, not '{protocol}'")
-    if protocol == "multipos":
-        from mocap_calib.sim.multipos import simulate_multipos
-
-        imu, truth_d = simulate_multipos(seed=seed, rate_hz=imu_rate)
-    elif protocol == "static":
-        from mocap_calib.sim.static import simulate_static
-
-        imu, truth_d = simulate_static(seed=seed, duration_s=duration, rate_hz=imu_rate)
-    else:
-        raise InputError(f"unknown --protocol '{protocol}'; choose flight, multipos or static")
-    path = write_euroc_imu(out_dir / "mav0" / "imu0" / "data.csv", imu)
-    truth = save_yaml(out_dir / "truth.yaml", truth_d, header)
-    return [(path, f"{len(imu)} IMU samples at {imu_rate:g} Hz ({protocol})"),
-            (truth, "true intrinsics and noise")]
+    out: Path
+    report: Path | None = None
+    rrd: Path | None = None
 
 
-def run_diagnosis(spec: InputSpec, options, noise_file: Path | None = None,
-                  noise_overrides: dict[str, float | None] | None = None,
-                  progress: ProgressFn | None = None):
-    """Read the inputs and run the model diagnosis; returns the report and what was read."""
-    from mocap_calib.core.diagnosis.diagnose import diagnose
+@dataclass
+class CalibrateRun:
+    """What :func:`calibrate_to_files` did: the result, its summary and the files written."""
 
-    session = load_session(spec)
-    for note in session.notes:
+    result: CalibrationResult
+    summary: str
+    written: list[str] = field(default_factory=list)
+
+
+def calibrate_to_files(spec: InputSpec, options: CalibrationOptions, outputs: CalibrateOutputs,
+                       noise_file: Path | None = None,
+                       overrides: dict[str, float | None] | None = None,
+                       prior_files: list[Path] | None = None,
+                       progress: ProgressFn | None = None) -> CalibrateRun:
+    """The ``calibrate`` command: check the outputs, calibrate, write result/report/recording."""
+    check_writable(outputs.out, outputs.report, outputs.rrd)
+    result, session = run_calibration(spec, options, noise_file, overrides, prior_files or [],
+                                      progress)
+    # The result file is written last, so that an interrupted run leaves no result behind.
+    table = summary_table(result)
+    run = CalibrateRun(result, table, [])
+    if outputs.rrd is not None:
+        from mocap_calib.viz.recording import write_calibration_recording
+
         if progress is not None:
-            progress(note)
-    noise = resolve_noise(session, noise_file, noise_overrides or {})
-    opts = replace(options, calibration=replace(options.calibration, noise=noise))
-    report = diagnose(session.imu, session.mocap, opts, progress=progress)
-    report.final.session["inputs"] = list(session.notes)
-    return report, session
-
-
-def diagnose_series(report) -> list[tuple[str, dict]]:
-    """Residual series of every diagnosis step, for the rerun recording: the low-band
-    measured-minus-predicted gyro and accel, and the position-factor innovations."""
-    from mocap_calib.core.calib.result import ResidualSeries
-
-    out = []
-    for i, step in enumerate(report.steps):
-        series: dict = {}
-        ra = step.residuals.analysis
-        if ra is not None and len(ra.t):
-            w = ra.keep.astype(float)
-            series["gyro_lowpass"] = ResidualSeries(ra.t, ra.gyro_lp, ra.gyro_lp, w, "rad/s")
-            series["accel_lowpass"] = ResidualSeries(ra.t, ra.accel_lp, ra.accel_lp, w, "m/s^2")
-        if "position" in step.series:
-            series["position"] = step.series["position"]
-        label = f"{i}_{step.model}" if i < len(report.steps) - 1 else f"{i}_final_{step.model}"
-        out.append((label, series))
-    return out
+            progress("writing rerun recording")
+        path = write_calibration_recording(outputs.rrd, result, session.imu, session.mocap)
+        run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
+    if outputs.report is not None:
+        save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")
+        run.written.append(f"wrote {outputs.report}")
+    save_result(outputs.out, result)
+    run.written.insert(0, f"wrote {outputs.out}")
+    return run

@@ -13,6 +13,7 @@ import numpy as np
 
 from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model import so3
+from mocap_calib.report.text import table
 
 
 @dataclass
@@ -75,7 +76,4 @@ def format_rows(rows: list[Row]) -> str:
     head = ("parameter", "estimate", "reference", "error", "unit", "|err|/sigma")
     body = [(r.name, r.estimate, r.reference, f"{r.error:.3g}", r.unit,
              "-" if r.z is None else f"{r.z:.2f}") for r in rows]
-    w = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
-    lines = ["  ".join(h.ljust(w[i]) for i, h in enumerate(head))]
-    lines += ["  ".join(c.ljust(w[i]) for i, c in enumerate(row)) for row in body]
-    return "\n".join(lines)
+    return table(head, body)

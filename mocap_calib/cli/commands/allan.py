@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from mocap_calib.cli.common import ACCEL_UNIT, COLUMNS, GYRO_UNIT, IMU, TIME_UNIT, Progress
+from mocap_calib.cli.common import (
+    ACCEL_UNIT,
+    COLUMNS,
+    GYRO_UNIT,
+    IMU,
+    IMU_TOPIC,
+    STAMP,
+    TIME_UNIT,
+    Progress,
+)
 from mocap_calib.cli.main import app
 
 
@@ -41,22 +50,18 @@ def allan(
     time_unit: TIME_UNIT = None,
     gyro_unit: GYRO_UNIT = None,
     accel_unit: ACCEL_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.io.yaml_io import save_yaml
-    from mocap_calib.workflows.imu import ImuSpec, run_allan
+    from mocap_calib.workflows.allan import run_allan
+    from mocap_calib.workflows.imu_input import ImuSpec
 
-    progress = Progress(quiet)
-    run = run_allan(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit),
+    spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp)
+    run = run_allan(spec, out=out, rrd=rrd,
                     aggregate=aggregate, tau_min_s=tau_min,
-                    require_random_walk=not allow_unresolved, progress=progress)
-    save_yaml(out, run.to_dict(), "mocap-calib allan noise model (Kalibr imu.yaml keys, SI "
-              "units). See docs/conventions.md.")
+                    require_random_walk=not allow_unresolved, progress=Progress(quiet))
     typer.echo(run.summary())
     typer.echo(f"\nwrote {out}")
     if rrd is not None:
-        from mocap_calib.viz.allan_plot import write_allan_recording
-
-        progress("writing rerun recording")
-        path = write_allan_recording(rrd, run.result)
-        typer.echo(f"wrote {path}  (open with: mocap-calib view {path})")
+        typer.echo(f"wrote {run.written[-1]}  (open with: mocap-calib view {run.written[-1]})")

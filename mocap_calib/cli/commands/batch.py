@@ -39,7 +39,7 @@ def batch(
     from mocap_calib.batch.manifest import ManifestError
     from mocap_calib.batch.progress import ProgressBar
     from mocap_calib.batch.runner import run_batch
-    from mocap_calib.errors import CalibrationError, InputError
+    from mocap_calib.errors import CalibrationError, InputError, Interrupted
 
     try:
         report = run_batch(manifest, out, engine=engine, workers=workers, scheduler=scheduler,
@@ -49,6 +49,10 @@ def batch(
         for line in err.problems[:-1]:
             typer.echo(f"error: {line}", err=True)
         raise InputError(err.problems[-1]) from None
+    except Interrupted as err:  # finished sessions are kept: say so, not "nothing written"
+        err.args = (f"{str(err).split(';')[0]}; the finished sessions are in {out}; the same "
+                    "command finishes the rest",)
+        raise
     counts = {k: sum(s.status == k for s in report.sessions) for k in ("ok", "skipped", "failed")}
     typer.echo(f"{len(report.sessions)} sessions: {counts['ok']} calibrated, "
                f"{counts['skipped']} unchanged since the last run, {counts['failed']} failed")

@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 
 from mocap_calib.cli.common import (
@@ -13,18 +12,33 @@ from mocap_calib.cli.common import (
     COLUMNS,
     GYRO_UNIT,
     IMU,
+    IMU_TOPIC,
     MAV0,
     MOCAP,
+    MOCAP_FORMAT,
+    MOCAP_FRAME,
+    MOCAP_RATE,
+    MOCAP_TOPIC,
     POSE_SOURCE,
     POSITION_UNIT,
     QUAT_ORDER,
+    RIGID_BODY,
+    ROTATION,
+    STAMP,
     TIME_UNIT,
     Progress,
 )
 from mocap_calib.cli.main import app
-from mocap_calib.core.model.effects import EFFECTS
+from mocap_calib.workflows.calibrate import (
+    CalibrateOutputs,
+    InputSpec,
+    calibrate_to_files,
+    calibration_options,
+    effects_help,
+    noise_overrides,
+)
 
-_EFFECTS_HELP = "; ".join(f"{e.name} ({e.description})" for e in EFFECTS.values())
+_EFFECTS_HELP = effects_help()
 
 
 @app.command(
@@ -79,6 +93,9 @@ def calibrate(
     end: Annotated[float | None, typer.Option(
         help="Use the session up to this many seconds after the IMU start.",
         show_default=False)] = None,
+    max_iterations: Annotated[int, typer.Option(
+        help="Most Levenberg-Marquardt iterations per solve (a solve still improving at the "
+        "limit is retried once from where it stopped; then the command exits 4).")] = 30,
     no_robust: Annotated[bool, typer.Option(
         "--no-robust", help="Do not down-weight mocap outliers.")] = False,
     pose_source: POSE_SOURCE = "auto",
@@ -88,42 +105,29 @@ def calibrate(
     accel_unit: ACCEL_UNIT = None,
     quat_order: QUAT_ORDER = None,
     position_unit: POSITION_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    mocap_topic: MOCAP_TOPIC = None,
+    mocap_frame: MOCAP_FRAME = None,
+    stamp: STAMP = "header",
+    mocap_format: MOCAP_FORMAT = None,
+    rigid_body: RIGID_BODY = None,
+    rotation: ROTATION = None,
+    mocap_rate: MOCAP_RATE = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.core.calib.pipeline import CalibrationOptions
-    from mocap_calib.core.model.effects import Model
-    from mocap_calib.io.yaml_io import check_writable, save_result
-    from mocap_calib.report.text import summary_table
-    from mocap_calib.workflows.calibrate import InputSpec, run_calibration
-
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
-                     quat_order, position_unit)
-    opts = CalibrationOptions(
-        model=Model.parse(model), gravity=gravity, attitude_spacing=keyframe_spacing,
-        velocity_spacing=keyframe_spacing, window=window, time_offset=time_offset,
-        robust=not no_robust, start=start, end=end)
-    overrides = {
-        "gyroscope_noise_density": gyro_noise, "gyroscope_random_walk": gyro_walk,
-        "accelerometer_noise_density": accel_noise, "accelerometer_random_walk": accel_walk,
-        "mocap_position_sigma": None if mocap_noise_mm is None else mocap_noise_mm * 1e-3,
-        "mocap_rotation_sigma": (None if mocap_noise_deg is None
-                                 else float(np.radians(mocap_noise_deg))),
-    }
-    check_writable(out, report, rrd)
-    progress = Progress(quiet)
-    result, session = run_calibration(spec, opts, noise, overrides, prior or [], progress)
-    save_result(out, result)
-    table = summary_table(result)
-    typer.echo(table)
-    typer.echo(f"\nwrote {out}")
-    if report is not None:
-        from mocap_calib.io.yaml_io import save_text
-
-        save_text(report, f"mocap-calib calibration report\n\n{table}\n")
-        typer.echo(f"wrote {report}")
-    if rrd is not None:
-        from mocap_calib.viz.recording import write_calibration_recording
-
-        progress("writing rerun recording")
-        path = write_calibration_recording(rrd, result, session.imu, session.mocap)
-        typer.echo(f"wrote {path}  (open with: mocap-calib view {path})")
+                     quat_order, position_unit, imu_topic=imu_topic, mocap_topic=mocap_topic,
+                     mocap_frame=mocap_frame, stamp=stamp, mocap_format=mocap_format,
+                     rigid_body=rigid_body, rotation=rotation, mocap_rate=mocap_rate)
+    opts = calibration_options(model=model, gravity=gravity, keyframe_spacing=keyframe_spacing,
+                               window=window, time_offset=time_offset, robust=not no_robust,
+                               start=start, end=end, max_iterations=max_iterations)
+    overrides = noise_overrides(gyro_noise=gyro_noise, gyro_walk=gyro_walk,
+                                accel_noise=accel_noise, accel_walk=accel_walk,
+                                mocap_noise_mm=mocap_noise_mm, mocap_noise_deg=mocap_noise_deg)
+    run = calibrate_to_files(spec, opts, CalibrateOutputs(out, report, rrd), noise, overrides,
+                             prior or [], Progress(quiet))
+    typer.echo(run.summary)
+    typer.echo("")
+    for line in run.written:
+        typer.echo(line)

@@ -12,15 +12,24 @@ from mocap_calib.cli.common import (
     COLUMNS,
     GYRO_UNIT,
     IMU,
+    IMU_TOPIC,
     MAV0,
     MOCAP,
+    MOCAP_FORMAT,
+    MOCAP_FRAME,
+    MOCAP_RATE,
+    MOCAP_TOPIC,
     POSE_SOURCE,
     POSITION_UNIT,
     QUAT_ORDER,
+    RIGID_BODY,
+    ROTATION,
+    STAMP,
     TIME_UNIT,
     Progress,
 )
 from mocap_calib.cli.main import app
+from mocap_calib.workflows.diagnose import InputSpec, diagnose_options, diagnose_to_files
 
 
 @app.command(
@@ -57,36 +66,24 @@ def diagnose(
     accel_unit: ACCEL_UNIT = None,
     quat_order: QUAT_ORDER = None,
     position_unit: POSITION_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    mocap_topic: MOCAP_TOPIC = None,
+    mocap_frame: MOCAP_FRAME = None,
+    stamp: STAMP = "header",
+    mocap_format: MOCAP_FORMAT = None,
+    rigid_body: RIGID_BODY = None,
+    rotation: ROTATION = None,
+    mocap_rate: MOCAP_RATE = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.core.calib.pipeline import CalibrationOptions
-    from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions
-    from mocap_calib.core.model.effects import CANONICAL_EFFECTS, Model
-    from mocap_calib.errors import InputError
-    from mocap_calib.io.yaml_io import check_writable, save_yaml
-    from mocap_calib.report.text import diagnose_table
-    from mocap_calib.workflows.calibrate import InputSpec, diagnose_series, run_diagnosis
-
-    if not 0.0 < alpha < 0.5:
-        raise InputError(f"--alpha {alpha}: must be between 0 and 0.5, e.g. 0.01")
-    if max_steps < 1:
-        raise InputError(f"--max-steps {max_steps}: must be at least 1")
-    cands = CANONICAL_EFFECTS if candidates is None else Model.parse(candidates).effects
+    opts = diagnose_options(start=start, candidates=candidates, alpha=alpha,
+                            max_steps=max_steps, gravity=gravity, window=window)
     spec = InputSpec(mav0, imu, mocap, pose_source, columns, time_unit, gyro_unit, accel_unit,
-                     quat_order, position_unit)
-    opts = DiagnoseOptions(start=Model.parse(start), candidates=tuple(cands), alpha=alpha,
-                           max_steps=max_steps,
-                           calibration=CalibrationOptions(gravity=gravity, window=window))
-    check_writable(out, rrd)
-    progress = Progress(quiet)
-    report, session = run_diagnosis(spec, opts, noise, None, progress)
-    save_yaml(out, report.to_dict(), "mocap-calib model diagnosis report (see docs/diagnosis.md)")
-    typer.echo(diagnose_table(report))
-    typer.echo(f"\nwrote {out}")
-    if rrd is not None:
-        from mocap_calib.viz.recording import write_calibration_recording
-
-        progress("writing rerun recording")
-        path = write_calibration_recording(rrd, report.final, session.imu, session.mocap,
-                                           diagnose_steps=diagnose_series(report))
-        typer.echo(f"wrote {path}  (open with: mocap-calib view {path})")
+                     quat_order, position_unit, imu_topic=imu_topic, mocap_topic=mocap_topic,
+                     mocap_frame=mocap_frame, stamp=stamp, mocap_format=mocap_format,
+                     rigid_body=rigid_body, rotation=rotation, mocap_rate=mocap_rate)
+    run = diagnose_to_files(spec, opts, out, rrd, noise, Progress(quiet))
+    typer.echo(run.summary)
+    typer.echo("")
+    for line in run.written:
+        typer.echo(line)

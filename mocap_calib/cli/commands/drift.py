@@ -12,9 +12,11 @@ from mocap_calib.cli.common import (
     COLUMNS,
     GYRO_UNIT,
     IMU,
+    IMU_TOPIC,
     MOCAP,
     POSITION_UNIT,
     QUAT_ORDER,
+    STAMP,
     TIME_UNIT,
     Progress,
 )
@@ -54,17 +56,17 @@ def drift(
     accel_unit: ACCEL_UNIT = None,
     quat_order: QUAT_ORDER = None,
     position_unit: POSITION_UNIT = None,
+    imu_topic: IMU_TOPIC = None,
+    stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.workflows.imu import ImuSpec, run_drift
+    from mocap_calib.workflows.drift import run_drift
+    from mocap_calib.workflows.imu_input import ImuSpec
 
-    run = run_drift(ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit), calibration,
-                    start, end, mocap=mocap, quat_order=quat_order,
-                    position_unit=position_unit, static_window_s=static_window,
+    spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp)
+    run = run_drift(spec, calibration, start, end, mocap=mocap, quat_order=quat_order,
+                    position_unit=position_unit, static_window_s=static_window, out=out,
                     progress=Progress(quiet))
     typer.echo(run.summary())
     if out is not None:
-        from mocap_calib.io.yaml_io import save_yaml
-
-        save_yaml(out, run.to_dict(), "mocap-calib attitude-drift check (deg, s).")
         typer.echo(f"\nwrote {out}")

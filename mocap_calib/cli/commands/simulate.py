@@ -8,10 +8,9 @@ from typing import Annotated
 import typer
 
 from mocap_calib.cli.main import app
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS
-from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
+from mocap_calib.workflows.simulate import effects_doc, simulate_to_folder
 
-_EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
+_EFFECTS_DOC = effects_doc()
 
 
 @app.command(
@@ -19,8 +18,9 @@ _EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, 
     "Writes OUT_DIR/mav0/imu0/data.csv, OUT_DIR/mav0/vicon0/data.csv (EuRoC layout) and "
     "OUT_DIR/truth.yaml (the calibration-result keys plus the injected effects and noise). "
     "The same seed gives the same bytes.",
-    epilog="Example: mocap-calib simulate sim_out --seed 7 --effect time_offset=0.012 "
-    "--effect gyro_scale_misalignment",
+    epilog="Examples: mocap-calib simulate sim_out --seed 7 --effect time_offset=0.012 "
+    "--effect gyro_scale_misalignment | mocap-calib simulate mp --protocol multipos --counts "
+    "--effect gyro_g_sensitivity",
 )
 def simulate(
     out_dir: Annotated[Path, typer.Argument(help="Folder to write the session into.")],
@@ -32,14 +32,20 @@ def simulate(
         "--effect", "-e", metavar="NAME[=VALUE]",
         help="Inject an effect (repeatable). Without a value a realistic magnitude is drawn. "
         + _EFFECTS_DOC)] = None,
+    mocap_noise_corr: Annotated[float, typer.Option(
+        help="Mocap noise correlated over this time constant in s (AR(1) with the same "
+        "per-sample sigma), as real mocap noise is; 0: white.")] = 0.0,
     protocol: Annotated[str, typer.Option(
         help="flight: a drone flight in a mocap room; multipos: static orientations for "
         "'mocap-calib multipos' (no mocap); static: a still IMU for 'mocap-calib allan'.")]
     = "flight",
+    counts: Annotated[bool, typer.Option(
+        "--counts", help="With --protocol multipos: write raw counts of a 16-bit MEMS part "
+        "(+-8 g, +-2000 deg/s; truth.yaml gives the nominal scales) for 'multipos --raw'.")]
+    = False,
 ) -> None:
-    from mocap_calib.workflows.calibrate import simulate_to_folder
-
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
-                                 imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [])
+                                 imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [],
+                                 mocap_noise_corr=mocap_noise_corr, counts=counts)
     for path, what in written:
         typer.echo(f"wrote {path}  ({what})")

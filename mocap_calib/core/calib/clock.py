@@ -1,42 +1,94 @@
-"""Coarse clock alignment: cross-correlate angular speed from the gyro and from the mocap.
+"""Coarse clock alignment that knows when it does not know.
 
-The angular speed ``|w|`` does not depend on the unknown IMU-to-marker rotation, so the two
-streams can be aligned before anything else is known. The correlation runs over every lag the
-two recordings allow, so offsets of any size work, including clocks from different epochs whose
-raw stamps do not overlap at all.
+Signals that do not depend on the unknown IMU-to-marker rotation are cross-correlated over
+every lag the two recordings allow (so offsets of any size work, also clocks of different
+epochs):
+
+- angular speed: ``|gyro|`` against the mocap's ``|w|`` from consecutive attitudes;
+- specific force: ``|accel|`` against ``|a_W - g_W|`` from the mocap's second derivative of
+  position; the world's up axis is not known yet, so each axis-aligned up (z-up Vicon, y-up
+  OptiTrack, ...) is tried and the best kept. This is the signal of translation-dominated
+  sessions, where the body barely rotates.
+
+Each signal's correlation curve is turned into a z-score against its own null: the scatter of
+the correlation over all lags, which are almost all wrong. The signals' z-scores are combined
+(Stouffer). A lag is resolved when its peak stands out of the null and clears every other peak
+(more than a second away) by a margin; periodic motion gives several peaks of the same height
+and is not resolved. When the raw stamps already share an epoch, lags near zero are searched
+first. The pipeline then confirms the choice by the fine fit.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.types import ImuSamples, MocapPoses
+from mocap_calib.core.model.types import gap_threshold
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]
 
+#: Grid rate (Hz) of the correlation; the result is refined to a fraction of a step.
+GRID_HZ = 100.0
+#: A peak must stand this many null sigmas above the null's median ...
+MIN_PEAK_Z = 6.0
+#: ... and this many above every other peak further than :data:`PEAK_SEPARATION_S` away.
+MIN_MARGIN_Z = 3.0
+PEAK_SEPARATION_S = 1.0
+#: With raw stamps of one epoch, lags within this range (s) are searched first.
+SAME_EPOCH_RANGE_S = 5.0
+#: Signal variation below which a signal cannot align anything.
+MIN_SPEED_STD = 0.05  # rad/s
+MIN_FORCE_STD = 0.3  # m/s^2
+#: Axis-aligned candidates for the mocap world's up direction (gravity points down).
+UP_AXES = {"+z": (2, 1.0), "-z": (2, -1.0), "+y": (1, 1.0), "-y": (1, -1.0), "+x": (0, 1.0),
+           "-x": (0, -1.0)}
+
 
 @dataclass(frozen=True)
-class CoarseOffset:
-    """Result of the coarse search.
+class ClockSearch:
+    """What the coarse search found.
 
     Attributes:
         time_offset: ``t_d`` (s) relative to the raw stamps: an IMU sample stamped ``t``
             (absolute) was taken at mocap absolute time ``t + t_d``.
-        peak: normalised correlation at the peak (1 = identical shapes).
-        second_peak: best normalised correlation further than 1 s from the peak.
-        resolution: grid spacing used (s).
+        signals: the signals used, with the up axis for specific force.
+        peak_z: the chosen peak's height in null sigmas.
+        margin_z: its lead over the best other peak (null sigmas).
+        second_offset: ``t_d`` of that other peak (None if there is none).
+        restricted: only lags near zero were searched (raw stamps of one epoch).
+        lags: (n,) ``t_d`` values of the curve (decimated, for reports).
+        score: (n,) the combined z-score there.
+        candidates: (t_d, z) of the highest local peaks, best first.
     """
 
     time_offset: float
-    peak: float
-    second_peak: float
-    resolution: float
+    signals: tuple[str, ...]
+    peak_z: float
+    margin_z: float
+    second_offset: float | None
+    restricted: bool
+    lags: Array = field(repr=False, default_factory=lambda: np.zeros(0))
+    score: Array = field(repr=False, default_factory=lambda: np.zeros(0))
+    candidates: tuple[tuple[float, float], ...] = ()
+    verified_by_fit: bool = False  # chosen among equal peaks by stage 1-2 fits
+
+    @property
+    def resolved(self) -> bool:
+        return self.peak_z >= MIN_PEAK_Z and self.margin_z >= MIN_MARGIN_Z
+
+    def to_dict(self) -> dict[str, object]:
+        return {"method": "rotation-invariant cross-correlation (z-scored, combined)",
+                "signals": list(self.signals), "coarse_time_offset": self.time_offset,
+                "peak_z": round(self.peak_z, 2), "margin_z": round(self.margin_z, 2),
+                "second_best_time_offset": self.second_offset,
+                "searched_near_zero_first": self.restricted,
+                "chosen_by_fit_among_peaks": self.verified_by_fit,
+                "candidates": [{"time_offset": t, "z": round(z, 2)} for t, z in self.candidates]}
 
 
 def mocap_angular_speed(t: Array, R: Array) -> tuple[Array, Array]:
@@ -47,82 +99,175 @@ def mocap_angular_speed(t: Array, R: Array) -> tuple[Array, Array]:
     return 0.5 * (t[1:] + t[:-1]), speed
 
 
-def _resample(t: Array, y: Array, dt: float, gap: float) -> tuple[float, Array]:
-    """Resample onto a uniform grid; samples inside gaps are set to the mean (no signal)."""
+def _resample(t: Array, y: Array, dt: float, gap: float) -> tuple[float, Array, Array]:
+    """``y`` on a uniform grid, mean removed; samples inside gaps are zero (no signal).
+    Returns the grid start, the values and the in-gap mask."""
     grid = np.arange(t[0], t[-1], dt)
     out = np.interp(grid, t, y)
-    idx = np.searchsorted(t, grid)
-    idx = np.clip(idx, 1, len(t) - 1)
+    idx = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
     in_gap = (t[idx] - t[idx - 1]) > gap
-    z = out - out[~in_gap].mean() if np.any(~in_gap) else out - out.mean()
+    z = out - (out[~in_gap].mean() if np.any(~in_gap) else out.mean())
     z[in_gap] = 0.0
-    return float(grid[0]), z
+    return float(grid[0]), z, in_gap
 
 
-def coarse_time_offset(imu: ImuSamples, mocap: MocapPoses, rate_hz: float = 200.0) -> CoarseOffset:
-    """Find ``t_d`` by cross-correlating gyro and mocap angular speed over all lags.
+def _smooth(y: Array, n: int) -> Array:
+    """Median then Savitzky-Golay: single-sample spikes out, differentiation noise down."""
+    if len(y) <= max(7, n):
+        return y
+    return signal.savgol_filter(signal.medfilt(y, 5), n | 1, 2)
+
+
+@dataclass
+class _Signal:
+    name: str
+    start_i: float
+    x: Array  # IMU side on the grid
+    start_m: float
+    y: Array  # mocap side on the grid
+
+
+def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
+             dt: float) -> list[_Signal]:
+    gap_i = gap_threshold(u)
+    gap_m = gap_threshold(tau)
+    win = max(5, int(round(0.05 / dt)))
+    out = []
+    t_m, w_m = mocap_angular_speed(tau, R_WM)
+    s_i, x, _ = _resample(u, np.linalg.norm(gyro, axis=1), dt, gap_i)
+    s_m, y, _ = _resample(t_m, _smooth(w_m, 5), dt, gap_m)
+    if np.std(x) >= MIN_SPEED_STD and np.std(y) >= MIN_SPEED_STD:
+        out.append(_Signal("angular speed", s_i, _smooth(x, win), s_m, y))
+    # Specific force: the mocap's acceleration from a smoothing second derivative.
+    s_i, xf, _ = _resample(u, np.linalg.norm(accel, axis=1), dt, gap_i)
+    grid = np.arange(tau[0], tau[-1], dt)
+    if len(grid) > 4 * win and np.std(xf) >= MIN_FORCE_STD:
+        pos = np.stack([np.interp(grid, tau, p_WM[:, i]) for i in range(3)], axis=1)
+        n = max(7, int(round(0.1 / dt)) | 1)
+        acc = signal.savgol_filter(pos, n, 3, deriv=2, delta=dt, axis=0)
+        idx = np.clip(np.searchsorted(tau, grid), 1, len(tau) - 1)
+        in_gap = (tau[idx] - tau[idx - 1]) > gap_m
+        # A gap corrupts the derivative around it: blank a filter length on both sides.
+        near = np.convolve(in_gap.astype(float), np.ones(n), mode="same") > 0
+        for axis_name, (i, sign) in UP_AXES.items():
+            g = np.zeros(3)
+            g[i] = -9.81 * sign  # gravity points down the up axis
+            f_m = np.linalg.norm(acc - g, axis=1)
+            f_m = f_m - f_m[~near].mean() if np.any(~near) else f_m - f_m.mean()
+            f_m[near] = 0.0
+            out.append(_Signal(f"specific force ({axis_name} up)", s_i, _smooth(xf, win),
+                               float(grid[0]), f_m))
+    return out
+
+
+def _correlation(x: Array, y: Array, dt: float) -> tuple[Array, Array]:
+    """Pearson correlation of ``y(j)`` and ``x(j - lag)`` over their overlap, for all lags (in
+    grid steps). Centred within each overlap: an uncentred one calls two rest periods (both
+    constant) perfectly correlated. Lags with too little overlap, or an overlap in which
+    either signal barely varies, are NaN."""
+    def xc(a: Array, b: Array) -> Array:
+        return signal.correlate(a, b, mode="full", method="fft")
+
+    ones_x, ones_y = np.ones_like(x), np.ones_like(y)
+    n = np.maximum(np.rint(xc(ones_y, ones_x)), 1.0)
+    sx, sy = xc(ones_y, x), xc(y, ones_x)
+    cov = xc(y, x) - sx * sy / n
+    vx = xc(ones_y, x * x) - sx * sx / n
+    vy = xc(y * y, ones_x) - sy * sy / n
+    min_overlap = max(int(5.0 / dt), int(0.2 * min(len(x), len(y))))
+    valid = (n > min_overlap) & (vx > 0.05 * np.var(x) * n) & (vy > 0.05 * np.var(y) * n)
+    corr = np.where(valid, cov / np.sqrt(np.maximum(vx * vy, 1e-300)), np.nan)
+    return corr, np.arange(-(len(x) - 1), len(y))
+
+
+def _zscore(c: Array) -> Array:
+    """Correlation in units of its own scatter over all lags (robust: median, MAD)."""
+    ok = np.isfinite(c)
+    med = float(np.median(c[ok]))
+    mad = 1.4826 * float(np.median(np.abs(c[ok] - med))) or 1e-12
+    return (c - med) / mad
+
+
+def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
+                 clock_shift: float, max_offset: float | None = None) -> ClockSearch:
+    """Find the coarse ``t_d`` (see :class:`ClockSearch`).
 
     Args:
-        imu: IMU samples (its clock).
-        mocap: mocap poses (its clock), gross outliers already removed.
-        rate_hz: grid rate of the correlation (the result is refined to a fraction of it).
+        u, gyro, accel: IMU times (s since the IMU origin) and samples.
+        tau, R_WM, p_WM: mocap times (s since the mocap origin) and poses.
+        clock_shift: ``(origin_imu - origin_mocap) * 1e-9``.
+        max_offset: search only ``|t_d| <= max_offset`` (s, relative to the raw stamps).
 
     Raises:
-        ObservabilityError: no clear correlation peak (too little rotation, or unrelated streams).
+        ObservabilityError: no signal varies enough (no motion), or nothing in range.
     """
-    shift = (mocap.time_origin_ns - imu.time_origin_ns) * 1e-9
-    return coarse_offset_arrays(imu.t, imu.gyro, mocap.t, mocap.rotation, -shift, rate_hz)
-
-
-def coarse_offset_arrays(u: Array, gyro: Array, tau: Array, R_WM: Array, clock_shift: float,
-                         rate_hz: float = 200.0) -> CoarseOffset:
-    """:func:`coarse_time_offset` on arrays: IMU times ``u`` and mocap times ``tau`` relative to
-    their own origins, ``clock_shift = (origin_imu - origin_mocap) * 1e-9``."""
-    dt = 1.0 / rate_hz
-    shift = -clock_shift
-    t_m, s_m = mocap_angular_speed(tau, R_WM)
-    # A median filter removes single-sample spikes (a marker swap missed by the screen); a
-    # short Savitzky-Golay filter then smooths the noise of differentiated attitudes.
-    if len(s_m) > 7:
-        s_m = signal.savgol_filter(signal.medfilt(s_m, 5), 5, 2)
-    s_i = np.linalg.norm(gyro, axis=1)
-    gap_m = 5.0 * np.median(np.diff(t_m))
-    gap_i = 5.0 * np.median(np.diff(u))
-    start_i, x = _resample(u, s_i, dt, gap_i)
-    start_m, y = _resample(t_m, s_m, dt, gap_m)
-    if np.std(x) < 0.05 or np.std(y) < 0.05:
+    dt = 1.0 / GRID_HZ
+    sigs = _signals(u, gyro, accel, tau, R_WM, p_WM, dt)
+    if not sigs:
         raise ObservabilityError(
-            "too little rotation to align the clocks (angular speed varies by less than "
-            "0.05 rad/s); record a session with the body rotating, or give --time-offset")
-    # Full cross-correlation, normalised by the overlap so short overlaps are not favoured.
-    num = signal.correlate(y, x, mode="full", method="fft")
-    ones_x = np.ones_like(x)
-    ones_y = np.ones_like(y)
-    n_overlap = signal.correlate(ones_y, ones_x, mode="full", method="fft")
-    sx2 = signal.correlate(ones_y, x * x, mode="full", method="fft")
-    sy2 = signal.correlate(y * y, ones_x, mode="full", method="fft")
-    min_overlap = max(int(5.0 / dt), int(0.2 * min(len(x), len(y))))
-    valid = n_overlap > min_overlap
-    denom = np.sqrt(np.maximum(sx2 * sy2, 1e-300))
-    corr = np.where(valid, num / denom, -np.inf)
-    lags = np.arange(-(len(x) - 1), len(y))
-    k = int(np.argmax(corr))
-    peak = float(corr[k])
-    # Parabolic refinement of the peak.
+            "cannot align the clocks: neither the angular speed nor the specific force varies "
+            "(the body hardly moves); record a session with motion, or give --time-offset")
+    # Every signal on one t_d axis: t_d = (start_m - clock_shift) - start_i + lag * dt.
+    curves: dict[str, tuple[Array, Array]] = {}
+    for sg in sigs:
+        corr, lags = _correlation(sg.x, sg.y, dt)
+        td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
+        curves[sg.name] = (td, _zscore(corr))
+    # Specific force: keep the up axis whose curve has the highest peak.
+    force = {k: v for k, v in curves.items() if k.startswith("specific force")}
+    if force:
+        best = max(force, key=lambda k: np.nanmax(force[k][1]))
+        for k in force:
+            if k != best:
+                del curves[k]
+    names = tuple(curves)
+    lo = max(float(v[0][0]) for v in curves.values())
+    hi = min(float(v[0][-1]) for v in curves.values())
+    td = np.arange(np.ceil(lo / dt), np.floor(hi / dt) + 1) * dt
+    z = sum(np.interp(td, t, np.nan_to_num(c, nan=-10.0)) for t, c in curves.values())
+    z = z / np.sqrt(len(curves))
+    valid = z > -5.0
+    if max_offset is not None:
+        valid &= np.abs(td) <= max_offset
+        if not np.any(valid):
+            raise ObservabilityError(
+                f"no clock offset within --max-offset {max_offset:g} s leaves enough overlap of "
+                "the two streams; widen --max-offset or check the files")
+    if (lo <= 0.0 <= hi) and max_offset is None:  # raw stamps of one epoch: near zero first
+        found = _peak(td, z, valid & (np.abs(td) <= SAME_EPOCH_RANGE_S))
+        if found.resolved:
+            return _with_curve(found, names, True, td, z)
+    return _with_curve(_peak(td, z, valid), names, False, td, z)
+
+
+def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
+    zz = np.where(use, z, -np.inf)
+    k = int(np.argmax(zz))
     frac = 0.0
-    if 0 < k < len(corr) - 1 and np.isfinite(corr[k - 1]) and np.isfinite(corr[k + 1]):
-        a, b, c = corr[k - 1], corr[k], corr[k + 1]
+    if 0 < k < len(zz) - 1 and np.isfinite(zz[k - 1]) and np.isfinite(zz[k + 1]):
+        a, b, c = zz[k - 1], zz[k], zz[k + 1]
         den = a - 2 * b + c
         if den < 0:
             frac = 0.5 * (a - c) / den
-    lag_s = (lags[k] + frac) * dt
-    far = np.abs(lags - lags[k]) * dt > 1.0
-    second = float(np.max(corr[far & valid])) if np.any(far & valid) else -1.0
-    if not peak > 0.3:
-        raise ObservabilityError(
-            f"could not align the clocks: the best correlation of angular speed is {peak:.2f}; "
-            "check that the IMU and mocap files are from the same session")
-    # y(grid_m[j]) ~ x(grid_i[j - lag]) : mocap time start_m + j dt (mocap clock, relative to
-    # the IMU origin after adding ``shift``) equals IMU time start_i + (j - lag) dt.
-    t_d = (start_m + shift) - start_i + lag_s
-    return CoarseOffset(float(t_d), peak, second, dt)
+    step = float(td[1] - td[0]) if len(td) > 1 else 0.0
+    t_best = float(td[k] + frac * step)
+    # Other peaks: local maxima further than the separation from the best.
+    peaks, _ = signal.find_peaks(np.where(np.isfinite(zz), zz, -1e9),
+                                 distance=max(1, int(PEAK_SEPARATION_S / max(step, 1e-9))))
+    far = [p for p in peaks if abs(td[p] - td[k]) > PEAK_SEPARATION_S and np.isfinite(zz[p])]
+    far.sort(key=lambda p: -zz[p])
+    second = far[0] if far else None
+    margin = float(zz[k] - zz[second]) if second is not None else float(zz[k])
+    cands = [(t_best, float(zz[k]))] + [(float(td[p]), float(zz[p])) for p in far[:3]]
+    return ClockSearch(t_best, (), float(zz[k]), margin,
+                       None if second is None else float(td[second]), False,
+                       candidates=tuple(cands))
+
+
+def _with_curve(found: ClockSearch, names: tuple[str, ...], restricted: bool, td: Array,
+                z: Array, max_points: int = 4000) -> ClockSearch:
+    """The search result with the signals used and a decimated curve for reports."""
+    k = max(1, len(td) // max_points)
+    return ClockSearch(found.time_offset, names, found.peak_z, found.margin_z,
+                       found.second_offset, restricted, td[::k].copy(), z[::k].copy(),
+                       found.candidates)

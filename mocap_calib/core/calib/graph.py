@@ -20,6 +20,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.errors import ConvergenceError
+
 Array = NDArray[np.float64]
 
 
@@ -117,19 +119,52 @@ class BatchFactors:
 
 @dataclass
 class SolveReport:
-    """Figures of one LM run."""
+    """Figures of one LM run.
+
+    Attributes:
+        converged: the cost stopped falling (relative decrease below the tolerance, or no
+            decreasing step left at LM's largest damping); False when the iteration limit cut
+            it off while it was still falling.
+        reason: why it stopped, for messages.
+        last_decrease: relative cost decrease of the last iteration.
+    """
 
     iterations: int
     initial_error: float
     final_error: float
     seconds: float
     history: list[dict[str, object]] = field(default_factory=list)
+    converged: bool = True
+    reason: str = ""
+    last_decrease: float = 0.0
 
 
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
            on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
-           relative_tol: float = 1e-7) -> tuple[gtsam.Values, SolveReport]:
-    """Levenberg-Marquardt with an optional per-iteration hook (values and error)."""
+           relative_tol: float = 1e-7, retry: bool = True) -> tuple[gtsam.Values, SolveReport]:
+    """Levenberg-Marquardt with an optional per-iteration hook (values and error).
+
+    A run cut off by the iteration limit while the cost still falls is retried once from where
+    it stopped (with LM's damping reset, which is what usually stalls it); the report says
+    whether the cost finally stopped falling (``converged``).
+    """
+    t0 = time.perf_counter()
+    initial_error = float(graph.error(initial))
+    values, it, err, rel, reason = _lm_pass(graph, initial, max_iterations, on_iteration,
+                                            relative_tol, 0)
+    if reason == "iteration limit" and retry:
+        values, it2, err, rel, reason = _lm_pass(graph, values, max_iterations, on_iteration,
+                                                 relative_tol, it)
+        it += it2
+    report = SolveReport(it, initial_error, float(err), time.perf_counter() - t0,
+                         converged=reason != "iteration limit", reason=reason,
+                         last_decrease=float(rel))
+    return values, report
+
+
+def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int,
+             on_iteration: Callable[[int, gtsam.Values, float], None] | None,
+             relative_tol: float, it0: int) -> tuple[gtsam.Values, int, float, float, str]:
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(relative_tol)
@@ -140,30 +175,77 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
     # lambda * I either does nothing for some or freezes others.
     params.setDiagonalDamping(True)
     params.setlambdaUpperBound(1e12)
-    t0 = time.perf_counter()
-    initial_error = graph.error(initial)
     opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    if on_iteration is not None:
-        on_iteration(0, initial, initial_error)
+    err = float(graph.error(initial))
+    if on_iteration is not None and it0 == 0:
+        on_iteration(0, initial, err)
     it = 0
-    err = initial_error
+    rel = 0.0
+    reason = "iteration limit"
     while it < max_iterations:
         prev = err
         opt.iterate()
         it += 1
-        err = opt.error()
+        err = float(opt.error())
         if on_iteration is not None:
-            on_iteration(it, opt.values(), err)
-        if prev - err < relative_tol * max(prev, 1e-300) or err < 1e-12:
+            on_iteration(it0 + it, opt.values(), err)
+        rel = (prev - err) / max(prev, 1e-300)
+        if rel < relative_tol or err < 1e-12:
+            reason = "converged"
             break
         if opt.lambda_() > 1e10:
+            reason = "no decreasing step at the largest damping"
             break
-    report = SolveReport(it, float(initial_error), float(err), time.perf_counter() - t0)
-    return opt.values(), report
+    return opt.values(), it, err, rel, reason
 
 
+def require_converged(stage: str, report: SolveReport, max_iterations: int) -> None:
+    """Raise :class:`ConvergenceError` (exit 4) naming the stage when its solve did not."""
+    if report.converged:
+        return
+    raise ConvergenceError(
+        f"the {stage} stage did not converge in {report.iterations} iterations (cost still "
+        f"falling by {100 * report.last_decrease:.2g} % per iteration); raise "
+        f"--max-iterations (now {max_iterations}) or check the inputs' units and conventions")
 
 
+def information_matrix(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                       offsets: dict[int, int] | None = None, n: int | None = None):
+    """Gauss-Newton information ``A^T A`` of the linearised graph as a sparse matrix.
+
+    Returns ``(H, offsets, n)``: ``offsets[key]`` is the first row of the key's tangent block
+    (keys in GTSAM's order), ``n`` the dimension. Given ``offsets`` and ``n`` (of a larger graph
+    over the same values), the matrix uses that layout.
+    """
+    import scipy.sparse as sp
+
+    gfg = graph.linearize(values)
+    if offsets is None:
+        grad = gfg.gradientAtZero()  # one vector per key: gives each key's tangent dimension
+        offsets, n = {}, 0
+        for k in sorted(gfg.keys()):  # sparseJacobian_ orders columns by key
+            offsets[k] = n
+            n += int(np.asarray(grad.at(k)).shape[0])
+        local = offsets
+    else:
+        # This graph's own column order: its keys, sorted, packed.
+        grad = gfg.gradientAtZero()
+        local, o = {}, 0
+        for k in sorted(gfg.keys()):
+            local[k] = o
+            o += int(np.asarray(grad.at(k)).shape[0])
+    ijs = np.asarray(gfg.sparseJacobian_())
+    rows = ijs[0].astype(int) - 1
+    cols = ijs[1].astype(int) - 1
+    n_local = sum(int(np.asarray(grad.at(k)).shape[0]) for k in local)
+    keep = cols < n_local  # the last column is the right-hand side
+    remap = np.zeros(n_local, dtype=int)
+    for k, o in local.items():
+        d = int(np.asarray(grad.at(k)).shape[0])
+        remap[o:o + d] = offsets[k] + np.arange(d)
+    A = sp.csc_matrix((ijs[2][keep], (rows[keep], remap[cols[keep]])),
+                      shape=(int(rows.max()) + 1, n))
+    return (A.T @ A).tocsc(), offsets, n
 
 
 def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
@@ -173,22 +255,9 @@ def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gts
     A joint marginal over many keys is dense and cubic in their number; this solves the sparse
     information system ``H z = C^T`` instead, linear in the length of a chain of keys.
     """
-    import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
-    gfg = graph.linearize(values)
-    grad = gfg.gradientAtZero()  # one vector per key: gives each key's tangent dimension
-    offsets: dict[int, int] = {}
-    n = 0
-    for k in sorted(gfg.keys()):  # sparseJacobian_ orders columns by key
-        offsets[k] = n
-        n += int(np.asarray(grad.at(k)).shape[0])
-    ijs = np.asarray(gfg.sparseJacobian_())
-    rows = ijs[0].astype(int) - 1
-    cols = ijs[1].astype(int) - 1
-    keep = cols < n  # the last column is the right-hand side
-    A = sp.csc_matrix((ijs[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n))
-    H = (A.T @ A).tocsc()
+    H, offsets, n = information_matrix(graph, values)
     m = next(iter(combo.values())).shape[0]
     Ct = np.zeros((n, m))
     for k, Ck in combo.items():

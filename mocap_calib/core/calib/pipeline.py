@@ -13,25 +13,32 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.clock import coarse_offset_arrays
-from mocap_calib.core.calib.result import CalibrationResult, Diagnostics
+from mocap_calib.core.calib.clock import MIN_MARGIN_Z, ClockSearch, search_clock
+from mocap_calib.core.calib.result import CalibrationResult, Diagnostics, StageStats
 from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
-from mocap_calib.core.calib.stage_attitude import run_attitude_stage
-from mocap_calib.core.calib.stage_position import PositionInit, Prior, run_position_stage
-from mocap_calib.core.calib.stage_velocity import run_velocity_stage
+from mocap_calib.core.calib.stage_attitude import AttitudeResult, run_attitude_stage
+from mocap_calib.core.calib.stage_position import (
+    PositionInit,
+    PositionResult,
+    Prior,
+    run_position_stage,
+)
+from mocap_calib.core.calib.stage_velocity import VelocityResult, run_velocity_stage
+from mocap_calib.core.calib.state import CalibrationTrace, ModelState
+from mocap_calib.core.calib.verdict import judge
 from mocap_calib.core.calib.window_engine import make_windows
-from mocap_calib.core.diagnosis.predict import ModelState
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.imu_model import Intrinsics, correct
+from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.errors import InputError, ObservabilityError
+from mocap_calib.errors import CalibrationError, InputError, ObservabilityError
 
 Array = NDArray[np.float64]
 
@@ -53,10 +60,17 @@ class CalibrationOptions:
         max_mocap_rate: the position stage decimates faster mocap streams to this rate (Hz).
         time_offset: a known ``t_d`` (s); with ``time_offset`` in the model it is the start
             value instead of the coarse search.
+        max_offset: search the clock offset only within +-this many seconds of the raw stamps.
         priors: earlier results entering as prior factors.
         robust: down-weight mocap outliers.
         adapt_noise: re-estimate the mocap noise level from the residuals.
         start, end: calibrate only this part of the session (s from the IMU start).
+        max_iterations: most LM iterations per solve.
+        consistency_segments: calibrate this many time segments on their own and compare them
+            (0: skip).
+        sensitivity: refit with the IMU noise densities scaled by 3 and 1/3.
+        plausible: the limits of a physically possible answer.
+        accept_implausible: return an implausible answer (marked) instead of refusing it.
     """
 
     model: Model = field(default_factory=lambda: Model(("time_offset",)))
@@ -67,12 +81,17 @@ class CalibrationOptions:
     window: float = 5.0
     max_mocap_rate: float = 120.0
     time_offset: float | None = None
+    max_offset: float | None = None
     priors: list[Prior] = field(default_factory=list)
     robust: bool = True
     adapt_noise: bool = True
     start: float | None = None
     end: float | None = None
     max_iterations: int = 30
+    consistency_segments: int = 3
+    sensitivity: bool = True
+    plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
+    accept_implausible: bool = False
 
     def validate(self) -> None:
         if not 5.0 < self.gravity < 15.0:
@@ -82,25 +101,39 @@ class CalibrationOptions:
                                 ("--window", self.window, 0.5, 60.0)):
             if not lo <= v <= hi:
                 raise InputError(f"{name} {v}: must be between {lo} and {hi} s")
+        if not 1 <= self.max_iterations <= 10_000:
+            raise InputError(f"--max-iterations {self.max_iterations}: must be between 1 and "
+                             "10000")
         nz = self.noise
         for k, v in nz.to_dict().items():
+            if k.startswith("mocap_noise_corr"):
+                continue
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"noise model: {k} = {v} must be a positive number")
+        if not (0.0 <= nz.mocap_noise_corr_time <= 10.0
+                and 0.0 <= nz.mocap_noise_corr_fraction < 1.0):
+            raise InputError("noise model: mocap_noise_corr_time must be 0-10 s and "
+                             "mocap_noise_corr_fraction in [0, 1)")
 
 
 def _crop(imu: ImuSamples, mocap: MocapPoses,
           opts: CalibrationOptions) -> tuple[ImuSamples, MocapPoses]:
+    """``--start``/``--end`` (s from the IMU start) select IMU samples; the mocap is cut to
+    match (with a margin for the clock offset) only when the raw stamps share an epoch. From
+    clocks of different epochs it stays whole: the clock search finds the matching stretch."""
     if opts.start is None and opts.end is None:
         return imu, mocap
     lo = imu.t[0] + (opts.start or 0.0)
     hi = imu.t[0] + opts.end if opts.end is not None else np.inf
     if not hi > lo:
         raise InputError("--end must be after --start")
-    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
     imu_c = imu.select((imu.t >= lo) & (imu.t <= hi))
+    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
     tm = mocap.t - shift  # mocap times on the IMU clock (before the fine offset)
-    moc_c = mocap.select((tm >= lo - 1.0) & (tm <= hi + 1.0))
-    return imu_c, moc_c
+    if tm[-1] < imu.t[0] or tm[0] > imu.t[-1]:  # different epochs
+        return imu_c, mocap
+    margin = 1.0 if opts.time_offset is None else 1.0 + abs(opts.time_offset)
+    return imu_c, mocap.select((tm >= lo - margin) & (tm <= hi + margin))
 
 
 def _corrector(model: Model, effects: dict[str, Array], t_mid: float, gyro_bias: Array,
@@ -139,60 +172,17 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     t0 = time.perf_counter()
     imu, mocap = _crop(imu, mocap, opts)
     s = prepare(imu, mocap, noise=opts.noise)
-    notes: list[str] = []
-    if s.dropped_mocap_rows:
-        notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
-    if s.spikes_removed:
-        notes.append(f"{s.spikes_removed} mocap samples with implausible jumps (marker swaps) "
-                     "were removed")
-
-    # 1. Clock alignment.
-    session_info: dict[str, Any] = {
-        "imu_samples": len(imu), "mocap_samples": len(mocap),
-        "imu_rate_hz": round(s.imu_rate, 3), "mocap_rate_hz": round(s.mocap_rate, 3),
-        "duration_s": round(min(imu.duration, mocap.duration), 3),
-        "mocap_spikes_removed": s.spikes_removed,
-        "imu_start_ns": int(imu.time_origin_ns + round(float(imu.t[0]) * 1e9)),
-    }
-    coarse = None
-    if model.has("time_offset") and opts.time_offset is None:
-        say("aligning clocks (angular-speed cross-correlation)")
-        coarse = coarse_offset_arrays(s.u, s.gyro, s.tau, s.R_WM, s.clock_shift)
-        t_d0 = coarse.time_offset
-        session_info["coarse_time_offset"] = t_d0
-        session_info["coarse_correlation"] = round(coarse.peak, 4)
-    else:
-        t_d0 = opts.time_offset or 0.0
-    delta0 = s.clock_shift + t_d0
-    overlap = min(s.u[-1] + delta0, s.tau[-1]) - max(s.u[0] + delta0, s.tau[0])
-    if overlap < 10.0:
-        fix = ("add time_offset to the model (--model base+time_offset) to search the offset"
-               if not model.has("time_offset") else "check that both files are from one session")
-        raise InputError(f"the IMU and mocap streams overlap for only {max(overlap, 0):.1f} s "
-                         f"with a time offset of {t_d0:.3f} s; {fix}")
-
+    notes = _session_notes(s)
+    session_info = _session_info(imu, mocap, s)
     effects0 = {e.name: e.zero() for e in model.units if e.sensor in ("gyro", "accel")}
     for pr in opts.priors:
         if pr.block in effects0:
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
     t_mid = 0.5 * (s.u[0] + s.u[-1])
+    t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
+    delta0 = s.clock_shift + t_d0
+    att, vel = _initial_stages(s, opts, delta0, effects0, t_mid, on_iteration, say)
 
-    # 2. Attitude factors.
-    say("stage 1/3: attitude factors (gyro bias, R_MI)")
-    att = run_attitude_stage(
-        s, delta0, opts.noise, opts.attitude_spacing,
-        _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
-        on_iteration=None if on_iteration is None else
-        (lambda it, v, err: on_iteration("attitude", it, {}, err)))
-    # 3. Velocity factors.
-    say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
-    vel = run_velocity_stage(
-        s, delta0, opts.noise, opts.velocity_spacing, att.R_MI,
-        _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
-        on_iteration=None if on_iteration is None else
-        (lambda it, v, err: on_iteration("velocity", it, {}, err)))
-
-    # 4. Position factors.
     say("stage 3/3: position factors (all parameters jointly)")
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
     windows = make_windows(s, delta0, opts.window, opts.max_mocap_rate, v_imu)
@@ -204,7 +194,128 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     pos = run_position_stage(s, model, opts.noise, windows, init, opts.priors, opts.robust,
                              opts.max_iterations, adapt_noise=opts.adapt_noise,
                              on_iteration=on_iteration, progress=say)
+    if not model.has("time_offset"):
+        notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
+    diag = Diagnostics(
+        residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
+        iterations=pos.history,
+        trace=CalibrationTrace(session=s, model_state=ModelState.from_position(pos, model, t_mid),
+                               noise_used=pos.noise, windows=pos.windows, weights=pos.weights,
+                               clock=clock))
+    result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
+                      time.perf_counter() - t0)
+    judge(result, s, pos, opts, clock, say)
+    return result
 
+
+def _stage_hook(on_iteration: IterationFn | None, stage: str):
+    if on_iteration is None:
+        return None
+    return lambda it, v, err: on_iteration(stage, it, {}, err)
+
+
+def _session_notes(s: PreparedSession) -> list[str]:
+    notes: list[str] = []
+    if s.dropped_mocap_rows:
+        notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
+    if s.spikes_removed:
+        notes.append(f"{s.spikes_removed} mocap samples with implausible jumps (marker swaps) "
+                     "were removed")
+    return notes
+
+
+def _session_info(imu: ImuSamples, mocap: MocapPoses, s: PreparedSession) -> dict[str, Any]:
+    return {
+        "imu_samples": len(imu), "mocap_samples": len(mocap),
+        "imu_rate_hz": round(s.imu_rate, 3), "mocap_rate_hz": round(s.mocap_rate, 3),
+        "duration_s": round(min(imu.duration, mocap.duration), 3),
+        "mocap_spikes_removed": s.spikes_removed,
+        "imu_start_ns": int(imu.time_origin_ns + round(float(imu.t[0]) * 1e9)),
+    }
+
+
+def _initial_stages(s: PreparedSession, opts: CalibrationOptions, delta0: float,
+                    effects0: dict[str, Array], t_mid: float,
+                    on_iteration: IterationFn | None = None,
+                    say: ProgressFn | None = None) -> tuple[AttitudeResult, VelocityResult]:
+    """Stages 1 and 2 at clock offset ``delta0``."""
+    model, say = opts.model, say or (lambda _m: None)
+    say("stage 1/3: attitude factors (gyro bias, R_MI)")
+    att = run_attitude_stage(
+        s, delta0, opts.noise, opts.attitude_spacing,
+        _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
+        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "attitude"))
+    say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
+    vel = run_velocity_stage(
+        s, delta0, opts.noise, opts.velocity_spacing, att.R_MI,
+        _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
+        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "velocity"))
+    return att, vel
+
+
+def _align_clocks(s: PreparedSession, opts: CalibrationOptions, effects0: dict[str, Array],
+                  t_mid: float, say: ProgressFn) -> tuple[float, ClockSearch | None]:
+    """The starting ``t_d``: the coarse search when the model estimates it (and none is
+    given), else the given value; checks that the streams then overlap.
+
+    Raises:
+        ObservabilityError: the search cannot tell which lag is right (refused, not guessed).
+    """
+    model = opts.model
+    search = None
+    if model.has("time_offset") and opts.time_offset is None:
+        say("aligning clocks (angular speed and specific force, all lags)")
+        search = search_clock(s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM, s.clock_shift,
+                              opts.max_offset)
+        if not search.resolved:
+            chosen = _disambiguate(s, opts, search, effects0, t_mid, say)
+            search = replace(search, time_offset=chosen, verified_by_fit=True)
+        t_d0 = search.time_offset
+    else:
+        t_d0 = opts.time_offset or 0.0
+    delta0 = s.clock_shift + t_d0
+    overlap = min(s.u[-1] + delta0, s.tau[-1]) - max(s.u[0] + delta0, s.tau[0])
+    if overlap < 10.0:
+        fix = ("add time_offset to the model (--model base+time_offset) to search the offset"
+               if not model.has("time_offset") else "check that both files are from one session")
+        raise InputError(f"the IMU and mocap streams overlap for only {max(overlap, 0):.1f} s "
+                         f"with a time offset of {t_d0:.3f} s; {fix}")
+    return t_d0, search
+
+
+def _disambiguate(s: PreparedSession, opts: CalibrationOptions, search: ClockSearch,
+                  effects0: dict[str, Array], t_mid: float, say: ProgressFn) -> float:
+    """Several lags correlate about equally well: fit stages 1-2 at each and keep the one
+    whose fit is clearly better (half the chi2/dof of the next), else refuse."""
+    best_z = search.peak_z
+    cands = [t for t, z in search.candidates if z >= best_z - MIN_MARGIN_Z][:4]
+    if best_z < 3.0 or len(cands) < 2:
+        raise ObservabilityError(
+            "cannot align the clocks: no lag of the two streams correlates clearly (peak "
+            f"{best_z:.1f} null sigmas); check that IMU and mocap are from the same session, "
+            "or give --time-offset")
+    costs = []
+    for t in cands:
+        say(f"checking clock offset candidate {t:.4f} s")
+        try:
+            _, vel = _initial_stages(s, opts, s.clock_shift + t, effects0, t_mid)
+            costs.append(vel.stats.chi2_per_dof)
+        except CalibrationError:
+            costs.append(np.inf)
+    order = np.argsort(costs)
+    if np.isfinite(costs[order[0]]) and costs[order[0]] < 0.5 * costs[order[1]]:
+        return float(cands[order[0]])
+    listed = ", ".join(f"{t:.4g} s" for t in cands)
+    raise ObservabilityError(
+        f"cannot resolve the clock offset: lags {listed} fit about equally well (periodic "
+        "motion?); pass --time-offset S if you know it, or --max-offset S to limit the search")
+
+
+def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
+             stages: list[StageStats], notes: list[str], session_info: dict[str, Any],
+             diag: Diagnostics, seconds: float) -> CalibrationResult:
+    """The result: values (None where unobservable), sigmas, effects, solver figures."""
+    model = opts.model
     sr, sp = pos.solver["mocap_noise_variance_scale"]
     if max(abs(np.log(sr)), abs(np.log(sp))) > np.log(1.1):
         notes.append(
@@ -212,16 +323,16 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
             f"mm, {np.degrees(pos.noise.mocap_rotation_sigma):.3g} deg per axis (assumed "
             f"{1e3 * opts.noise.mocap_position_sigma:.3g} mm, "
             f"{np.degrees(opts.noise.mocap_rotation_sigma):.3g} deg)")
-    # Honest sigmas: when the residuals exceed the noise model, scale up (never down).
-    scale = float(np.sqrt(max(1.0, pos.chi2_per_dof)))
-    if scale > 1.05:
+    # The sigmas are the larger of the model's and the sandwich's (see uncertainty.py), which
+    # already carries residuals beyond the noise model: no chi2 scaling on top.
+    if pos.chi2_per_dof > 1.2:
         notes.append(f"residuals exceed the noise model (chi2/dof = {pos.chi2_per_dof:.2f}); "
-                     f"sigmas are scaled by {scale:.2f}")
+                     "the sigmas follow the residuals' own scatter (sandwich covariance)")
 
     def sig(name: str) -> Array | None:
         if name not in pos.cov:
             return None
-        return scale * np.sqrt(np.maximum(np.diag(pos.cov[name]), 0))
+        return np.sqrt(np.maximum(np.diag(pos.cov[name]), 0))
 
     unob = dict(pos.unobservable)
 
@@ -244,16 +355,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                          "sigma": None if sg is None else eff.report_sigma(sg)}
     t_d = pos.delta - s.clock_shift
     sig_td = sig("time_offset")
-    solver = {"total_seconds": round(time.perf_counter() - t0, 3), "sigma_scale": round(scale, 4),
+    solver = {"total_seconds": round(seconds, 3),
               "position_chi2_per_dof": round(pos.chi2_per_dof, 4), **pos.solver}
-    if not model.has("time_offset"):
-        notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
-    state = ModelState.from_position(pos, model, t_mid)
-    diag = Diagnostics(
-        residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
-        iterations=pos.history,
-        extras={"model_state": state, "noise_used": pos.noise, "windows": pos.windows,
-                "weights": pos.weights, "session": s})
     return CalibrationResult(
         gyro_bias=val("gyro_bias", pos.gyro_bias_mean),
         accel_bias=val("accel_bias", pos.accel_bias_mean),
@@ -266,7 +369,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         sigma_gravity=sig("gravity"),
         sigma_time_offset=None if sig_td is None else float(sig_td[0]),
         gravity_magnitude=float(pos.g_mag), model=str(model), effects=effects,
-        unobservable=unob, stages=[att.stats, vel.stats, pos.stats], solver=solver,
+        unobservable=unob, stages=stages, solver=solver,
         noise=pos.noise, notes=notes, session=session_info, diagnostics=diag)
 
 

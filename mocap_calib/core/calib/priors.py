@@ -3,8 +3,8 @@ first-order trend extrapolated to the new session (prior knowledge in factor-gra
 
 Every block is handled in a local chart around the latest result (the rotation and gravity
 tangent spaces of GTSAM's ``Rot3``/``Unit3``), a weighted straight line through the earlier
-values is fitted per component, and the line's value and uncertainty at the new session's time
-become the prior's mean and sigma.
+values is fitted per component (:func:`mocap_calib.core.model.trend.extrapolate_trend`), and the
+line's value and uncertainty at the new session's time become the prior's mean and sigma.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.calib.stage_position import Prior
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS
+from mocap_calib.core.model.trend import extrapolate_trend
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]
@@ -123,21 +124,7 @@ def priors_from_results(results: Sequence[CalibrationResult], at_ns: int | None 
             ts.append(t)
         if len(xs) < 2:
             continue
-        X = np.stack(xs)
-        Sg = np.stack(sig)
-        T = np.asarray(ts)
-        mean = np.zeros(X.shape[1])
-        var = np.zeros(X.shape[1])
-        for c in range(X.shape[1]):
-            w = 1.0 / np.maximum(Sg[:, c], 1e-300) ** 2
-            A = np.stack([np.ones_like(T), T], axis=1)
-            H = A.T @ (A * w[:, None])
-            cov = np.linalg.inv(H)
-            coef = cov @ (A.T @ (w * X[:, c]))
-            res = X[:, c] - A @ coef
-            dof = len(T) - 2
-            scale = max(1.0, float(np.sum(w * res**2)) / dof) if dof > 0 else 1.0
-            mean[c] = coef[0]  # the line at t = 0 (now)
-            var[c] = cov[0, 0] * scale
-        priors.append(Prior(name, _from_chart(name, mean, ref), np.sqrt(var)))
+        # The line at t = 0 (now): times are relative to the new session.
+        mean, sd = extrapolate_trend(np.asarray(ts), np.stack(xs), np.stack(sig), 0.0)
+        priors.append(Prior(name, _from_chart(name, mean, ref), sd))
     return priors

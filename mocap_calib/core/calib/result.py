@@ -7,16 +7,23 @@ plain-data form that ``io`` writes as YAML; a round trip restores the same objec
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.model.versioned import check_kind, header
+
+if TYPE_CHECKING:
+    from mocap_calib.core.calib.state import CalibrationTrace
 
 Array = NDArray[np.float64]
 
 RESULT_VERSION = 1
+KIND = "calibration"
+#: Keys that identify a calibration file written before files had a ``kind``.
+LEGACY_KEYS = ("gyro_bias", "accel_bias", "T_marker_imu", "gravity_in_mocap")
 
 
 def _list(a: Array | None) -> list[float] | None:
@@ -101,7 +108,7 @@ class Diagnostics:
 
     residuals: dict[str, ResidualSeries] = field(default_factory=dict)
     iterations: list[dict[str, Any]] = field(default_factory=list)
-    extras: dict[str, Any] = field(default_factory=dict)
+    trace: CalibrationTrace | None = None
 
 
 @dataclass
@@ -132,6 +139,10 @@ class CalibrationResult:
     noise: NoiseModel = field(default_factory=NoiseModel)
     notes: list[str] = field(default_factory=list)
     session: dict[str, Any] = field(default_factory=dict)
+    clock: dict[str, Any] = field(default_factory=dict)  # the clock search and its verdict
+    consistency: dict[str, Any] = field(default_factory=dict)  # independent segments
+    sensitivity: dict[str, Any] = field(default_factory=dict)  # under scaled noise densities
+    plausibility: dict[str, Any] = field(default_factory=dict)  # the physical checks
     version: int = RESULT_VERSION
     diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
 
@@ -142,8 +153,9 @@ class CalibrationResult:
         return None if self.rotation_wxyz is None else so3.quat_to_rotmat(self.rotation_wxyz)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data with the keys of ``docs/conventions.md`` first."""
+        """Plain data: ``kind`` and ``version``, then the keys of ``docs/conventions.md``."""
         return {
+            **header(KIND, self.version),
             "gyro_bias": _list(self.gyro_bias),
             "accel_bias": _list(self.accel_bias),
             "T_marker_imu": {
@@ -169,13 +181,26 @@ class CalibrationResult:
             "solver": self.solver,
             "noise": self.noise.to_dict(),
             "session": self.session,
+            "clock": self.clock,
+            "consistency": self.consistency,
+            "sensitivity": self.sensitivity,
+            "plausibility": self.plausibility,
             "notes": list(self.notes),
-            "version": self.version,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
-        """Inverse of :meth:`to_dict`; raises ``KeyError``/``ValueError`` on a malformed dict."""
+        """Inverse of :meth:`to_dict`; raises ``KeyError``/``ValueError`` on a malformed dict
+        (:class:`~mocap_calib.core.model.versioned.KindError` for another kind of file or a newer
+        version)."""
+        if "kind" not in d and any(k in d for k in LEGACY_KEYS):
+            missing = [k for k in LEGACY_KEYS if k not in d]
+            if missing:
+                raise KeyError(f"missing key '{missing[0]}'; is this a mocap-calib result file?")
+        version = check_kind(d, KIND, RESULT_VERSION, legacy=LEGACY_KEYS)
+        for k in LEGACY_KEYS:
+            if k not in d:
+                raise KeyError(f"missing key '{k}'")
         T = d.get("T_marker_imu") or {}
         sig = d.get("sigma") or {}
         for key, val in (("T_marker_imu", T), ("sigma", sig)):
@@ -206,5 +231,9 @@ class CalibrationResult:
             noise=NoiseModel.from_dict(d.get("noise") or {}),
             notes=list(d.get("notes") or []),
             session=dict(d.get("session") or {}),
-            version=int(d.get("version", RESULT_VERSION)),
+            clock=dict(d.get("clock") or {}),
+            consistency=dict(d.get("consistency") or {}),
+            sensitivity=dict(d.get("sensitivity") or {}),
+            plausibility=dict(d.get("plausibility") or {}),
+            version=version,
         )

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel, gap_threshold
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]
@@ -90,7 +90,6 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
     dt_i = np.diff(imu.t)
     if np.any(dt_m <= 0) or np.any(dt_i <= 0):
         raise InputError("timestamps must increase strictly; sort the files and remove duplicates")
-    median_m = float(np.median(dt_m))
     duration = min(imu.duration, mocap.duration)
     if duration < min_duration:
         raise ObservabilityError(
@@ -105,7 +104,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
         raise ObservabilityError(
             "the session is (nearly) static: the body rotates less than 10 deg or the gyro "
             "barely moves; calibration needs motion that rotates the body about all axes")
-    gap = max(3.0 * median_m, 0.02)
+    gap = gap_threshold(mocap.t, 0.02)
     nz = noise or NoiseModel()
     bad = screen_mocap_spikes(mocap.t, R, mocap.position, nz.mocap_position_sigma,
                               nz.mocap_rotation_sigma, gap)

@@ -23,6 +23,7 @@ from mocap_calib.core.calib.graph import (
     BatchFactors,
     BatchOutput,
     huber_isotropic,
+    require_converged,
     robust_weights_and_chi2,
     run_lm,
 )
@@ -160,6 +161,7 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         init.insert(KEY_R, gtsam.Rot3(R_est))
         init.insert(KEY_BG, b_est)
         sol, rep = run_lm(graph, init, max_iterations, on_iteration)
+        require_converged("attitude", rep, max_iterations)
         iterations += rep.iterations
         evaluations += batch.evaluations
         R_est = sol.atRot3(KEY_R).matrix()

@@ -21,14 +21,17 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.graph import (
-    BatchFactors,
-    BatchOutput,
-    linear_combination_covariance,
-    run_lm,
-)
+from mocap_calib.core.calib.graph import BatchFactors, BatchOutput, require_converged, run_lm
+from mocap_calib.core.calib.noise_fit import CorrelationFit, fit_mocap_correlation
 from mocap_calib.core.calib.result import ResidualSeries, StageStats
 from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.calib.uncertainty import (
+    PositionUncertainty,
+    key_knot,
+    mean_bias_weights,
+    position_covariances,
+    unobservable_blocks,
+)
 from mocap_calib.core.calib.window_engine import (
     PositionProblem,
     Theta,
@@ -36,7 +39,7 @@ from mocap_calib.core.calib.window_engine import (
     compress,
 )
 from mocap_calib.core.model.effects import EFFECTS, Model
-from mocap_calib.core.model.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
+from mocap_calib.core.model.ranges import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
@@ -55,8 +58,6 @@ def key_effect(i: int) -> int:
     return gtsam.symbol("e", i)
 
 
-def key_knot(w: int) -> int:
-    return gtsam.symbol("b", w)
 
 
 
@@ -223,6 +224,201 @@ def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, wi
         graph.add(gtsam.BetweenFactorVector(key_knot(w), key_knot(w + 1), np.zeros(6),
                                             gtsam.noiseModel.Diagonal.Sigmas(sig * np.sqrt(dt))))
 
+    values = _start_values(model, init, W)
+    _add_range_priors(graph, model, init)
+    _add_user_priors(graph, priors or [], block_keys, W, s.clock_shift)
+    return PositionGraph(graph, values, batch, pp, model, init, block_keys, t_mid, evals)
+
+
+def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
+                       init: PositionInit, priors: list[Prior] | None = None,
+                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
+                       adapt_noise: bool = True, weights: Array | None = None,
+                       on_iteration: IterationHook | None = None,
+                       progress: Callable[[str], None] | None = None,
+                       covariance: bool = True) -> PositionResult:
+    """Refine all parameters on the window factors.
+
+    Args:
+        s: prepared session; model: active effects; noise: noise densities.
+        windows: from :func:`~mocap_calib.core.calib.windows.make_windows`.
+        init: starting values.
+        priors: user priors (earlier calibrations), added as prior factors.
+        robust: down-weight mocap outliers.
+        adapt_noise: re-estimate the mocap noise level from the innovations.
+        weights: fixed robust weights (W, m+1) from an earlier fit: no re-weighting, so that
+            fits of different models minimise costs of the same family (model comparison).
+        on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
+        progress: called with a short message at every IRLS round.
+        covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
+    """
+    t_start = time.perf_counter()
+    pg = build_position_graph(s, model, noise, windows, init, priors)
+    pg.problem.collect_scores = covariance
+    if weights is not None:
+        pg.problem.weights = np.asarray(weights, dtype=float).copy()
+        robust = False
+    history = _History(pg, on_iteration)
+    fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
+                        robust, adapt_noise, history, progress)
+    sol, out = fit.values, pg.evals[-1]
+    th = pg.theta(sol)
+    blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
+    unc = (position_covariances(pg.graph, sol, pg.block_keys, windows, th.knots, pg.problem.noise,
+                                out.scores, blocks, windows.count) if covariance
+           else PositionUncertainty({}, np.zeros((windows.count, 6)), _mean_bias(windows, th)))
+    stats, series, chi2, dof = _figures(pg, fit, out, time.perf_counter() - t_start)
+    solver = {"position_batch_seconds": round(pg.batch.seconds, 3),
+              "position_evaluations": pg.batch.evaluations, "windows": windows.count,
+              "window_steps": windows.steps,
+              "mocap_noise_variance_scale": [round(float(x), 4) for x in fit.noise_scale],
+              "sandwich_over_model_sigma": unc.robust_ratio}
+    if fit.correlation is not None:
+        solver["mocap_noise_correlation_fit"] = [
+            {k: round(v, 4) for k, v in row.items()} for row in fit.correlation.candidates]
+    return PositionResult(
+        R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
+        effects=th.effects, gyro_bias_mean=unc.bias_mean[0:3], accel_bias_mean=unc.bias_mean[3:6],
+        knots=th.knots, knot_sigma=unc.knot_sigma, cov=unc.cov,
+        unobservable=unobservable_blocks(unc.cov_model), stats=stats, series=series,
+        chi2_per_dof=chi2, windows=windows, weights=pg.problem.weights, noise=pg.problem.noise,
+        cost=2.0 * pg.graph.error(sol), dof=int(dof), solver=solver, history=history.records)
+
+
+class _History:
+    """Records every LM iterate (and the first evaluation, for the "before" figures)."""
+
+    def __init__(self, pg: PositionGraph, on_iteration: IterationHook | None) -> None:
+        self.pg = pg
+        self.on_iteration = on_iteration
+        self.records: list[dict[str, Any]] = []
+        self.first_eval: Any = None
+
+    def __call__(self, it: int, v: gtsam.Values, err: float) -> None:
+        th = self.pg.theta(v)
+        rec = {"iteration": len(self.records), "cost": float(err), "R_MI": th.R_MI.tolist(),
+               "p_MI": th.p_MI.tolist(), "g_dir": th.g_dir.tolist(), "delta": th.delta,
+               "gyro_bias": th.knots[:, 0:3].mean(axis=0).tolist(),
+               "accel_bias": th.knots[:, 3:6].mean(axis=0).tolist()}
+        self.records.append(rec)
+        if self.first_eval is None and self.pg.evals:
+            self.first_eval = self.pg.evals[-1]
+        if self.on_iteration is not None:
+            self.on_iteration("position", rec["iteration"], rec, float(err))
+
+
+@dataclass
+class _Fit:
+    values: gtsam.Values
+    iterations: int
+    noise_scale: Array
+    out0: Any  # the evaluation at the start values (unit weights): the "before" figures
+    correlation: CorrelationFit | None = None
+
+
+def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
+                  adapt_noise: bool, hook: _History,
+                  progress: Callable[[str], None] | None) -> _Fit:
+    """Rounds of LM on a fixed cost; between rounds the mocap noise level is re-estimated from
+    the innovations (it is rarely known well) and the robust weights are updated (IRLS)."""
+    graph, batch, pp, evals = pg.graph, pg.batch, pg.problem, pg.evals
+    iterations = 0
+    sol = pg.values
+    out0 = None
+    noise_scale = np.ones(2)
+    correlation = None
+    # The mocap noise's correlation is chosen once, after the first solve (unless given).
+    fit_corr = adapt_noise and not pp.noise.mocap_correlated
+    for rnd in range(rounds):
+        if progress is not None:
+            progress(f"position factors: solve {rnd + 1} ({pp.win.count} windows)")
+        pp.freeze_whitening(True)
+        batch.invalidate()
+        sol, rep = run_lm(graph, sol, max_iterations, hook)
+        last_report = rep
+        if out0 is None:
+            out0 = hook.first_eval
+        iterations += rep.iterations
+        # A full evaluation at the solution: whitening, statistics and marginals there.
+        pp.freeze_whitening(False)
+        batch.invalidate()
+        batch.output(sol, 0)
+        if rnd == rounds - 1:
+            break
+        last_out = evals[-1]
+        changed = False
+        if fit_corr and correlation is None:
+            correlation = fit_mocap_correlation(pp, pg.theta(sol))
+            old, pp.noise = pp.noise, correlation.noise
+            noise_scale *= _variance_ratio(pp.noise, old)
+            changed = True
+        elif adapt_noise:
+            s_rot, s_pos = pp.mocap_noise_scale(last_out)
+            if max(abs(np.log(s_rot)), abs(np.log(s_pos))) > np.log(1.05):
+                s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
+                pp.scale_mocap_noise(s_rot, s_pos)
+                noise_scale *= (s_rot, s_pos)
+                changed = True
+        if robust and not changed:
+            w_before = pp.weights.copy()
+            if pp.update_weights(last_out.d_raw) < 0.25:
+                pp.weights = w_before  # keep the weights the solution was computed with
+            else:
+                changed = True
+        if not changed:
+            break
+        batch.invalidate()
+    # Earlier rounds may stop early: the next round goes on from there. The last must converge.
+    require_converged("position", last_report, max_iterations)
+    return _Fit(sol, iterations, noise_scale, out0, correlation)
+
+
+def _mean_bias(windows: Windows, th: Theta) -> Array:
+    return np.kron(mean_bias_weights(windows)[None, :], np.eye(6)) @ th.knots.reshape(-1)
+
+
+def _variance_ratio(new: NoiseModel, old: NoiseModel) -> Array:
+    """Mocap noise variances (attitude, position) of ``new`` over ``old``."""
+    return np.array([(new.mocap_rotation_sigma / old.mocap_rotation_sigma) ** 2,
+                     (new.mocap_position_sigma / old.mocap_position_sigma) ** 2])
+
+
+def _figures(pg: PositionGraph, fit: _Fit, out: Any,
+             seconds: float) -> tuple[StageStats, ResidualSeries, float, int]:
+    """Stage statistics, residual series and chi2/dof at the solution."""
+    windows, layout, w_final = pg.problem.win, pg.problem.layout, pg.problem.weights
+    out0 = fit.out0
+    mask = windows.mask
+    W = windows.count
+    n_res = int(mask.sum())
+    dof = 6 * n_res - 9 * W - layout.dim
+    chi2 = float(out.chi2.sum()) / max(dof, 1)
+
+    def rms(x: Array) -> list[float]:
+        return np.sqrt(np.mean(x[mask] ** 2, axis=0)).tolist()
+
+    inl = mask & (w_final > 0.5)
+
+    def rms_in(x: Array) -> list[float]:
+        return np.sqrt(np.mean(x[inl] ** 2, axis=0)).tolist()
+
+    stats = StageStats(
+        name="position", unit="m",
+        rms_before=rms(out0.innovation[..., 3:6]), rms_after=rms(out.innovation[..., 3:6]),
+        rms_after_inliers=rms_in(out.innovation[..., 3:6]),
+        n_factors=W, n_residuals=n_res, outliers=int(np.sum(mask & (w_final < 0.5))),
+        iterations=fit.iterations, seconds=seconds, chi2_per_dof=chi2,
+        rms_rotation_deg=np.degrees(rms(out.innovation[..., 0:3])).tolist(),
+        batch_evaluations=pg.batch.evaluations)
+    series = ResidualSeries(
+        t=windows.tau[mask], before=out0.innovation[..., 3:6][mask],
+        after=out.innovation[..., 3:6][mask], weight=w_final[mask], unit="m",
+        rotation_before=np.degrees(out0.innovation[..., 0:3][mask]),
+        rotation_after=np.degrees(out.innovation[..., 0:3][mask]))
+    return stats, series, chi2, dof
+
+
+def _start_values(model: Model, init: PositionInit, W: int) -> gtsam.Values:
     values = gtsam.Values()
     values.insert(KEY_R, gtsam.Rot3(init.R_MI))
     values.insert(KEY_P, gtsam.Point3(*init.p_MI))
@@ -237,8 +433,12 @@ def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, wi
     for w in range(W):
         values.insert(key_knot(w), np.r_[init.gyro_bias, init.accel_bias] if init.knots is None
                       else np.asarray(init.knots[w], dtype=float))
+    return values
 
-    # Weak range priors (see RANGE_SIGMA) around the starting point.
+
+def _add_range_priors(graph: gtsam.NonlinearFactorGraph, model: Model,
+                      init: PositionInit) -> None:
+    """Weak range priors (see RANGE_SIGMA) around the starting point."""
     range_priors = {
         "rotation": (KEY_R, init.R_MI),
         "translation": (KEY_P, init.p_MI),
@@ -259,7 +459,12 @@ def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, wi
     graph.add(_prior_factor("knot", key_knot(0), np.r_[init.gyro_bias, init.accel_bias],
                             np.r_[np.full(3, RANGE_SIGMA["gyro_bias"]),
                                   np.full(3, RANGE_SIGMA["accel_bias"])]))
-    for pr in priors or []:
+
+
+def _add_user_priors(graph: gtsam.NonlinearFactorGraph, priors: list[Prior],
+                     block_keys: dict[str, int], W: int, clock_shift: float) -> None:
+    """Priors from earlier calibrations."""
+    for pr in priors:
         key = block_keys.get(pr.block)
         if pr.block in ("gyro_bias", "accel_bias"):
             # A prior on the session-mean bias acts on the middle knot (random walk between).
@@ -275,182 +480,5 @@ def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, wi
             continue  # a prior on a parameter this model does not have
         value = pr.value
         if pr.block == "time_offset":
-            value = np.atleast_1d(np.asarray(value, dtype=float)) + s.clock_shift  # t_d -> delta
+            value = np.atleast_1d(np.asarray(value, dtype=float)) + clock_shift  # t_d -> delta
         graph.add(_prior_factor(pr.block, key, value, pr.sigma))
-
-    return PositionGraph(graph, values, batch, pp, model, init, block_keys, t_mid, evals)
-
-
-def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
-                       init: PositionInit, priors: list[Prior] | None = None,
-                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
-                       adapt_noise: bool = True, weights: Array | None = None,
-                       on_iteration: IterationHook | None = None,
-                       progress: Callable[[str], None] | None = None) -> PositionResult:
-    """Refine all parameters on the window factors.
-
-    Args:
-        s: prepared session; model: active effects; noise: noise densities.
-        windows: from :func:`~mocap_calib.core.calib.window_engine.make_windows`.
-        init: starting values.
-        priors: user priors (earlier calibrations), added as prior factors.
-        robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise level from the innovations.
-        weights: fixed robust weights (W, m+1) from an earlier fit: no re-weighting, so that
-            fits of different models minimise costs of the same family (model comparison).
-        on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
-        progress: called with a short message at every IRLS round.
-    """
-    t_start = time.perf_counter()
-    pg = build_position_graph(s, model, noise, windows, init, priors)
-    graph, values, batch, pp = pg.graph, pg.values, pg.batch, pg.problem
-    layout, block_keys, t_mid, evals = pp.layout, pg.block_keys, pg.t_mid, pg.evals
-    W = windows.count
-    history: list[dict[str, Any]] = []
-    first_eval: list[Any] = []
-
-    def hook(it: int, v: gtsam.Values, err: float) -> None:
-        th = _theta(v, model, W, init, t_mid)
-        rec = {"iteration": len(history), "cost": float(err), "R_MI": th.R_MI.tolist(),
-               "p_MI": th.p_MI.tolist(), "g_dir": th.g_dir.tolist(), "delta": th.delta,
-               "gyro_bias": th.knots[:, 0:3].mean(axis=0).tolist(),
-               "accel_bias": th.knots[:, 3:6].mean(axis=0).tolist()}
-        history.append(rec)
-        if not first_eval and evals:
-            first_eval.append(evals[-1])
-        if on_iteration is not None:
-            on_iteration("position", rec["iteration"], rec, float(err))
-
-    # Rounds of LM on a fixed cost; between rounds the mocap noise level is re-estimated from
-    # the innovations (it is rarely known well) and the robust weights are updated (IRLS).
-    # The first evaluation (at the start values, unit weights) gives the "before" figures.
-    iterations = 0
-    if weights is not None:
-        pp.weights = np.asarray(weights, dtype=float).copy()
-        robust = False
-    rounds = irls_rounds if (robust or adapt_noise) else 1
-    sol = values
-    out0 = None
-    noise_scale = np.ones(2)
-    for rnd in range(rounds):
-        if progress is not None:
-            progress(f"position factors: solve {rnd + 1} ({W} windows)")
-        pp.freeze_whitening(True)
-        batch.invalidate()
-        sol, rep = run_lm(graph, sol, max_iterations, hook)
-        if out0 is None:
-            out0 = first_eval[0] if first_eval else None
-        iterations += rep.iterations
-        # A full evaluation at the solution: whitening, statistics and marginals there.
-        pp.freeze_whitening(False)
-        batch.invalidate()
-        batch.output(sol, 0)
-        if rnd == rounds - 1:
-            break
-        last_out = evals[-1]
-        changed = False
-        if adapt_noise:
-            s_rot, s_pos = pp.mocap_noise_scale(last_out)
-            if max(abs(np.log(s_rot)), abs(np.log(s_pos))) > np.log(1.05):
-                s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
-                pp.scale_mocap_noise(s_rot, s_pos)
-                noise_scale *= (s_rot, s_pos)
-                changed = True
-        if robust and not changed:
-            w_before = pp.weights.copy()
-            if pp.update_weights(last_out.d_raw) < 0.25:
-                pp.weights = w_before  # keep the weights the solution was computed with
-            else:
-                changed = True
-        if not changed:
-            break
-        batch.invalidate()
-    out = evals[-1]
-    th = _theta(sol, model, W, init, t_mid)
-    cost = 2.0 * graph.error(sol)  # chi^2 of the whole graph (windows, random walk, priors)
-    marg = gtsam.Marginals(graph, sol)
-
-    cov: dict[str, Array] = {}
-    for name, key in block_keys.items():
-        cov[name] = np.asarray(marg.marginalCovariance(key))
-    knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(w))))
-                           for w in range(W)])
-
-    # Session-mean bias: each window's mean bias interpolated towards the next knot.
-    starts = windows.start
-    ends = windows.end
-    lengths = ends - starts
-    coef = np.zeros((W, W))
-    for w in range(W):
-        if w + 1 < W:
-            a = 0.5 * lengths[w] / max(starts[w + 1] - starts[w], 1e-9)
-            coef[w, w] = 1.0 - a
-            coef[w, w + 1] = a
-        else:
-            coef[w, w] = 1.0
-    weights_w = lengths / lengths.sum()
-    c_mean = weights_w @ coef  # (W,)
-    Cm = np.kron(c_mean[None, :], np.eye(6))  # (6, 6W)
-    bias_mean = Cm @ th.knots.reshape(-1)
-    combo = {key_knot(w): Cm[:, 6 * w:6 * w + 6] for w in range(W)}
-    knot_part = linear_combination_covariance(graph, sol, combo)
-    # Random-walk wander inside each window around the interpolation (Brownian bridge).
-    bridge = (weights_w**2 * lengths).sum() / 12.0
-    rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2),
-                np.full(3, noise.accelerometer_random_walk**2)]
-    bias_cov = knot_part + np.diag(rw2 * bridge)
-    cov["gyro_bias"] = bias_cov[0:3, 0:3]
-    cov["accel_bias"] = bias_cov[3:6, 3:6]
-
-    unobservable: dict[str, str] = {}
-    for name, C in cov.items():
-        prior_sig = RANGE_SIGMA.get(name)
-        if prior_sig is None:
-            continue
-        sig = np.sqrt(np.maximum(np.diag(C), 0.0))
-        bad = sig > UNOBSERVABLE_RATIO * prior_sig
-        if np.any(bad):
-            axes = ", ".join(str(i) for i in np.flatnonzero(bad))
-            unobservable[name] = (f"not determined by the motion (component {axes}: sigma "
-                                  f"{sig[bad].max():.3g} vs prior range {prior_sig:.3g}); "
-                                  "excite it more or give a prior")
-
-    mask = windows.mask
-    w_final = pp.weights
-    n_res = int(mask.sum())
-    dof = 6 * n_res - 9 * W - layout.dim
-    chi2 = float(out.chi2.sum()) / max(dof, 1)
-
-    def rms(x: Array) -> list[float]:
-        return np.sqrt(np.mean(x[mask] ** 2, axis=0)).tolist()
-
-    inl = mask & (w_final > 0.5)
-
-    def rms_in(x: Array) -> list[float]:
-        return np.sqrt(np.mean(x[inl] ** 2, axis=0)).tolist()
-
-    stats = StageStats(
-        name="position", unit="m",
-        rms_before=rms(out0.innovation[..., 3:6]), rms_after=rms(out.innovation[..., 3:6]),
-        rms_after_inliers=rms_in(out.innovation[..., 3:6]),
-        n_factors=W, n_residuals=n_res, outliers=int(np.sum(mask & (w_final < 0.5))),
-        iterations=iterations, seconds=time.perf_counter() - t_start, chi2_per_dof=chi2,
-        rms_rotation_deg=np.degrees(rms(out.innovation[..., 0:3])).tolist(),
-        batch_evaluations=batch.evaluations)
-    series = ResidualSeries(
-        t=windows.tau[mask], before=out0.innovation[..., 3:6][mask],
-        after=out.innovation[..., 3:6][mask], weight=w_final[mask], unit="m",
-        rotation_before=np.degrees(out0.innovation[..., 0:3][mask]),
-        rotation_after=np.degrees(out.innovation[..., 0:3][mask]))
-    solver = {"position_batch_seconds": round(batch.seconds, 3),
-              "position_evaluations": batch.evaluations, "windows": W,
-              "window_steps": windows.steps,
-              "mocap_noise_variance_scale": [round(float(x), 4) for x in noise_scale]}
-    return PositionResult(
-        R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
-        effects=th.effects, gyro_bias_mean=bias_mean[0:3], accel_bias_mean=bias_mean[3:6],
-        knots=th.knots, knot_sigma=knot_sigma, cov=cov, unobservable=unobservable,
-        stats=stats, series=series,
-        chi2_per_dof=chi2, windows=windows, weights=w_final, noise=pp.noise, cost=cost,
-        dof=int(dof), solver=solver, history=history)
-

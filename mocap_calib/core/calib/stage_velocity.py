@@ -24,6 +24,7 @@ from mocap_calib.core.calib.graph import (
     BatchFactors,
     BatchOutput,
     huber_isotropic,
+    require_converged,
     robust_weights_and_chi2,
     run_lm,
 )
@@ -74,6 +75,16 @@ def velocity_errors(d: _Data, b: Array, p: Array, g_vec: Array, b0: Array) -> Ar
             - np.einsum("nij,nj->ni", d.R_i, pred))
 
 
+def velocity_factor(data: _Data, b: Array, p: Array, u3: gtsam.Unit3, gravity: float,
+                    b_lin: Array) -> tuple[Array, Array, Array, Array]:
+    """Errors of all velocity factors and their Jacobians (accel bias, ``p_MI``, gravity
+    direction in its Unit3 tangent space): what the stage's factors evaluate."""
+    e = velocity_errors(data, b, p, gravity * u3.point3(), b_lin)
+    Hb = np.einsum("nij,njk->nik", data.R_i, data.A)
+    Hg = -gravity * data.dt[:, None, None] * u3.basis()[None]
+    return e, Hb, data.LM, Hg
+
+
 def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spacing: float,
                        R_MI: Array, correct_fn, gravity: float, huber_k: float = 3.0,
                        max_iterations: int = 30, on_iteration=None) -> VelocityResult:
@@ -94,6 +105,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     kf = kf[valid[kf]]
     i0, i1 = kf[:-1], kf[1:]
     ok = (s.segments_without_gaps(i0, i1) & s.imu_covers(s.tau[i0], s.tau[i1], delta)
+          # a keyframe dropped (invalid derivative) leaves a longer interval: keep it short
           & (s.tau[i1] - s.tau[i0] < 2.5 * spacing))
     i0, i1 = i0[ok], i1[ok]
     if len(i0) < 10:
@@ -158,13 +170,10 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     iterations = evaluations = 0
     for _relinearise in range(3):
         def evaluate(v: gtsam.Values, data=data, b_lin=b_lin) -> BatchOutput:
-            b = np.asarray(v.atVector(KEY_BA))
-            p = np.asarray(v.atPoint3(KEY_P))
-            u3 = v.atUnit3(KEY_G)
-            e = velocity_errors(data, b, p, gravity * u3.point3(), b_lin)
-            Hb = np.einsum("nij,njk->nik", data.R_i, data.A)
-            Hg = -gravity * data.dt[:, None, None] * u3.basis()[None]
-            return BatchOutput(list(e), [[Hb[k], data.LM[k], Hg[k]] for k in range(len(e))])
+            e, Hb, Hp, Hg = velocity_factor(data, np.asarray(v.atVector(KEY_BA)),
+                                            np.asarray(v.atPoint3(KEY_P)), v.atUnit3(KEY_G),
+                                            gravity, b_lin)
+            return BatchOutput(list(e), [[Hb[k], Hp[k], Hg[k]] for k in range(len(e))])
 
         batch = BatchFactors(evaluate, [[KEY_BA, KEY_P, KEY_G]] * n,
                              {KEY_BA: "vector", KEY_P: "point3", KEY_G: "unit3"},
@@ -184,6 +193,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         init.insert(KEY_P, gtsam.Point3(*p_est))
         init.insert(KEY_G, gtsam.Unit3(g_dir))
         sol, rep = run_lm(graph, init, max_iterations, on_iteration)
+        require_converged("velocity", rep, max_iterations)
         iterations += rep.iterations
         evaluations += batch.evaluations
         b_est = np.asarray(sol.atVector(KEY_BA))

@@ -20,17 +20,31 @@ over the steps of one window, not over the session.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
 from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.calib.windows import (  # noqa: F401  (re-exported)
+    EvalOut,
+    Layout,
+    Theta,
+    Windows,
+    layout_for,
+    make_windows,
+)
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
-from mocap_calib.core.model.imu_model import Intrinsics, correct
-from mocap_calib.core.model.preint import hermite, integrate_pieces, pieces
+from mocap_calib.core.model.imu_model import Corrected, Intrinsics, correct
+from mocap_calib.core.model.preint import (
+    StepIncrements,
+    compose,
+    hermite,
+    integrate_pieces,
+    pieces,
+)
 from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
@@ -39,155 +53,132 @@ Array = NDArray[np.float64]
 ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
 #: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
 DIFFUSE = (1.0, 1.0, 0.5)
+#: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
+#: longer than the correlation of real mocap noise, short enough for many blocks per session.
+SCORE_BLOCK_S = 1.0
+
+
+def _mocap_cov(L: Array, sr2: float, sp2: float) -> Array:
+    """(..., 6, 6) covariance of a residual's mocap noise: attitude noise ``sr2`` per axis
+    (I frame), position noise ``sp2``, and the position error ``-L`` times the attitude noise."""
+    out = np.empty(L.shape[:-2] + (6, 6))
+    Lt = np.swapaxes(L, -1, -2)
+    out[..., 0:3, 0:3] = sr2 * np.eye(3)
+    out[..., 0:3, 3:6] = -sr2 * Lt
+    out[..., 3:6, 0:3] = -sr2 * L
+    out[..., 3:6, 3:6] = sp2 * np.eye(3) + sr2 * L @ Lt
+    return out
+
+
+def _predict_covariance(P: Array, Phi: Array, noise: _Noise, k: int) -> Array:
+    """Filter covariance through step ``k``: transition plus process noise."""
+    P = Phi @ P @ np.swapaxes(Phi, 1, 2)
+    i15, i3 = np.arange(15), np.arange(3)
+    P[:, i15, i15] += noise.q_diag[:, k]
+    P[:, 3 + i3, 6 + i3] += noise.q_pv[:, k, None]
+    P[:, 6 + i3, 3 + i3] += noise.q_pv[:, k, None]
+    if noise.Qm is not None:
+        P[:, 15:, 15:] += noise.Qm[:, k]
+    return P
+
+
+def _likelihood_pass(r: Array, Phi: Array, noise: _Noise, wts: Array,
+                     mask: NDArray[np.bool_]) -> Array:
+    """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (no Jacobian)."""
+    W, m1 = mask.shape
+    ns = Phi.shape[-1]
+    corr = ns == 21
+    P = np.zeros((W, ns, ns))
+    for i, d in enumerate(DIFFUSE):
+        P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
+    if corr:
+        P[:, 15:, 15:] = noise.Pm0
+    x = np.zeros((W, ns, 1))
+    chi2 = np.zeros(W)
+    logdet = np.zeros(W)
+    for k in range(m1):
+        if k > 0:
+            x = Phi[:, k - 1] @ x
+            P = _predict_covariance(P, Phi[:, k - 1], noise, k - 1)
+        e = r[:, k, :, None] - (x[:, 0:6] + x[:, 15:21] if corr else x[:, 0:6])
+        PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]
+        HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
+        Lc = np.linalg.cholesky(HPHt + noise.Rn[:, k] / wts[:, k, None, None])
+        z = np.linalg.solve(Lc, e)
+        ok = mask[:, k]
+        chi2 += np.where(ok, np.sum(z[..., 0] ** 2, axis=1), 0.0)
+        logdet += np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Lc, axis1=1, axis2=2)), axis=1),
+                           0.0)
+        K = np.linalg.solve(np.swapaxes(Lc, 1, 2), np.linalg.solve(Lc, np.swapaxes(PHt, 1, 2)))
+        K = np.swapaxes(K, 1, 2)  # P H^T S^-1
+        K[~ok] = 0.0
+        x += K @ e
+        P -= K @ np.swapaxes(PHt, 1, 2)
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    return chi2, logdet
+
+
+class _Accumulator:
+    """What a filter pass collects per sample and window (Gram matrix, innovations, scores)."""
+
+    def __init__(self, W: int, m: int, p: int, store: bool,
+                 blocks: NDArray[np.int64] | None) -> None:
+        self.p = p
+        self.gram = np.zeros((W, p + 1, p + 1))
+        self.innov = np.zeros((W, m + 1, 6))
+        self.d_raw = np.zeros((W, m + 1))
+        self.q_rot = np.zeros((W, m + 1))
+        self.q_pos = np.zeros((W, m + 1))
+        self.chi2 = np.zeros(W)
+        self.logdet = np.zeros(W)
+        self.raw_J = np.zeros((W, m + 1, 6, p)) if store else None
+        self.whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
+        self.blocks = blocks
+        self.scores = None if blocks is None else np.zeros((W, int(blocks[-1]) + 1, p))
+
+    def add(self, k: int, N: Array, Nw: Array, Li: Array, ok: NDArray[np.bool_]) -> None:
+        p = self.p
+        self.gram += np.swapaxes(Nw, 1, 2) @ Nw
+        e = Nw[:, :, p]
+        self.chi2 += np.sum(e**2, axis=1)
+        self.logdet -= np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)),
+                                                 axis=1), 0.0)
+        self.innov[:, k] = N[:, :, p]
+        self.d_raw[:, k] = np.linalg.norm(e, axis=1)
+        # Li is lower-triangular: the first three whitened components involve only the
+        # attitude innovation and its own covariance block.
+        self.q_rot[:, k] = np.sum(e[:, 0:3] ** 2, axis=1)
+        self.q_pos[:, k] = np.sum(e[:, 3:6] ** 2, axis=1)
+        if self.whitened is not None:
+            self.whitened[:, k] = Nw
+        if self.scores is not None:
+            self.scores[:, self.blocks[k]] += np.einsum("wrp,wr->wp", Nw[:, :, :p], e)
+
+    def result(self, mask: NDArray[np.bool_], raw_r: Array | None,
+               extras: dict[str, Array]) -> EvalOut:
+        self.d_raw[~mask] = 0.0
+        self.innov[~mask] = 0.0
+        return EvalOut(self.gram, self.innov, self.d_raw, self.chi2, self.q_rot, self.q_pos,
+                       self.logdet, self.scores, raw_r, self.raw_J, self.whitened, extras)
 
 
 @dataclass(frozen=True)
-class Windows:
-    """Padded window arrays (W windows, up to m steps each)."""
-
-    idx: NDArray[np.int64]  # (W, m+1) mocap sample index
-    mask: NDArray[np.bool_]  # (W, m+1) real sample
-    tau: Array  # (W, m+1)
+class _Residuals:
+    r: Array  # (W, m+1, 6) attitude and position residuals
+    Jinv: Array  # (W, m+1, 3, 3) right-Jacobian inverse of the attitude residual
+    Pm_rot: Array  # (W, m+1, 3, 3) d r_rot / d (nominal attitude perturbation)
     R_WM: Array  # (W, m+1, 3, 3)
-    p_WM: Array  # (W, m+1, 3)
-    v0: Array  # (W, 3) IMU velocity guess at the window start (diffuse prior's mean)
-
-    @property
-    def count(self) -> int:
-        return self.idx.shape[0]
-
-    @property
-    def steps(self) -> int:
-        return self.idx.shape[1] - 1
-
-    @property
-    def start(self) -> Array:
-        return self.tau[:, 0]
-
-    @property
-    def end(self) -> Array:
-        last = self.mask.sum(axis=1) - 1
-        return self.tau[np.arange(self.count), last]
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.mask.sum())
-
-
-def make_windows(s: PreparedSession, delta: float, length: float, max_rate: float,
-                 v_imu: Array, min_samples: int = 20, margin: float = 0.1) -> Windows:
-    """Cut the mocap stream into gap-free windows of at most ``length`` seconds.
-
-    Args:
-        s: prepared session.
-        delta: current mocap-minus-IMU time (windows stay ``margin`` inside the IMU span).
-        length: window length (s).
-        max_rate: mocap samples above this rate are decimated (consecutive mocap noise is rarely
-            independent beyond ~100-200 Hz, and the cost is linear in the samples).
-        v_imu: (M, 3) IMU velocity guess at every mocap sample (for window starts).
-    """
-    step = max(1, int(round(s.mocap_rate / max_rate)))
-    sel = np.arange(0, len(s.tau), step)
-    tau = s.tau[sel]
-    inside = (tau - delta > s.u[0] + margin) & (tau - delta < s.u[-1] - margin)
-    gap = max(s.gap, 3.0 * step / s.mocap_rate)
-    breaks = np.flatnonzero((np.diff(tau) > gap) | (inside[1:] != inside[:-1])) + 1
-    segments = [seg for seg in np.split(np.arange(len(sel)), breaks) if inside[seg[0]]]
-    windows: list[NDArray[np.int64]] = []
-    for seg in segments:
-        dur = tau[seg[-1]] - tau[seg[0]]
-        n = max(1, int(np.ceil(dur / length)))
-        for part in np.array_split(seg, n):
-            if len(part) >= min_samples:
-                windows.append(sel[part])
-    if not windows:
-        return Windows(np.zeros((0, 2), np.int64), np.zeros((0, 2), bool), np.zeros((0, 2)),
-                       np.zeros((0, 2, 3, 3)), np.zeros((0, 2, 3)), np.zeros((0, 3)))
-    m1 = max(len(w) for w in windows)
-    W = len(windows)
-    idx = np.zeros((W, m1), np.int64)
-    mask = np.zeros((W, m1), bool)
-    for i, w in enumerate(windows):
-        idx[i, : len(w)] = w
-        idx[i, len(w):] = w[-1]
-        mask[i, : len(w)] = True
-    return Windows(idx, mask, s.tau[idx], s.R_WM[idx], s.p_WM[idx], v_imu[idx[:, 0]])
-
-
-@dataclass
-class Theta:
-    """Current values of the position stage's parameters."""
-
-    R_MI: Array
-    p_MI: Array
-    g_dir: Array
-    g_basis: Array  # (3, 2) tangent basis of the gravity direction (GTSAM Unit3's)
-    g_mag: float
-    delta: float
-    effects: dict[str, Array]
-    knots: Array  # (W, 6): gyro bias, accel bias at each window start
-    t_mid: float = 0.0
 
 
 @dataclass(frozen=True)
-class Layout:
-    """Column layout of a window's Jacobian: global blocks, then the window's bias knot."""
-
-    blocks: tuple[tuple[str, int], ...]
-
-    @property
-    def dim(self) -> int:
-        return sum(d for _, d in self.blocks)
-
-    def slice(self, name: str) -> slice:
-        o = 0
-        for n, d in self.blocks:
-            if n == name:
-                return slice(o, o + d)
-            o += d
-        raise KeyError(name)
-
-    def has(self, name: str) -> bool:
-        return any(n == name for n, _ in self.blocks)
-
-
-def layout_for(model: Model) -> Layout:
-    blocks: list[tuple[str, int]] = [("rotation", 3), ("translation", 3), ("gravity", 2)]
-    if model.has("time_offset"):
-        blocks.append(("time_offset", 1))
-    if model.has("gravity_magnitude"):
-        blocks.append(("gravity_magnitude", 1))
-    for eff in model.units:
-        if eff.sensor in ("gyro", "accel"):
-            blocks.append((eff.name, eff.dim))
-    blocks.append(("knot", 6))
-    return Layout(tuple(blocks))
-
-
-@dataclass
-class EvalOut:
-    """One evaluation of all windows.
-
-    Attributes:
-        gram: (W, p+1, p+1) Gram matrix of the whitened ``[J | r]`` per window (r last).
-        innovation: (W, m+1, 6) one-step prediction errors (rad, m) at each sample.
-        d_raw: (W, m+1) whitened innovation norm with unit robust weights.
-        chi2: (W,) whitened cost per window (with the robust weights used).
-        q_rot, q_pos: (W, m+1) squared whitened attitude / position innovation (3 dof each):
-            their typical size tells whether the mocap noise is as modelled.
-        raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
-    """
-
-    gram: Array
-    innovation: Array
-    d_raw: Array
-    chi2: Array
-    q_rot: Array
-    q_pos: Array
-    raw_r: Array | None = None
-    raw_J: Array | None = None
-    whitened: Array | None = None
-    extras: dict[str, Array] = field(default_factory=dict)
+class _Noise:
+    q_diag: Array  # (W, m, 15) diagonal process noise per step
+    q_pv: Array  # (W, m) position-velocity cross term
+    Rn: Array  # (W, m+1, 6, 6) white mocap noise of each residual
+    # Correlated mocap noise (states 15:21, in residual coordinates), when modelled:
+    Fm: Array | None = None  # (W, m, 6, 6) its transition per step
+    Qm: Array | None = None  # (W, m, 6, 6) its process noise per step
+    Pm0: Array | None = None  # (W, 6, 6) its stationary covariance at the first sample
 
 
 class PositionProblem:
@@ -214,6 +205,7 @@ class PositionProblem:
         self.weights = np.ones(windows.idx.shape)
         self._buffers: dict[str, Array] = {}
         self.freeze = False
+        self.collect_scores = False  # per-block scores in unfrozen evaluations (sandwich)
         self._ops: dict[int, dict[str, Array]] = {}
 
     # ------------------------------------------------------------------ evaluation
@@ -221,7 +213,7 @@ class PositionProblem:
         outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
         cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
                    else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
-                                        "raw_r", "raw_J", "whitened")}
+                                        "logdet", "scores", "raw_r", "raw_J", "whitened")}
         extras = {k: np.concatenate([o.extras[k] for o in outs]) for k in outs[0].extras}
         return EvalOut(**cat, extras=extras)
 
@@ -234,25 +226,66 @@ class PositionProblem:
 
     def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool,
                         ci: int = 0) -> EvalOut:
-        s, win, L = self.s, self.win, self.layout
-        nz = self.noise
-        W = len(c)
-        m = win.steps
-        p = L.dim
-        tau = win.tau[c]
-        mask = win.mask[c]
-        R_WM = win.R_WM[c]
-        p_WM = win.p_WM[c]
+        win = self.win
+        tau, R_WM = win.tau[c], win.R_WM[c]
         h = np.diff(tau, axis=1)  # padded steps have h = 0
+        inc, corr, dwf = self._imu_steps(th, c, tau, h)
+        # Nominal trajectory; the start velocity is a fixed guess (a diffuse nuisance).
+        Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
+                                win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+                                th.g_mag * th.g_dir)
+        res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
+        F = self._transition(inc, Rbar, h)
+        gcols, g_in = self._gravity_inputs(th, h)
+        # A frozen whitening (see freeze_whitening) needs no noise model here.
+        frozen = self._ops.get(ci) if self.freeze else None
+        noise = self._noise(th, h, R_WM) if (frozen is None or store) else None
+        out = self._filter(th, c, ci, res, F, dwf, gcols, g_in, noise, frozen, store)
+        return out
 
-        # --- IMU signals on pieces between IMU samples (see preint.Pieces), corrected with
-        # each window's knot biases.
+    def likelihoods(self, th: Theta, noises: list[NoiseModel], part: str = "both") -> list[Array]:
+        """-2 log-likelihood of every window (chi2 + log det; ``part`` "chi2" for the first
+        only) under each noise model, at the same parameters: the trajectory is integrated
+        once, only the filter runs per model (without the Jacobian columns)."""
+        win = self.win
+        out = [np.zeros(win.count) for _ in noises]
+        keep = self.noise
+        try:
+            for c in self.chunks:
+                tau, R_WM = win.tau[c], win.R_WM[c]
+                h = np.diff(tau, axis=1)
+                inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
+                Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
+                                        win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+                                        th.g_mag * th.g_dir)
+                res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
+                F = self._transition(inc, Rbar, h).copy()
+                for i, nz in enumerate(noises):
+                    self.noise = nz
+                    noise = self._noise(th, h, R_WM)
+                    chi2, logdet = _likelihood_pass(res.r, self._transition_full(F, noise),
+                                                    noise, self.weights[c], win.mask[c])
+                    out[i][c] = chi2 if part == "chi2" else chi2 + logdet
+        finally:
+            self.noise = keep
+        return out
+
+    def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
+                   h: Array, sensitivities: bool = True
+                   ) -> tuple[StepIncrements, Corrected, Array | None]:
+        """Step increments of the corrected IMU and ``d(w, f)/dtheta`` at every step."""
+        s, L = self.s, self.layout
+        W, m, p = len(c), self.win.steps, L.dim
+        # IMU signals on pieces between IMU samples (see preint.Pieces), corrected with each
+        # window's knot biases.
         pc = pieces(s.u, tau[:, :-1], tau[:, 1:], th.delta)  # nodes (W, m, 2n+1)
         intr = Intrinsics(th.knots[c, None, None, 0:3], th.knots[c, None, None, 3:6], th.effects,
                           th.t_mid)
         corr = correct(self.model, intr, pc(s.gyro), pc(s.accel), pc.nodes - th.delta,
                        sensitivities=False)
         inc = integrate_pieces(corr.w, corr.f, pc.hs)
+        if not sensitivities:
+            return inc, corr, None
 
         # Sensitivities at step midpoints.
         u_mid = 0.5 * (tau[:, :-1] + tau[:, 1:]) - th.delta
@@ -278,24 +311,11 @@ class PositionProblem:
             elif name in cm.dw:
                 dw[:, :, :, sl] = cm.dw[name]
                 df[:, :, :, sl] = cm.df[name]
+        return inc, corr, dwf
 
-        # --- Nominal trajectory (sequential composition of the step increments).
-        g_W = th.g_mag * th.g_dir
-        Rbar = np.empty((W, m + 1, 3, 3))
-        pbar = np.empty((W, m + 1, 3))
-        vbar = np.empty((W, m + 1, 3))
-        Rbar[:, 0] = R_WM[:, 0] @ th.R_MI
-        pbar[:, 0] = p_WM[:, 0] + R_WM[:, 0] @ th.p_MI
-        vbar[:, 0] = win.v0[c]  # fixed guess: the start velocity is a diffuse nuisance
-        for k in range(m):
-            hk = h[:, k, None]
-            Rk = Rbar[:, k]
-            pbar[:, k + 1] = (pbar[:, k] + vbar[:, k] * hk + 0.5 * g_W * hk**2
-                              + np.einsum("wij,wj->wi", Rk, inc.dp[:, k]))
-            vbar[:, k + 1] = vbar[:, k] + g_W * hk + np.einsum("wij,wj->wi", Rk, inc.dv[:, k])
-            Rbar[:, k + 1] = Rk @ inc.dR[:, k]
-
-        # --- Residuals at every sample and the parts of their Jacobians not through S.
+    @staticmethod
+    def _residuals(th: Theta, R_WM: Array, p_WM: Array, Rbar: Array, pbar: Array) -> _Residuals:
+        """Residuals at every sample and the parts of their Jacobians not through S."""
         R_meas = R_WM @ th.R_MI
         p_meas = p_WM + np.einsum("wkij,j->wki", R_WM, th.p_MI)
         E = np.einsum("wkji,wkjl->wkil", Rbar, R_meas)
@@ -303,9 +323,12 @@ class PositionProblem:
         r = np.concatenate([r_rot, p_meas - pbar], axis=-1)  # (W, m+1, 6)
         Jinv = so3.right_jacobian_inv(r_rot)
         Pm_rot = Jinv @ np.swapaxes(E, -1, -2)  # d r_rot / d (nominal attitude perturbation)
+        return _Residuals(r, Jinv, Pm_rot, R_WM)
 
-        # --- Error-state transition per step (world-frame blocks need Rbar_k). The big
-        # arrays are reused between evaluations: their zero blocks never change.
+    def _transition(self, inc: StepIncrements, Rbar: Array, h: Array) -> Array:
+        """Error-state transition per step (world-frame blocks need Rbar_k). The big array is
+        reused between evaluations: its zero blocks never change."""
+        W, m = h.shape
         Rk = Rbar[:, :-1]
         F = self._buffer("F", (W, m, 15, 15), identity_blocks=True)
         dRt = np.swapaxes(inc.dR, -1, -2)
@@ -318,6 +341,12 @@ class PositionProblem:
         F[..., 6:9, 0:3] = -Rk @ so3.hat(inc.dv)
         F[..., 6:9, 9:12] = Rk @ inc.B
         F[..., 6:9, 12:15] = -Rk @ inc.A
+        return F
+
+    def _gravity_inputs(self, th: Theta, h: Array) -> tuple[list[int], Array]:
+        """Columns and per-step inputs of the gravity parameters (velocity and position)."""
+        L = self.layout
+        W, m = h.shape
         # Parameter inputs: a parameter acts like a bias of -dw/dtheta, -df/dtheta; gravity
         # enters the velocity and position directly.
         gcols = list(range(L.slice("gravity").start, L.slice("gravity").stop))
@@ -328,77 +357,87 @@ class PositionProblem:
         g_in = np.empty((W, m, 6, len(gcols)))
         g_in[..., 0:3, :] = 0.5 * (h**2)[..., None, None] * dg
         g_in[..., 3:6, :] = h[..., None, None] * dg
+        return gcols, g_in
 
-        # A frozen whitening (see freeze_whitening) needs no noise model here.
-        frozen = self._ops.get(ci) if self.freeze else None
-        need_noise = frozen is None or store
+    def _noise(self, th: Theta, h: Array, R_WM: Array) -> _Noise:
+        """Process noise of every step and mocap noise of every sample.
+
+        Mocap noise: per-sample attitude noise (marker frame) and position noise; the attitude
+        noise also moves ``p_meas`` through the lever arm. A fraction of its variance is white,
+        the rest an AR(1) process with time constant ``mocap_noise_corr_time``, carried as six
+        filter states in residual coordinates (``m = H_k n``, so the measurement is simply
+        state + state; ``H_k`` changes with the marker attitude, hence ``Fm``).
+        """
+        nz = self.noise
+        W, m = h.shape
         # Process noise per step (isotropic densities, so frame rotations drop out).
-        if need_noise:
-            sg2 = nz.gyroscope_noise_density**2
-            sa2 = nz.accelerometer_noise_density**2
-            q_diag = np.empty((W, m, 15))
-            q_diag[..., 0:3] = (sg2 * h)[..., None]
-            q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
-            q_diag[..., 6:9] = (sa2 * h)[..., None]
-            q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
-            q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
-            q_pv = sa2 * h**2 / 2.0
+        sg2 = nz.gyroscope_noise_density**2
+        sa2 = nz.accelerometer_noise_density**2
+        q_diag = np.empty((W, m, 15))
+        q_diag[..., 0:3] = (sg2 * h)[..., None]
+        q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
+        q_diag[..., 6:9] = (sa2 * h)[..., None]
+        q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
+        q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
+        q_pv = sa2 * h**2 / 2.0
 
-            # Mocap noise of each residual: rotation noise in the marker frame moves p_meas too.
-            sr2 = nz.mocap_rotation_sigma**2
-            lev = R_WM @ so3.hat(th.p_MI)  # d p_meas / d (marker attitude noise) = -lev
-            Rn = np.empty((W, m + 1, 6, 6))
-            Rn[..., 0:3, 0:3] = sr2 * np.eye(3)
-            Rn[..., 0:3, 3:6] = -sr2 * th.R_MI.T @ np.swapaxes(lev, -1, -2)
-            Rn[..., 3:6, 0:3] = np.swapaxes(Rn[..., 0:3, 3:6], -1, -2)
-            Rn[..., 3:6, 3:6] = (nz.mocap_position_sigma**2 * np.eye(3)
-                                 + sr2 * lev @ np.swapaxes(lev, -1, -2))
-        else:
-            q_diag = q_pv = Rn = None
+        L = R_WM @ so3.hat(th.p_MI) @ th.R_MI  # d p_meas / d (attitude noise in the I frame)
+        full = _mocap_cov(L, nz.mocap_rotation_sigma**2, nz.mocap_position_sigma**2)
+        if not nz.mocap_correlated:
+            return _Noise(q_diag, q_pv, full)
+        rho = nz.mocap_noise_corr_fraction
+        a = np.exp(-h / nz.mocap_noise_corr_time)[..., None, None]  # (W, m, 1, 1)
+        Fm = np.zeros((W, m, 6, 6))
+        Fm[..., 0:3, 0:3] = np.eye(3)
+        Fm[..., 3:6, 3:6] = np.eye(3)
+        Fm[..., 3:6, 0:3] = L[:, :-1] - L[:, 1:]  # H_{k+1} H_k^-1
+        Fm *= a
+        Qm = rho * (1.0 - a * a) * full[:, 1:]
+        return _Noise(q_diag, q_pv, (1.0 - rho) * full, Fm, Qm, rho * full[:, 0])
+
+    def _filter(self, th: Theta, c: NDArray[np.int64], ci: int, res: _Residuals, F: Array,
+                dwf: Array, gcols: list[int], g_in: Array, noise: _Noise | None,
+                frozen: dict[str, Array] | None, store: bool) -> EvalOut:
+        """Sequential pass over the steps: sensitivities S, Kalman whitening, Gram matrix.
+
+        The filter state is the error state (attitude, position, velocity, bias deviations:
+        15) plus, with correlated mocap noise, its six states; ``X`` carries the filter's
+        estimate of the state for every column of ``[J | r]`` at once.
+        """
+        L, mask = self.layout, self.win.mask[c]
+        W, m, p = len(c), self.win.steps, L.dim
+        r, Jinv, Pm_rot, R_WM = res.r, res.Jinv, res.Pm_rot, res.R_WM
+        corr = self.noise.mocap_correlated
+        ns = 21 if corr else 15
         wts = self.weights[c]
         weighted = wts < 1.0
-
-        # --- Sequential pass: sensitivities S, Kalman whitening, Gram accumulation.
         rs, ts = L.slice("rotation"), L.slice("translation")
         S = np.zeros((W, 9, p))
         S[:, 0:3, rs] = np.eye(3)
         S[:, 3:6, ts] = R_WM[:, 0]
-        P = np.zeros((W, 15, 15))
-        P[:, 0:3, 0:3] = DIFFUSE[0] ** 2 * np.eye(3)
-        P[:, 3:6, 3:6] = DIFFUSE[1] ** 2 * np.eye(3)
-        P[:, 6:9, 6:9] = DIFFUSE[2] ** 2 * np.eye(3)
-        X = np.zeros((W, 15, p + 1))
+        P = np.zeros((W, ns, ns))
+        for i, d in enumerate(DIFFUSE):
+            P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
+        if corr and noise is not None:
+            P[:, 15:, 15:] = noise.Pm0
+        Phi = self._transition_full(F, noise) if frozen is None else frozen["F"]
+        X = np.zeros((W, ns, p + 1))
         # A frozen whitening operator (transition for the filter mean, gains, whitening) makes
         # the cost an exact weighted least squares in the parameters while LM runs on it.
         record = self.freeze and frozen is None
         if record:
-            rec_F = F.copy()
             rec_Li = np.zeros((W, m + 1, 6, 6))
-            rec_K = np.zeros((W, m + 1, 15, 6))
-        gram = np.zeros((W, p + 1, p + 1))
-        innov = np.zeros((W, m + 1, 6))
-        d_raw = np.zeros((W, m + 1))
-        q_rot = np.zeros((W, m + 1))
-        q_pos = np.zeros((W, m + 1))
-        chi2 = np.zeros(W)
-        raw_J = np.zeros((W, m + 1, 6, p)) if store else None
-        whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
+            rec_K = np.zeros((W, m + 1, ns, 6))
+        acc = _Accumulator(W, m, p, store, self._score_blocks(m) if self.collect_scores else None)
         N = np.zeros((W, 6, p + 1))
-        i15 = np.arange(15)
-        i3 = np.arange(3)
         for k in range(m + 1):
             if k > 0:
                 Fk = F[:, k - 1]
                 S = Fk[:, 0:9, 0:9] @ S - Fk[:, 0:9, 9:15] @ dwf[:, k - 1]
                 S[:, 3:9, gcols] += g_in[:, k - 1]
-                if frozen is not None:
-                    X = frozen["F"][:, k - 1] @ X
-                else:
-                    X = Fk @ X
-                    P = Fk @ P @ np.swapaxes(Fk, 1, 2)
-                    P[:, i15, i15] += q_diag[:, k - 1]
-                    P[:, 3 + i3, 6 + i3] += q_pv[:, k - 1, None]
-                    P[:, 6 + i3, 3 + i3] += q_pv[:, k - 1, None]
+                X = Phi[:, k - 1] @ X
+                if frozen is None:
+                    P = _predict_covariance(P, Phi[:, k - 1], noise, k - 1)
             # Residual Jacobian: direct part minus the nominal's sensitivity.
             N[:, 0:3, :p] = -(Pm_rot[:, k] @ S[:, 0:3, :])
             N[:, 0:3, rs] += Jinv[:, k]
@@ -406,53 +445,61 @@ class PositionProblem:
             N[:, 3:6, ts] += R_WM[:, k]
             N[:, :, p] = r[:, k]
             if store:
-                raw_J[:, k] = N[:, :, :p]
-            N -= X[:, 0:6, :]
+                acc.raw_J[:, k] = N[:, :, :p]
+            N -= X[:, 0:6, :] + X[:, 15:21, :] if corr else X[:, 0:6, :]
             ok = mask[:, k]
             if frozen is not None:
                 Li = frozen["Li"][:, k]
             else:
-                Sinn = P[:, 0:6, 0:6] + Rn[:, k] / wts[:, k, None, None]
-                Li = np.linalg.inv(np.linalg.cholesky(Sinn))
+                PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]  # (W, ns, 6)
+                HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
+                Sk = HPHt + noise.Rn[:, k] / wts[:, k, None, None]
+                Li = np.linalg.inv(np.linalg.cholesky(Sk))
             Nw = Li @ N
             Nw[~ok] = 0.0
-            gram += np.swapaxes(Nw, 1, 2) @ Nw
-            chi2 += np.sum(Nw[:, :, p] ** 2, axis=1)
-            innov[:, k] = N[:, :, p]
-            d_raw[:, k] = np.linalg.norm(Nw[:, :, p], axis=1)
-            # L is lower-triangular: the first three whitened components involve only the
-            # attitude innovation and its own covariance block.
-            q_rot[:, k] = np.sum(Nw[:, 0:3, p] ** 2, axis=1)
-            q_pos[:, k] = np.sum(Nw[:, 3:6, p] ** 2, axis=1)
+            acc.add(k, N, Nw, Li, ok)
             wk = weighted[:, k]
             if frozen is None and np.any(wk):
                 # The robust weight's own test needs the innovation against the unweighted noise.
-                Sraw = P[wk, 0:6, 0:6] + Rn[wk, k]
-                d_raw[wk, k] = np.linalg.norm(
+                Sraw = HPHt[wk] + noise.Rn[wk, k]
+                acc.d_raw[wk, k] = np.linalg.norm(
                     np.linalg.solve(np.linalg.cholesky(Sraw), N[wk, :, p:]), axis=(1, 2))
-            if store:
-                whitened[:, k] = Nw
             if frozen is not None:
                 X += frozen["K"][:, k] @ N
                 continue
-            K = P[:, :, 0:6] @ (np.swapaxes(Li, 1, 2) @ Li)  # (W, 15, 6)
+            K = PHt @ (np.swapaxes(Li, 1, 2) @ Li)  # (W, ns, 6)
             K[~ok] = 0.0
             X += K @ N
-            P -= K @ P[:, 0:6, :]
+            P -= K @ np.swapaxes(PHt, 1, 2)
             P = 0.5 * (P + np.swapaxes(P, 1, 2))
             if record:
                 rec_Li[:, k] = Li
                 rec_K[:, k] = K
         if record:
-            self._ops[ci] = {"F": rec_F, "Li": rec_Li, "K": rec_K}
-        d_raw[~mask] = 0.0
-        innov[~mask] = 0.0
+            self._ops[ci] = {"F": Phi.copy(), "Li": rec_Li, "K": rec_K}
         extras = {}
         if store:  # the state-space model itself, for tests against a dense covariance
-            extras = {"F": F.copy(), "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn,
+            extras = {"F": F.copy(), "q_diag": noise.q_diag, "q_pv": noise.q_pv, "Rn": noise.Rn,
                       "weights": wts.copy()}
-        return EvalOut(gram, innov, d_raw, chi2, q_rot, q_pos, r if store else None, raw_J,
-                       whitened, extras)
+            if corr:
+                extras.update(Fm=noise.Fm, Qm=noise.Qm, Pm0=noise.Pm0)
+        return acc.result(mask, r if store else None, extras)
+
+    def _transition_full(self, F: Array, noise: _Noise | None) -> Array:
+        """The filter's transition: the error state's, and the correlated mocap noise's."""
+        if noise is None or noise.Fm is None:
+            return F
+        W, m = F.shape[:2]
+        Phi = self._buffer("Phi", (W, m, 21, 21))
+        Phi[..., 0:15, 0:15] = F
+        Phi[..., 15:21, 15:21] = noise.Fm
+        return Phi
+
+    def _score_blocks(self, m: int) -> NDArray[np.int64]:
+        """Block index of every sample of a window: blocks of about ``SCORE_BLOCK_S``."""
+        rate = 1.0 / float(np.median(np.diff(self.win.tau[0][self.win.mask[0]])))
+        per = max(1, int(round(SCORE_BLOCK_S * rate)))
+        return np.arange(m + 1) // per
 
     def _buffer(self, name: str, shape: tuple[int, ...], identity_blocks: bool = False) -> Array:
         """A reusable array: blocks not written by the caller keep their initial values."""

@@ -27,17 +27,24 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
-from mocap_calib.core.calib.clock import coarse_offset_arrays
+from mocap_calib.core.calib.clock import search_clock
 from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, run_position_stage
-from mocap_calib.core.diagnosis.predict import ModelState, ResidualAnalysis, analyse_residuals
+from mocap_calib.core.calib.state import ModelState
+from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
+from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]
+
+
+REPORT_KIND = "diagnosis"
+REPORT_VERSION = 1
 
 
 @dataclass
@@ -82,6 +89,12 @@ class CandidateScore:
                 "log10_p": round(self.log10_p, 3), "significant": self.significant,
                 "residual_drop": round(self.residual_drop, 4)}
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CandidateScore:
+        return cls(str(d["effect"]), int(d["dof"]), float(d["delta_chi2"]),
+                   float(d["noise_scale"]), float(d["statistic"]), float(d["log10_p"]),
+                   bool(d["significant"]), float(d["residual_drop"]))
+
 
 @dataclass
 class Residuals:
@@ -92,6 +105,7 @@ class Residuals:
     accel_rms: Array
     accel_floor: Array
     analysis: ResidualAnalysis | None = None
+    stored: dict[str, Any] | None = field(default=None, repr=False)  # as read from a file
 
     @classmethod
     def of(cls, ra: ResidualAnalysis) -> Residuals:
@@ -112,7 +126,16 @@ class Residuals:
         if self.analysis is not None:
             d["cutoff_hz"] = self.analysis.cutoff_hz
             d["power_over_floor_by_band"] = self.analysis.band_ratios()
+        elif self.stored is not None:
+            d.update({k: v for k, v in self.stored.items() if k not in d})
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Residuals:
+        """The figures of :meth:`to_dict` (the residual series themselves are not stored)."""
+        return cls(*(np.asarray(d[k], dtype=float)
+                     for k in ("gyro_rms", "gyro_floor", "accel_rms", "accel_floor")),
+                   stored=d)
 
 
 @dataclass
@@ -143,6 +166,17 @@ class DiagnoseStep:
                 d["residuals_after"] = self.residuals_after.to_dict()
         return d
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DiagnoseStep:
+        added = d.get("added") or {}
+        name = added.get("effect")
+        after = d.get("residuals_after")
+        return cls(str(d["model"]), Residuals.from_dict(d["residuals"]), float(d["chi2"]),
+                   int(d["dof"]), [CandidateScore.from_dict(c) for c in d["candidates"]],
+                   added=name, added_params=added.get(EFFECTS[name].param) if name else None,
+                   added_sigma=added.get("sigma"),
+                   residuals_after=None if after is None else Residuals.from_dict(after))
+
 
 @dataclass
 class DiagnoseReport:
@@ -164,6 +198,7 @@ class DiagnoseReport:
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            **header(REPORT_KIND, REPORT_VERSION),
             "found": list(self.found),
             "verdict": self.verdict,
             "start_model": self.start_model,
@@ -177,35 +212,26 @@ class DiagnoseReport:
             "seconds": round(self.seconds, 2),
         }
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DiagnoseReport:
+        """Inverse of :meth:`to_dict` (figures only: no residual series).
 
-#: Beyond these, a named effect is implausible for a MEMS IMU: it most likely absorbs something
-#: outside the candidate list (a non-rigid mount, mocap processing lag, ...).
-PLAUSIBLE = {"scale": 0.03, "misalignment_rad": float(np.radians(2.0)),
-             "g_sensitivity": 1e-3, "gyro_bias_rate": 1e-3, "accel_bias_rate": 0.05,
-             "gravity_magnitude": (9.76, 9.84)}
+        Raises:
+            KindError: not a diagnosis report, or a newer version.
+            KeyError, ValueError, TypeError: a malformed report.
+        """
+        check_kind(d, REPORT_KIND, REPORT_VERSION)
+        return cls(list(d["found"]), str(d["start_model"]), str(d["final_model"]),
+                   [DiagnoseStep.from_dict(x) for x in d["steps"]],
+                   CalibrationResult.from_dict(d["final_calibration"]),
+                   Residuals.from_dict(d["final_residuals"]),
+                   float(d["test"]["threshold_log10_p"]), list(d.get("notes") or []),
+                   float(d.get("seconds", 0.0)))
 
 
 def plausibility(effect: str, value: object) -> str | None:
-    """A one-line warning when an effect's estimate is outside typical MEMS ranges."""
-    v = np.asarray(value, dtype=float)
-    if effect.endswith("scale_misalignment"):
-        scale = np.abs(np.diag(v) - 1.0).max()
-        mis = np.abs(v - np.diag(np.diag(v))).max()
-        if scale > PLAUSIBLE["scale"] or mis > PLAUSIBLE["misalignment_rad"]:
-            return (f"{effect}: scale error up to {100 * scale:.1f} %, misalignment up to "
-                    f"{np.degrees(mis):.1f} deg: implausible for a MEMS IMU")
-    elif effect == "gyro_g_sensitivity" and np.abs(v).max() > PLAUSIBLE["g_sensitivity"]:
-        return (f"{effect}: up to {np.abs(v).max():.2g} rad/s per m/s^2: implausible for a "
-                "MEMS gyro (typical < 2e-4)")
-    elif effect in ("gyro_bias_drift", "accel_bias_drift"):
-        key = "gyro_bias_rate" if effect.startswith("gyro") else "accel_bias_rate"
-        if np.abs(v).max() > PLAUSIBLE[key]:
-            return f"{effect}: trend {np.abs(v).max():.2g} per s: implausibly fast"
-    elif effect == "gravity_magnitude":
-        lo, hi = PLAUSIBLE["gravity_magnitude"]
-        if not lo <= float(v) <= hi:
-            return f"{effect}: |g| = {float(v):.4f} m/s^2 is outside Earth's {lo}-{hi}"
-    return None
+    """A one-line warning when an effect's estimate is outside its plausible range."""
+    return effect_problem(effect, value, PlausibleLimits())
 
 
 def _log10_sf(t: float, k: int) -> float:
@@ -247,7 +273,10 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     t0 = time.perf_counter()
     notes: list[str] = []
     model = opts.start
-    cal_opts = replace(opts.calibration, model=model, adapt_noise=False)
+    # The starting fit only seeds the diagnosis: no segment or noise checks, and a model that
+    # misses an effect may well look implausible (that is what the diagnosis is for).
+    cal_opts = replace(opts.calibration, model=model, adapt_noise=False, consistency_segments=0,
+                       sensitivity=False, accept_implausible=True)
 
     say(f"fitting the starting model {model}")
     try:
@@ -259,12 +288,12 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
         notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
         cal_opts = replace(cal_opts, model=model)
         start = calibrate(imu, mocap, cal_opts)
-    ex = start.diagnostics.extras
-    s: PreparedSession = ex["session"]
-    noise: NoiseModel = ex["noise_used"]
-    t_mid = float(ex["model_state"].t_mid)
-    windows = ex["windows"]
-    weights = ex["weights"]
+    ex = start.diagnostics.trace
+    s: PreparedSession = ex.session
+    noise: NoiseModel = ex.noise_used
+    t_mid = float(ex.model_state.t_mid)
+    windows = ex.windows
+    weights = ex.weights
     coarse_delta = None
 
     def fit(m: Model, base: PositionResult, extra: dict[str, Array], nz: NoiseModel,
@@ -281,7 +310,7 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     # The current fit, as a PositionResult (refit the start model with frozen weights so every
     # later comparison uses exactly the same cost).
     # From the model state, not the public result: that holds None for what is unobservable.
-    st0: ModelState = ex["model_state"]
+    st0: ModelState = ex.model_state
     g_mag0 = float(np.linalg.norm(st0.g_W))
     init0 = PositionInit(
         R_MI=st0.R_MI, p_MI=st0.p_MI, g_dir=st0.g_W / g_mag0, g_mag=g_mag0, delta=st0.delta,
@@ -312,8 +341,9 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             try:
                 if cand == "time_offset":
                     if coarse_delta is None:
-                        coarse_delta = coarse_offset_arrays(
-                            s.u, s.gyro, s.tau, s.R_WM, s.clock_shift).time_offset + s.clock_shift
+                        coarse_delta = search_clock(
+                            s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM,
+                            s.clock_shift).time_offset + s.clock_shift
                     extra["time_offset"] = np.array([coarse_delta])
                 f = fit(m, current, extra, noise)
             except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
@@ -373,9 +403,9 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             cur_res = res
 
     say(f"final calibration with {model}")
-    final = calibrate(imu, mocap, replace(opts.calibration, model=model))
-    fx = final.diagnostics.extras
-    final_res = Residuals.of(analyse_residuals(fx["session"], fx["model_state"], fx["noise_used"],
+    final = calibrate(imu, mocap, replace(opts.calibration, model=model, accept_implausible=True))
+    fx = final.diagnostics.trace
+    final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, fx.noise_used,
                                                cutoff_hz=opts.cutoff_hz))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))

@@ -22,51 +22,12 @@ from scipy import signal
 from scipy.interpolate import CubicSpline
 
 from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.imu_model import Intrinsics, forward
 from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
-
-
-@dataclass
-class ModelState:
-    """Everything needed to predict IMU samples: calibration plus the bias trajectory.
-
-    Attributes:
-        R_MI, p_MI: IMU pose in the marker frame.
-        g_W: gravity vector in the mocap world (m/s^2).
-        delta: mocap time minus IMU time (relative clocks, see :mod:`session`).
-        model: active effects; effects: their IMU-side parameters.
-        bias_t: (K,) mocap times of the bias knots; bias: (K, 6) gyro and accel bias there.
-        t_mid: IMU-clock middle of the session (drift terms).
-        bias_sigma: (K, 6) 1-sigma of the knots (their estimation error is part of the floor).
-    """
-
-    R_MI: Array
-    p_MI: Array
-    g_W: Array
-    delta: float
-    model: Model
-    effects: dict[str, Array]
-    bias_t: Array
-    bias: Array
-    t_mid: float
-    bias_sigma: Array | None = None
-
-    @classmethod
-    def from_position(cls, pos, model: Model, t_mid: float) -> ModelState:
-        """The state a position-stage result (``stage_position.PositionResult``) describes."""
-        return cls(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
-                   model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
-                   bias=pos.knots.copy(), t_mid=t_mid, bias_sigma=pos.knot_sigma.copy())
-
-    def bias_at(self, tau: Array) -> Array:
-        """(n, 6) bias at mocap times ``tau`` (linear between knots, constant outside)."""
-        if len(self.bias_t) == 1:
-            return np.broadcast_to(self.bias[0], (len(tau), 6)).copy()
-        return np.stack([np.interp(tau, self.bias_t, self.bias[:, i]) for i in range(6)], axis=1)
 
 
 @dataclass

@@ -18,19 +18,22 @@ minimum is kept too) and as the fitted flicker term, which is dropped (0) when t
 need it.
 
 The Kalibr ``imu.yaml`` keys carry the mean over the three axes (``aggregate="mean"``) or the
-largest (``"max"``, conservative).
+largest (``"max"``, conservative); the result classes live in
+:mod:`mocap_calib.core.intrinsics.noise_result`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import allantools
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import nnls
 
+from mocap_calib.core.intrinsics.noise_result import AllanResult, SensorNoise
+from mocap_calib.core.model import rest
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import InputError, ObservabilityError
 
@@ -55,121 +58,6 @@ _MOVING_FRACTION = 0.01  # fraction of moving blocks tolerated
 _MAX_TILT_DEG = 15.0  # gravity direction change (accel random walk alone can do ~5 deg in 6 h)
 _MAX_GYRO_DEV = 0.05  # rad/s, block-mean gyro deviation from the median
 _MAX_GYRO_MEAN = 0.1  # rad/s, a median rate larger than any usable gyro bias
-
-
-@dataclass(frozen=True)
-class SensorNoise:
-    """Noise parameters of one triad (per axis) and the curves they were fitted to.
-
-    Attributes:
-        sensor: ``"gyroscope"`` or ``"accelerometer"``.
-        noise_density: (3,) white noise ``N`` (rad/s/sqrt(Hz) or m/s^2/sqrt(Hz)).
-        random_walk: (3,) rate random walk ``K`` (rad/s^2/sqrt(Hz) or m/s^3/sqrt(Hz));
-            NaN where not resolved.
-        random_walk_fit: (3,) the fitted ``K`` even where not resolved (0: not seen).
-        bias_instability: (3,) minimum of the fitted Allan deviation / 0.664 (rad/s or
-            m/s^2); an upper bound on ``B`` where white noise or random walk still contribute.
-        bias_instability_raw: (3,) minimum of the measured curve / 0.664 (noisier).
-        bias_instability_fit: (3,) the fitted flicker term ``B``.
-        noise_density_sigma: (3,) 1-sigma of ``N`` from the fit.
-        random_walk_sigma: (3,) 1-sigma of ``K`` from the fit.
-        random_walk_resolved: (3,) whether ``K`` is determined (relative sigma below 0.3).
-        tau_at_minimum: (3,) ``tau`` of the fitted curve's minimum, s.
-        tau: (m,) averaging times, s.
-        adev: (3, m) overlapping Allan deviation.
-        adev_sigma: (3, m) its 1-sigma from the equivalent degrees of freedom.
-        adev_fit: (3, m) the fitted model's deviation.
-        fit_chi2: (3,) reduced chi-square of the fit (about 1 when the model fits).
-    """
-
-    sensor: str
-    noise_density: Array
-    random_walk: Array
-    random_walk_fit: Array
-    bias_instability: Array
-    bias_instability_raw: Array
-    bias_instability_fit: Array
-    noise_density_sigma: Array
-    random_walk_sigma: Array
-    random_walk_resolved: NDArray[np.bool_]
-    tau_at_minimum: Array
-    tau: Array
-    adev: Array
-    adev_sigma: Array
-    adev_fit: Array
-    fit_chi2: Array
-
-    @staticmethod
-    def aggregate(values: Array, how: str) -> float | None:
-        """Mean (``how="mean"``) or largest (``"max"``) of per-axis values; None if any is NaN."""
-        if not np.all(np.isfinite(values)):
-            return None
-        return float(np.max(values) if how == "max" else np.mean(values))
-
-
-@dataclass(frozen=True)
-class AllanResult:
-    """Noise model of an IMU from a static log.
-
-    Attributes:
-        gyroscope: gyro triad noise.
-        accelerometer: accel triad noise.
-        rate_hz: sample rate used.
-        duration_s: length of the log.
-        n_samples: number of samples.
-        aggregate: how the Kalibr keys combine the axes (``"mean"`` or ``"max"``).
-    """
-
-    gyroscope: SensorNoise
-    accelerometer: SensorNoise
-    rate_hz: float
-    duration_s: float
-    n_samples: int
-    aggregate: str = "mean"
-
-    def to_dict(self) -> dict[str, Any]:
-        """Kalibr ``imu.yaml`` keys, bias instability per axis, per-axis values, the Allan
-        curves and the fit quality (plain Python types, ready for YAML). A random walk that
-        the log does not resolve is ``null`` with its reason under ``unobservable``."""
-        out: dict[str, Any] = {}
-        unobservable: dict[str, str] = {}
-        for s in (self.gyroscope, self.accelerometer):
-            out[f"{s.sensor}_noise_density"] = s.aggregate(s.noise_density, self.aggregate)
-            out[f"{s.sensor}_random_walk"] = s.aggregate(s.random_walk, self.aggregate)
-            if out[f"{s.sensor}_random_walk"] is None:
-                unobservable[f"{s.sensor}_random_walk"] = (
-                    f"not resolved in a {self.duration_s / 3600:.2f} h log (the Allan "
-                    "deviation does not turn upward clearly); record a longer static log")
-        out["update_rate"] = float(self.rate_hz)
-        for s in (self.gyroscope, self.accelerometer):
-            out[f"{s.sensor}_bias_instability"] = s.bias_instability.tolist()
-        out["aggregate"] = self.aggregate
-        out["per_axis"] = {s.sensor: {
-            "noise_density": s.noise_density.tolist(),
-            "noise_density_sigma": s.noise_density_sigma.tolist(),
-            "random_walk": [None if not np.isfinite(v) else float(v) for v in s.random_walk],
-            "random_walk_sigma": s.random_walk_sigma.tolist(),
-            "random_walk_resolved": [bool(v) for v in s.random_walk_resolved],
-            "bias_instability": s.bias_instability.tolist(),
-            "bias_instability_raw": s.bias_instability_raw.tolist(),
-            "bias_instability_fit": s.bias_instability_fit.tolist(),
-            "tau_at_minimum": s.tau_at_minimum.tolist(),
-        } for s in (self.gyroscope, self.accelerometer)}
-        out["allan"] = {s.sensor: {
-            "tau": s.tau.tolist(),
-            "adev": s.adev.tolist(),
-            "adev_sigma": s.adev_sigma.tolist(),
-            "adev_fit": s.adev_fit.tolist(),
-        } for s in (self.gyroscope, self.accelerometer)}
-        out["fit_quality"] = {s.sensor: {
-            "model": "sigma^2 = N^2/tau + B^2 2ln2/pi + K^2 tau/3",
-            "chi2": s.fit_chi2.tolist(),
-        } for s in (self.gyroscope, self.accelerometer)}
-        out["duration_s"] = float(self.duration_s)
-        out["n_samples"] = int(self.n_samples)
-        if unobservable:
-            out["unobservable"] = unobservable
-        return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -206,9 +94,7 @@ def _check_static(imu: ImuSamples, rate: float) -> None:
     nb = len(imu) // blk
     if nb < 10:
         return
-    acc = imu.accel[:nb * blk].reshape(nb, blk, 3)
-    gyr = imu.gyro[:nb * blk].reshape(nb, blk, 3)
-    var = np.linalg.norm(acc.var(axis=1), axis=1)
+    var = np.linalg.norm(rest.block_variances(imu.accel, blk), axis=1)
     floor = float(np.median(var))
     moving = var > _MOVING_VAR_RATIO * floor
     fix = "record the IMU resting on a stable surface, or crop the moving part"
@@ -218,7 +104,7 @@ def _check_static(imu: ImuSamples, rate: float) -> None:
             f"{imu.source}: the log is not static: {100 * moving.mean():.1f} % of 1 s windows "
             f"(first at t={first:.0f} s) have accel variance >{_MOVING_VAR_RATIO:g}x the "
             f"noise floor; {fix}")
-    am = acc.mean(axis=1)
+    am = rest.block_means(imu.accel, blk)
     dirs = am / np.linalg.norm(am, axis=1, keepdims=True)
     ref = np.median(dirs, axis=0)
     ref /= np.linalg.norm(ref)
@@ -226,13 +112,13 @@ def _check_static(imu: ImuSamples, rate: float) -> None:
     if tilt > _MAX_TILT_DEG:
         raise ObservabilityError(f"{imu.source}: the log is not static: the gravity direction "
                                  f"changes by {tilt:.1f} deg; {fix}")
-    gm = gyr.mean(axis=1)
+    gm = rest.block_means(imu.gyro, blk)
     med = np.median(gm, axis=0)
     if float(np.linalg.norm(med)) > _MAX_GYRO_MEAN:
         raise ObservabilityError(f"{imu.source}: the log is not static: the mean gyro rate is "
                                  f"{np.degrees(np.linalg.norm(med)):.1f} deg/s, more than a "
                                  f"gyro bias; {fix}")
-    dev = np.linalg.norm(gm - med, axis=1) > _MAX_GYRO_DEV
+    dev = np.linalg.norm(rest.median_deviation(gm), axis=1) > _MAX_GYRO_DEV
     if dev.mean() > _MOVING_FRACTION:
         first = float(imu.t[int(np.argmax(dev)) * blk])
         raise ObservabilityError(f"{imu.source}: the log is not static: the gyro shows "
@@ -379,6 +265,7 @@ def characterise_noise(
     tau_max_fraction: float = 1.0 / 6.0,
     require_random_walk: bool = True,
     check_static: bool = True,
+    unresolved_fix: str = "pass require_random_walk=False",
 ) -> AllanResult:
     """Allan-deviation noise model (white noise, random walk, bias instability) per axis.
 
@@ -394,6 +281,8 @@ def characterise_noise(
         require_random_walk: raise when the log is too short to resolve the random walk;
             otherwise report it as NaN (``null`` in ``to_dict``).
         check_static: check that the log shows no motion.
+        unresolved_fix: how the message for an unresolved random walk names the way to
+            accept it (a CLI names its option).
 
     Returns:
         The noise parameters per axis, the Kalibr keys via ``to_dict()``, and the curves.
@@ -426,5 +315,5 @@ def characterise_noise(
                     f"{imu.source}: the {s.sensor} random walk ({axes}) is not resolved in "
                     f"this {duration / 3600:.2f} h log (the Allan deviation does not rise "
                     f"clearly by tau={s.tau[-1]:.0f} s); record at least {hours:.1f} h "
-                    "static, or pass require_random_walk=False")
+                    f"static, or {unresolved_fix}")
     return AllanResult(gyro, accel, rate, duration, len(imu), aggregate)

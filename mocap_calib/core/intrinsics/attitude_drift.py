@@ -14,14 +14,14 @@ isolates the gyro calibration. When no mocap attitude is given, the IMU must res
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mocap_calib.core.intrinsics.multipos import quat_cumprod, rk4_increments
-from mocap_calib.core.model import so3
+from mocap_calib.core.model import rest, so3
+from mocap_calib.core.model.preint import quat_cumprod, quat_increments, sample_nodes
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.errors import InputError, ObservabilityError
 
@@ -77,6 +77,11 @@ class GyroCalibration:
                              "multipos intrinsics")
         keys = ("gyro_matrix", "g_sensitivity", "accel_bias", "accel_matrix")
         return cls(d["gyro_bias"], **{k: d.get(k) for k in keys})
+
+    def with_bias_drift(self, rate: Array, dt: float) -> GyroCalibration:
+        """The calibration ``dt`` seconds after the middle of its session, for a gyro bias
+        that drifts at ``rate`` (rad/s^2): ``b_g(t) = b_g + r_g (t - t_mid)``."""
+        return replace(self, gyro_bias=self.gyro_bias + np.asarray(rate, dtype=float) * dt)
 
     def specific_force(self, accel: Array) -> Array:
         """Calibrated specific force ``f = M_a^-1 (a_m - b_a)``."""
@@ -174,23 +179,65 @@ def _tilt_deg(R_a: Array, R_b: Array, g_dir: Array) -> Array:
 
 
 def _attitude_from_accel(imu: ImuSamples, t: float, window_s: float, cal: GyroCalibration,
-                         g_dir: Array, what: str) -> Array:
+                         g_dir: Array, what: str, fix: str) -> Array:
     """Roll/pitch attitude (yaw 0) from the accel around ``t``; the IMU must rest."""
     sel = np.abs(imu.t - t) <= 0.5 * window_s
     if sel.sum() < 5:
         raise InputError(f"{what}: fewer than 5 IMU samples within {window_s:g} s of t={t:g} s")
     f = cal.specific_force(imu.accel[sel])
     w = cal.angular_velocity(imu.gyro[sel], imu.accel[sel])
-    std = float(np.max(f.std(axis=0)))
-    rate = float(np.linalg.norm(w.mean(axis=0)))
-    if std > _STATIC_ACCEL_STD or rate > _STATIC_GYRO:
+    check = rest.window_rest(f, w, _STATIC_ACCEL_STD, _STATIC_GYRO)
+    if not check.at_rest:
         raise ObservabilityError(
-            f"{what}: the IMU is not at rest around t={t:.2f} s (accel std {std:.2g} m/s^2, "
-            f"rate {np.degrees(rate):.2g} deg/s), so the accel cannot give its attitude; "
-            "give a mocap attitude or choose a time when the IMU rests")
+            f"{what}: the IMU is not at rest around t={t:.2f} s (accel std "
+            f"{check.accel_std:.2g} m/s^2, rate {np.degrees(check.rate):.2g} deg/s), so the "
+            f"accel cannot give its attitude; {fix}")
     up = f.mean(axis=0)
     # R_WI maps the body up vector onto world up (-g_dir); yaw is arbitrary (0).
     return so3.rotation_between(up, -g_dir)
+
+
+def reference_on_imu_times(imu_t: Array, t_ref: Array, R_ref: Array, t0: float, t1: float,
+                           gap_factor: float = 2.5, segment_names: tuple[str, str] = ("t0", "t1")
+                           ) -> tuple[Array, Array]:
+    """Reference attitudes (e.g. mocap ``R_WM R_MI``) moved onto IMU sample times in
+    ``[t0, t1]``.
+
+    :func:`attitude_drift_check` compares the integrated attitude at the first IMU sample at or
+    after each reference time; with the reference on IMU stamps that comparison is exact
+    instead of up to one IMU period late (which, in fast rotation, reads as drift). Attitudes
+    are interpolated geodesically between the neighbouring reference samples, at about the
+    reference rate (plus both segment ends); IMU times inside a reference gap (a step longer
+    than ``gap_factor`` median steps) are left out.
+
+    Args:
+        segment_names: how messages name the segment's start and end (a CLI: its options).
+
+    Raises:
+        InputError: the segment starts or ends inside a gap of the reference.
+    """
+    i0 = int(np.searchsorted(imu_t, t0, side="left"))
+    i1 = int(np.searchsorted(imu_t, t1, side="right")) - 1
+    if i1 <= i0:
+        raise InputError(f"segment [{t0:g}, {t1:g}] s holds fewer than 2 IMU samples")
+    dt_ref = np.diff(t_ref)
+    step = max(1, int(round(float(np.median(dt_ref)) / float(np.median(np.diff(imu_t))))))
+    idx = np.unique(np.concatenate([np.arange(i0, i1 + 1, step), [i0, i1]]))
+    t = imu_t[idx]
+    j = np.clip(np.searchsorted(t_ref, t, side="right"), 1, len(t_ref) - 1)
+    gap = dt_ref[j - 1] > gap_factor * float(np.median(dt_ref))
+    for end, what, name in ((0, "start", segment_names[0]), (-1, "end", segment_names[1])):
+        if gap[end]:
+            raise InputError(f"the mocap has a gap ({dt_ref[j[end] - 1]:.2f} s) at the "
+                             f"segment's {what} (t={t[end]:.3f} s on the IMU clock); move "
+                             f"{name} to where the marker is tracked")
+    keep = ~gap
+    t, j = t[keep], j[keep]
+    a = j - 1
+    frac = np.clip((t - t_ref[a]) / (t_ref[j] - t_ref[a]), 0.0, 1.0)
+    Ra = R_ref[a]
+    rel = so3.log(np.einsum("nji,njk->nik", Ra, R_ref[j]))
+    return t, Ra @ so3.exp(frac[:, None] * rel)
 
 
 def _interp_attitude(t_ref: Array, R_ref: Array, t: float) -> Array:
@@ -199,6 +246,64 @@ def _interp_attitude(t_ref: Array, R_ref: Array, t: float) -> Array:
     t_a, t_b = t_ref[i - 1], t_ref[i]
     s = 0.0 if t_b == t_a else float(np.clip((t - t_a) / (t_b - t_a), 0.0, 1.0))
     return R_ref[i - 1] @ so3.exp(s * so3.log(R_ref[i - 1].T @ R_ref[i]))
+
+
+def _segment(imu: ImuSamples, t0: float, t1: float) -> tuple[int, int]:
+    """First and last sample index of ``[t0, t1]``."""
+    if not t1 > t0:
+        raise InputError(f"segment [{t0:g}, {t1:g}] s: t1 must be after t0")
+    i0 = int(np.searchsorted(imu.t, t0, side="left"))
+    i1 = int(np.searchsorted(imu.t, t1, side="right")) - 1
+    if i0 >= len(imu) or i1 <= i0:
+        raise InputError(f"segment [{t0:g}, {t1:g}] s holds fewer than 2 IMU samples (the log "
+                         f"spans {imu.t[0]:g}-{imu.t[-1]:g} s)")
+    return i0, i1
+
+
+def _series(reference_series: tuple[ArrayLike, ArrayLike] | None, ta: float, tb: float
+            ) -> tuple[Array, Array]:
+    """The checked reference series (empty without one); it must cover ``[ta, tb]``."""
+    if reference_series is None:
+        return np.zeros(0), np.zeros((0, 3, 3))
+    series_t = np.asarray(reference_series[0], dtype=float)
+    series_R = np.asarray(reference_series[1], dtype=float)
+    if series_t.ndim != 1 or series_R.shape != (len(series_t), 3, 3) or len(series_t) < 2:
+        raise InputError("reference_series: give (t (m,), R_WI (m, 3, 3)) with m >= 2")
+    if np.any(np.diff(series_t) <= 0):
+        raise InputError("reference_series: times must be strictly increasing")
+    if series_t[0] > ta or series_t[-1] < tb:
+        raise InputError(f"reference_series spans {series_t[0]:g}-{series_t[-1]:g} s, not "
+                         f"the whole segment [{ta:g}, {tb:g}] s")
+    return series_t, series_R
+
+
+def _integrate(R0: Array, w: Array, t: Array) -> Array:
+    """Attitudes at every sample from ``R0``, RK4 with the rate linear between samples."""
+    q = quat_cumprod(quat_increments(sample_nodes(w), np.diff(t)))
+    return np.concatenate([R0[None], R0 @ so3.quat_to_rotmat(q)])
+
+
+def _unit_gravity(gravity_dir: ArrayLike) -> Array:
+    g_dir = np.asarray(gravity_dir, dtype=float)
+    if g_dir.shape != (3,) or not np.linalg.norm(g_dir) > 0:
+        raise InputError("gravity_dir must be a non-zero 3-vector")
+    return g_dir / np.linalg.norm(g_dir)
+
+
+def _given_attitude(given: ArrayLike, what: str) -> Array:
+    R = np.asarray(given, dtype=float)
+    if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
+        raise InputError(f"{what}: must be a 3x3 rotation matrix R_WI")
+    return R
+
+
+def _drift_at_end(R_end: Array, R_ref: Array, g_dir: Array) -> tuple[float, float, float]:
+    """Roll, pitch (wrapped) and tilt difference in deg of an integrated attitude."""
+    roll_ref, pitch_ref = roll_pitch(R_ref, g_dir)
+    roll, pitch = roll_pitch(R_end, g_dir)
+    return (float(_wrap_deg(np.degrees(roll - roll_ref))),
+            float(_wrap_deg(np.degrees(pitch - pitch_ref))),
+            float(_tilt_deg(R_end, R_ref, g_dir)))
 
 
 def attitude_drift_check(
@@ -212,6 +317,7 @@ def attitude_drift_check(
     reference_series: tuple[ArrayLike, ArrayLike] | None = None,
     gravity_dir: ArrayLike = _DOWN,
     static_window_s: float = 1.0,
+    not_at_rest_fix: str = "give a mocap attitude or choose a time when the IMU rests",
 ) -> AttitudeDriftResult:
     """Integrate the gyro over ``[t0, t1]`` raw and calibrated and compare roll/pitch drift.
 
@@ -229,6 +335,8 @@ def attitude_drift_check(
             attitudes, e.g. mocap ``R_WM R_MI``; the drift is also reported along it.
         gravity_dir: unit gravity direction in ``W`` (default ``-z``).
         static_window_s: window around ``t0``/``t1`` over which the accel is averaged.
+        not_at_rest_fix: the fix named when the IMU is not at rest where the accel must give
+            an attitude (a CLI names its options).
 
     Returns:
         Roll, pitch and tilt drift at ``t1`` (deg) for the raw and the calibrated gyro, the
@@ -238,81 +346,39 @@ def attitude_drift_check(
         InputError: bad segment, attitudes or calibration.
         ObservabilityError: an attitude must come from the accel but the IMU is not at rest.
     """
-    cal = (calibration if isinstance(calibration, GyroCalibration)
-           else GyroCalibration.from_dict(calibration))
-    g_dir = np.asarray(gravity_dir, dtype=float)
-    if g_dir.shape != (3,) or not np.linalg.norm(g_dir) > 0:
-        raise InputError("gravity_dir must be a non-zero 3-vector")
-    g_dir = g_dir / np.linalg.norm(g_dir)
-    if not t1 > t0:
-        raise InputError(f"segment [{t0:g}, {t1:g}] s: t1 must be after t0")
-    i0 = int(np.searchsorted(imu.t, t0, side="left"))
-    i1 = int(np.searchsorted(imu.t, t1, side="right")) - 1
-    if i0 >= len(imu) or i1 <= i0:
-        raise InputError(f"segment [{t0:g}, {t1:g}] s holds fewer than 2 IMU samples (the log "
-                         f"spans {imu.t[0]:g}-{imu.t[-1]:g} s)")
-
-    series_t = np.zeros(0)
-    series_R = np.zeros((0, 3, 3))
-    if reference_series is not None:
-        series_t = np.asarray(reference_series[0], dtype=float)
-        series_R = np.asarray(reference_series[1], dtype=float)
-        if series_t.ndim != 1 or series_R.shape != (len(series_t), 3, 3) or len(series_t) < 2:
-            raise InputError("reference_series: give (t (m,), R_WI (m, 3, 3)) with m >= 2")
-        if np.any(np.diff(series_t) <= 0):
-            raise InputError("reference_series: times must be strictly increasing")
-        if series_t[0] > imu.t[i0] or series_t[-1] < imu.t[i1]:
-            raise InputError(f"reference_series spans {series_t[0]:g}-{series_t[-1]:g} s, not "
-                             f"the whole segment [{imu.t[i0]:g}, {imu.t[i1]:g}] s")
+    cal = GyroCalibration.from_dict(calibration) if isinstance(calibration, Mapping) \
+        else calibration
+    g_dir = _unit_gravity(gravity_dir)
+    i0, i1 = _segment(imu, t0, t1)
+    series_t, series_R = _series(reference_series, float(imu.t[i0]), float(imu.t[i1]))
 
     def attitude(given: ArrayLike | None, t: float, what: str) -> tuple[Array, str]:
         if given is not None:
-            R = np.asarray(given, dtype=float)
-            if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
-                raise InputError(f"{what}: must be a 3x3 rotation matrix R_WI")
-            return R, "given"
+            return _given_attitude(given, what), "given"
         if len(series_t):
             return _interp_attitude(series_t, series_R, t), "reference"
-        return _attitude_from_accel(imu, t, static_window_s, cal, g_dir, what), "accel"
+        return _attitude_from_accel(imu, t, static_window_s, cal, g_dir, what,
+                                    not_at_rest_fix), "accel"
 
     R0, src0 = attitude(initial_attitude, float(imu.t[i0]), "initial attitude")
     R1, src1 = attitude(reference_attitude, float(imu.t[i1]), "reference attitude")
 
     seg = slice(i0, i1 + 1)
-    dt = np.diff(imu.t[seg])
-    omegas = {"raw": imu.gyro[seg],
-              "cal": cal.angular_velocity(imu.gyro[seg], imu.accel[seg])}
-    R_path: dict[str, Array] = {}
-    for key, w in omegas.items():
-        q = quat_cumprod(rk4_increments(w, dt))
-        R_path[key] = np.concatenate([R0[None], R0 @ so3.quat_to_rotmat(q)])
+    R_path = {key: _integrate(R0, w, imu.t[seg]) for key, w in (
+        ("raw", imu.gyro[seg]), ("cal", cal.angular_velocity(imu.gyro[seg], imu.accel[seg])))}
+    roll_raw, pitch_raw, raw = _drift_at_end(R_path["raw"][-1], R1, g_dir)
+    roll_cal, pitch_cal, tilt_cal = _drift_at_end(R_path["cal"][-1], R1, g_dir)
 
-    out: dict[str, float] = {}
-    roll_ref, pitch_ref = roll_pitch(R1, g_dir)
-    for key in ("raw", "cal"):
-        R_end = R_path[key][-1]
-        roll, pitch = roll_pitch(R_end, g_dir)
-        out[f"roll_{key}"] = float(_wrap_deg(np.degrees(roll - roll_ref)))
-        out[f"pitch_{key}"] = float(_wrap_deg(np.degrees(pitch - pitch_ref)))
-        out[f"tilt_{key}"] = float(_tilt_deg(R_end, R1, g_dir))
+    inside = (series_t >= imu.t[i0]) & (series_t <= imu.t[i1])
+    s_t = series_t[inside]
+    k = np.clip(np.searchsorted(imu.t[seg], s_t), 0, i1 - i0)
+    s_raw = _tilt_deg(R_path["raw"][k], series_R[inside], g_dir)
+    s_cal = _tilt_deg(R_path["cal"][k], series_R[inside], g_dir)
 
-    s_t = np.zeros(0)
-    s_raw = np.zeros(0)
-    s_cal = np.zeros(0)
-    if len(series_t):
-        inside = (series_t >= imu.t[i0]) & (series_t <= imu.t[i1])
-        s_t = series_t[inside]
-        k = np.clip(np.searchsorted(imu.t[seg], s_t), 0, i1 - i0)
-        s_raw = _tilt_deg(R_path["raw"][k], series_R[inside], g_dir)
-        s_cal = _tilt_deg(R_path["cal"][k], series_R[inside], g_dir)
-
-    raw = out["tilt_raw"]
-    reduction = 1.0 - out["tilt_cal"] / raw if raw > 0 else 0.0
+    reduction = 1.0 - tilt_cal / raw if raw > 0 else 0.0
     return AttitudeDriftResult(
         t0=float(imu.t[i0]), t1=float(imu.t[i1]),
-        roll_drift_raw_deg=out["roll_raw"], pitch_drift_raw_deg=out["pitch_raw"],
-        tilt_drift_raw_deg=raw,
-        roll_drift_cal_deg=out["roll_cal"], pitch_drift_cal_deg=out["pitch_cal"],
-        tilt_drift_cal_deg=out["tilt_cal"], reduction=float(reduction),
-        initial_source=src0, reference_source=src1,
+        roll_drift_raw_deg=roll_raw, pitch_drift_raw_deg=pitch_raw, tilt_drift_raw_deg=raw,
+        roll_drift_cal_deg=roll_cal, pitch_drift_cal_deg=pitch_cal, tilt_drift_cal_deg=tilt_cal,
+        reduction=float(reduction), initial_source=src0, reference_source=src1,
         series_t=s_t, series_tilt_raw_deg=s_raw, series_tilt_cal_deg=s_cal)

@@ -68,6 +68,8 @@ class Effect:
             times ``t - t_mid``; ``gravity``/``clock``: handled by the world model.
         unit: unit of the parameter, for reports.
         description: one line for ``--help`` and reports.
+        limits: plausible magnitudes for a MEMS IMU (names and values, see
+            :mod:`mocap_calib.core.model.plausible`); overridable per session.
     """
 
     name: str
@@ -77,6 +79,7 @@ class Effect:
     acts_on: ActsOn
     unit: str
     description: str
+    limits: tuple[tuple[str, float], ...] = ()
 
     @property
     def basis(self) -> Array:
@@ -129,17 +132,22 @@ EFFECTS: dict[str, Effect] = {
         Effect("time_offset", "time_offset", 1, "world", "clock", "s",
                "IMU stamp t was measured at mocap time t + t_d"),
         Effect("gyro_scale_misalignment", "gyro_matrix", 9, "gyro", "w", "-",
-               "w_m = M_g w + b_g with M_g near identity (scale and axis misalignment)"),
+               "w_m = M_g w + b_g with M_g near identity (scale and axis misalignment)",
+               (("scale", 0.03), ("misalignment_deg", 2.0))),
         Effect("accel_scale_misalignment", "accel_matrix", 6, "accel", "f", "-",
-               "a_m = M_a f + b_a with M_a lower-triangular near identity"),
+               "a_m = M_a f + b_a with M_a lower-triangular near identity",
+               (("scale", 0.03), ("misalignment_deg", 2.0))),
         Effect("gyro_g_sensitivity", "g_sensitivity", 9, "gyro", "f", "rad/s per m/s^2",
-               "w_m = w + G f + b_g (gyro responds to specific force)"),
+               "w_m = w + G f + b_g (gyro responds to specific force)",
+               (("max", 1e-3),)),
         Effect("gyro_bias_drift", "gyro_bias_rate", 3, "gyro", "time", "rad/s^2",
-               "gyro bias trend beyond the random walk: b_g(t) = b_g + r_g (t - t_mid)"),
+               "gyro bias trend beyond the random walk: b_g(t) = b_g + r_g (t - t_mid)",
+               (("max", 1e-3),)),
         Effect("accel_bias_drift", "accel_bias_rate", 3, "accel", "time", "m/s^3",
-               "accel bias trend beyond the random walk: b_a(t) = b_a + r_a (t - t_mid)"),
+               "accel bias trend beyond the random walk: b_a(t) = b_a + r_a (t - t_mid)",
+               (("max", 0.05),)),
         Effect("gravity_magnitude", "gravity_magnitude", 1, "world", "gravity", "m/s^2",
-               "|g| differs from the value assumed"),
+               "|g| differs from the value assumed", (("min", 9.76), ("max", 9.84))),
     )
 }
 

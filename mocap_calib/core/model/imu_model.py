@@ -108,7 +108,13 @@ def correct(model: Model, params: Intrinsics, gyro_m: Array, accel_m: Array, u: 
         dw_du = (gyro_dot - rg - df_du @ G.T) @ Mg_inv.T
     if not sensitivities:
         return Corrected(w, f, {}, {}, dw_du, df_du)
+    dw, df = _sensitivities(model, Ma_inv, Mg_inv, G, w, f, du)
+    return Corrected(w, f, dw, df, dw_du, df_du)
 
+
+def _sensitivities(model: Model, Ma_inv: Array, Mg_inv: Array, G: Array, w: Array, f: Array,
+                   du: Array) -> tuple[dict[str, Array], dict[str, Array]]:
+    """``dw/dtheta`` and ``df/dtheta`` of every parameter block at corrected ``w``, ``f``."""
     shape = f.shape[:-1]
     df: dict[str, Array] = {}
     dw: dict[str, Array] = {}
@@ -136,7 +142,9 @@ def correct(model: Model, params: Intrinsics, gyro_m: Array, accel_m: Array, u: 
             dw[eff.name] = -Mg_inv * du[..., None]
     zeros = {n: np.zeros(shape + (3, d.shape[-1])) for n, d in dw.items() if n not in df}
     df.update(zeros)
-    return Corrected(w, f, dw, df, dw_du, df_du)
+    return dw, df
+
+
 
 
 def forward(model: Model, params: Intrinsics, w: Array, f: Array, u: Array) -> tuple[Array, Array]:

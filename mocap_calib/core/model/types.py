@@ -16,6 +16,17 @@ from mocap_calib.core.model import so3
 Array = NDArray[np.float64]
 
 
+#: The one gap rule for sampled streams: a step longer than this many median steps is a gap
+#: (occlusion, dropped samples). Mocap windows, keyframe intervals, the clock search and the
+#: drift check never span one.
+GAP_FACTOR = 3.0
+
+
+def gap_threshold(t: Array, floor: float = 0.0) -> float:
+    """Longest step (s) of the time series ``t`` that is not a gap (see :data:`GAP_FACTOR`)."""
+    return max(GAP_FACTOR * float(np.median(np.diff(t))), floor)
+
+
 def _as_float(a: object, shape_tail: tuple[int, ...]) -> Array:
     arr = np.ascontiguousarray(np.asarray(a, dtype=np.float64))
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
@@ -132,9 +143,17 @@ class NoiseModel:
     accelerometer_random_walk: float = 3.0e-3  # m/s^3/sqrt(Hz)
     mocap_position_sigma: float = 0.5e-3  # m, per axis and sample
     mocap_rotation_sigma: float = float(np.radians(0.05))  # rad, per axis and sample
+    # Real mocap noise is correlated over time (marker sets change, the pose solver and its
+    # filters smooth): a fraction of its variance is an AR(1) process with this time constant.
+    mocap_noise_corr_time: float = 0.0  # s; 0: white
+    mocap_noise_corr_fraction: float = 0.0  # fraction of the variance that is correlated
 
     def to_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in self.__dict__.items()}
+
+    @property
+    def mocap_correlated(self) -> bool:
+        return self.mocap_noise_corr_time > 0.0 and self.mocap_noise_corr_fraction > 0.0
 
     @classmethod
     def from_dict(cls, d: dict[str, float]) -> NoiseModel:

@@ -1,0 +1,246 @@
+"""Does the answer hold up? The session in independent segments, and the answer under other
+noise densities.
+
+- Consistency: the session's windows are split by time into ``k`` segments, each calibrated on
+  its own (from the full solution, with its noise model and robust weights), each with its own
+  sigmas. If the sigmas are honest, the segments agree within them: the largest pairwise
+  |difference| / combined sigma per parameter stays below about 3.
+- Sensitivity: the IMU noise densities (white and random walk) scaled by 3 and by 1/3 reweight
+  the data; an answer that moves by more than its sigma depends on an assumption the session
+  cannot check.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats as sps
+
+from mocap_calib.core.calib.session import PreparedSession
+from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, run_position_stage
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import Model
+from mocap_calib.errors import CalibrationError
+
+Array = NDArray[np.float64]
+
+#: Parameters compared between segments and under other noise densities.
+COMPARED = ("R_MI", "p_MI", "t_d")
+
+
+@dataclass
+class SegmentEstimate:
+    """One segment's answer (``t_d`` relative to the raw stamps) with its 1-sigma."""
+
+    start_s: float
+    end_s: float
+    R_MI: Array
+    p_MI: Array
+    t_d: float | None
+    sigma_R: Array
+    sigma_p: Array
+    sigma_t_d: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"start_s": round(self.start_s, 3), "end_s": round(self.end_s, 3),
+                "rotation_wxyz": so3.rotmat_to_quat(self.R_MI).tolist(),
+                "translation": self.p_MI.tolist(), "time_offset": self.t_d,
+                "sigma": {"rotation": self.sigma_R.tolist(), "translation": self.sigma_p.tolist(),
+                          "time_offset": self.sigma_t_d}}
+
+
+@dataclass
+class Consistency:
+    """Segments, their largest pairwise |difference| / combined sigma per parameter, and the
+    Birge ratio of each parameter (``sqrt(chi2 / dof)`` of the segments about their weighted
+    mean; about 1 when they scatter as their sigmas say)."""
+
+    segments: list[SegmentEstimate] = field(default_factory=list)
+    max_z: dict[str, float] = field(default_factory=dict)
+    birge: dict[str, float] = field(default_factory=dict)
+    note: str = ""
+
+    def inflation(self, param: str) -> float:
+        """Factor for the full session's sigma of ``param``: the Birge ratio where the segments
+        disagree significantly (chi2 beyond its 95 % point), else 1."""
+        r = self.birge.get(param)
+        if r is None or not self.segments:
+            return 1.0
+        dof = (len(self.segments) - 1) * {"R_MI": 3, "p_MI": 3, "t_d": 1}[param]
+        return r if r * r * dof > sps.chi2.ppf(0.95, dof) else 1.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"segments": [s.to_dict() for s in self.segments],
+                "max_pairwise_z": {k: round(v, 3) for k, v in self.max_z.items()},
+                "birge_ratio": {k: round(v, 3) for k, v in self.birge.items()},
+                "sigma_inflation": {k: round(self.inflation(k), 3) for k in self.birge},
+                **({"note": self.note} if self.note else {})}
+
+
+def _z(a: SegmentEstimate | PositionResult, b: SegmentEstimate | PositionResult,
+       sa: dict[str, Array], sb: dict[str, Array] | None) -> dict[str, float]:
+    """Largest per-axis |a - b| / sigma (combined when ``sb`` is given)."""
+    def comb(k: str) -> Array:
+        return sa[k] if sb is None else np.hypot(sa[k], sb[k])
+
+    out = {"R_MI": float(np.max(np.abs(so3.log(a.R_MI.T @ b.R_MI)) / comb("R_MI"))),
+           "p_MI": float(np.max(np.abs(a.p_MI - b.p_MI) / comb("p_MI")))}
+    if sa.get("t_d") is not None and (sb is None or sb.get("t_d") is not None):
+        ta = a.t_d if isinstance(a, SegmentEstimate) else a.delta
+        tb = b.t_d if isinstance(b, SegmentEstimate) else b.delta
+        out["t_d"] = float(abs(ta - tb) / comb("t_d")[0])
+    return out
+
+
+def _sigmas(pos: PositionResult) -> dict[str, Array]:
+    d = {"R_MI": np.sqrt(np.diag(pos.cov["rotation"])),
+         "p_MI": np.sqrt(np.diag(pos.cov["translation"]))}
+    if "time_offset" in pos.cov:
+        d["t_d"] = np.sqrt(np.diag(pos.cov["time_offset"]))
+    return d
+
+
+def _init(pos: PositionResult, which: NDArray[np.int64]) -> PositionInit:
+    knots = pos.knots[which]
+    return PositionInit(pos.R_MI, pos.p_MI, pos.g_dir, pos.g_mag, pos.delta,
+                        knots[:, 0:3].mean(axis=0), knots[:, 3:6].mean(axis=0),
+                        dict(pos.effects), knots=knots)
+
+
+def segment_consistency(s: PreparedSession, model: Model, pos: PositionResult, k: int = 3,
+                        max_iterations: int = 30) -> Consistency:
+    """Calibrate ``k`` time segments of the session on their own and compare them."""
+    win = pos.windows
+    if k < 2:
+        return Consistency()
+    bounds = np.linspace(win.start[0], win.end[-1], k + 1)
+    seg_of = np.clip(np.searchsorted(bounds, win.start, side="right") - 1, 0, k - 1)
+    out = Consistency()
+    for i in range(k):
+        which = np.flatnonzero(seg_of == i)
+        if len(which) < 2:
+            out.note = f"segment {i + 1} has fewer than 2 windows: too short to compare"
+            return Consistency(note=out.note)
+        try:
+            seg = run_position_stage(s, model, pos.noise, win.subset(which), _init(pos, which),
+                                     robust=False, adapt_noise=False,
+                                     weights=pos.weights[which], max_iterations=max_iterations)
+        except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
+            return Consistency(note=f"segment {i + 1} could not be calibrated on its own ({err})")
+        sg = _sigmas(seg)
+        has_td = "t_d" in sg
+        out.segments.append(SegmentEstimate(
+            float(bounds[i] - s.tau[0]), float(bounds[i + 1] - s.tau[0]), seg.R_MI, seg.p_MI,
+            float(seg.delta - s.clock_shift) if has_td else None, sg["R_MI"], sg["p_MI"],
+            float(sg["t_d"][0]) if has_td else None))
+    out.birge = _birge(out.segments)
+    for a, b in itertools.combinations(out.segments, 2):
+        sa = {"R_MI": a.sigma_R, "p_MI": a.sigma_p,
+              "t_d": None if a.sigma_t_d is None else np.array([a.sigma_t_d])}
+        sb = {"R_MI": b.sigma_R, "p_MI": b.sigma_p,
+              "t_d": None if b.sigma_t_d is None else np.array([b.sigma_t_d])}
+        for name, v in _z(a, b, sa, sb).items():
+            out.max_z[name] = max(out.max_z.get(name, 0.0), v)
+    return out
+
+
+def _birge(segs: list[SegmentEstimate]) -> dict[str, float]:
+    """``sqrt(chi2 / dof)`` of the segments about their inverse-variance weighted mean."""
+    out = {}
+    R0 = segs[0].R_MI
+    vals = {"R_MI": [so3.log(R0.T @ s.R_MI) for s in segs], "p_MI": [s.p_MI for s in segs]}
+    sig = {"R_MI": [s.sigma_R for s in segs], "p_MI": [s.sigma_p for s in segs]}
+    if all(s.t_d is not None for s in segs):
+        vals["t_d"] = [np.array([s.t_d]) for s in segs]
+        sig["t_d"] = [np.array([s.sigma_t_d]) for s in segs]
+    for name in vals:
+        x, sg = np.array(vals[name]), np.array(sig[name])
+        w = 1.0 / sg**2
+        mean = (w * x).sum(axis=0) / w.sum(axis=0)
+        chi2 = float((w * (x - mean) ** 2).sum())
+        out[name] = float(np.sqrt(chi2 / ((len(segs) - 1) * x.shape[1])))
+    return out
+
+
+@dataclass
+class Sensitivity:
+    """How far the answer moves under scaled IMU noise densities.
+
+    Attributes:
+        shift: factor -> parameter -> |change| per component (parameter units; rotation and
+            gravity in rad).
+        moved: factor -> parameter -> largest |change| / the statistical sigma.
+    """
+
+    shift: dict[str, dict[str, Array]] = field(default_factory=dict)
+    moved: dict[str, dict[str, float]] = field(default_factory=dict)
+    note: str = ""
+
+    def systematic(self, param: str) -> Array | None:
+        """Per component, the largest shift over the factors: the uncertainty the unknown
+        noise densities add (None when not computed)."""
+        shifts = [d[param] for d in self.shift.values() if param in d]
+        return np.max(np.stack(shifts), axis=0) if shifts else None
+
+    def to_dict(self, total_sigma: dict[str, Array] | None = None) -> dict[str, Any]:
+        d: dict[str, Any] = {"moved_statistical_sigmas": {
+            f: {k: round(v, 3) for k, v in m.items()} for f, m in self.moved.items()}}
+        if total_sigma:
+            d["moved_sigmas"] = {
+                f: {k: round(float(np.max(v / total_sigma[k])), 3) for k, v in sh.items()
+                    if k in total_sigma} for f, sh in self.shift.items()}
+        if self.note:
+            d["note"] = self.note
+        return d
+
+
+def _shifts(alt: PositionResult, pos: PositionResult) -> dict[str, Array]:
+    """|alt - pos| per parameter and component."""
+    out = {"R_MI": np.abs(so3.log(pos.R_MI.T @ alt.R_MI)),
+           "p_MI": np.abs(alt.p_MI - pos.p_MI),
+           "gyro_bias": np.abs(alt.gyro_bias_mean - pos.gyro_bias_mean),
+           "accel_bias": np.abs(alt.accel_bias_mean - pos.accel_bias_mean),
+           # gravity: the change along the two tangent directions of pos's Unit3 basis
+           "gravity": np.abs(_tangent(pos.g_dir) @ (alt.g_dir - pos.g_dir))}
+    if "time_offset" in pos.cov:
+        out["t_d"] = np.array([abs(alt.delta - pos.delta)])
+    return out
+
+
+def _tangent(g: Array) -> Array:
+    """(2, 3) an orthonormal basis of the plane normal to ``g`` (GTSAM's Unit3 convention is
+    not needed for magnitudes)."""
+    a = np.eye(3)[int(np.argmin(np.abs(g)))]
+    b1 = np.cross(g, a)
+    b1 /= np.linalg.norm(b1)
+    return np.stack([b1, np.cross(g, b1)])
+
+
+def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
+                      factors: tuple[float, ...] = (3.0, 1.0 / 3.0),
+                      max_iterations: int = 30) -> Sensitivity:
+    """Refit with the IMU noise densities scaled (mocap noise and robust weights kept)."""
+    out = Sensitivity()
+    sig = _sigmas(pos)
+    everything = np.arange(pos.windows.count)
+    for f in factors:
+        nz = pos.noise
+        scaled = replace(nz, gyroscope_noise_density=nz.gyroscope_noise_density * f,
+                         gyroscope_random_walk=nz.gyroscope_random_walk * f,
+                         accelerometer_noise_density=nz.accelerometer_noise_density * f,
+                         accelerometer_random_walk=nz.accelerometer_random_walk * f)
+        try:
+            alt = run_position_stage(s, model, scaled, pos.windows, _init(pos, everything),
+                                     robust=False, adapt_noise=False, weights=pos.weights,
+                                     max_iterations=max_iterations, covariance=False)
+        except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
+            out.note = f"noise x{f:.3g}: refit failed ({err})"
+            continue
+        key = f"x{f:.3g}"
+        out.shift[key] = _shifts(alt, pos)
+        out.moved[key] = _z(alt, pos, sig, None)
+    return out

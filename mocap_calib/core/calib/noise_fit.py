@@ -1,0 +1,115 @@
+"""The noise model from the session itself: IMU white noise, and the mocap noise's level and
+correlation.
+
+Real mocap noise is far from white: marker sets change with occlusions, and the pose solver and
+its filters smooth, so consecutive poses share most of their error (on EuRoC V2_03 the
+position-stage innovations keep a correlation of 0.98 between 10 ms samples and 0.67 at 0.2 s).
+A white-noise likelihood then counts every sample as new information, and its sigmas are
+several times too small. The window filter models a fraction of the mocap variance as an AR(1)
+process (:mod:`mocap_calib.core.calib.window_engine`); its time constant and fraction are
+chosen here by the windows' exact likelihood, each candidate with its own level.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.calib.windows import Theta
+from mocap_calib.core.model.types import NoiseModel
+
+Array = NDArray[np.float64]
+
+#: Candidate (time constant s, correlated fraction) pairs; (0, 0) is white noise.
+CORRELATION_GRID: tuple[tuple[float, float], ...] = (
+    (0.0, 0.0), *((T, rho) for T in (0.03, 0.1, 0.3, 1.0) for rho in (0.5, 0.9, 0.98)))
+#: Windows used for the choice (spread over the session): enough for a clear likelihood
+#: difference, few enough that the choice costs little on long sessions.
+MAX_WINDOWS = 16
+#: Mocap rate (Hz) of the likelihood evaluations that choose the model.
+RATE_HZ = 30.0
+
+
+@dataclass(frozen=True)
+class CorrelationFit:
+    """The chosen mocap noise model and every candidate's -2 log-likelihood (lower: better)."""
+
+    noise: NoiseModel
+    candidates: list[dict[str, float]]
+
+
+def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
+                          max_windows: int = MAX_WINDOWS) -> CorrelationFit:
+    """Choose the mocap noise's correlation time, fraction and level by the windows' exact
+    likelihood.
+
+    The choice runs on a subset of the windows, decimated to about :data:`RATE_HZ` (the
+    per-sample white noise and the time constant mean the same at any rate). Each candidate is
+    evaluated at the level that makes its whitened innovations average one, then at that
+    level halved and doubled around the best candidate. The later rounds of the position stage
+    refine the level as usual.
+
+    Args:
+        problem: the position stage's :class:`~mocap_calib.core.calib.window_engine.
+            PositionProblem` (its noise model, windows and robust weights are used).
+        th: parameter values to evaluate at (the current solution).
+        grid: candidate (time constant, fraction) pairs.
+        max_windows: at most this many windows, spread evenly over the session.
+    """
+    from mocap_calib.core.calib.window_engine import PositionProblem
+
+    W = problem.win.count
+    which = np.unique(np.linspace(0, W - 1, min(W, max_windows)).round().astype(int))
+    win = problem.win.subset(which)
+    rate = 1.0 / float(np.median(np.diff(win.tau[0][win.mask[0]])))
+    k = max(1, int(rate // RATE_HZ))
+    sub = PositionProblem(problem.s, problem.model, problem.noise, win.decimate(k))
+    sub.weights = problem.weights[which][:, ::k].copy() if k > 1 else problem.weights[which]
+    th_sub = replace(th, knots=th.knots[which])
+    n_dof = 6.0 * float(sub.win.mask.sum())
+    base = problem.noise
+    models = [replace(base, mocap_noise_corr_time=T, mocap_noise_corr_fraction=rho)
+              for T, rho in grid]
+    # Level: the chi2 of a pass over its degrees of freedom (mocap noise dominates it).
+    chi2 = [float(x.sum()) for x in sub.likelihoods(th_sub, models, part="chi2")]
+    models = [_scaled(m, c / n_dof) for m, c in zip(models, chi2, strict=True)]
+    m2ll = [float(x.sum()) for x in sub.likelihoods(th_sub, models)]
+    best = int(np.argmin(m2ll))
+    levels = [_scaled(models[best], f) for f in (0.5, 2.0)]
+    m2ll_lv = [float(x.sum()) for x in sub.likelihoods(th_sub, levels)]
+    rows = [{"time_constant_s": T, "fraction": rho, "level": 1.0, "minus_2_log_likelihood": v}
+            for (T, rho), v in zip(grid, m2ll, strict=True)]
+    rows += [{"time_constant_s": grid[best][0], "fraction": grid[best][1], "level": f,
+              "minus_2_log_likelihood": v} for f, v in zip((0.5, 2.0), m2ll_lv, strict=True)]
+    chosen = models[best]
+    if min(m2ll_lv) < m2ll[best]:
+        chosen = levels[int(np.argmin(m2ll_lv))]
+    return CorrelationFit(chosen, rows)
+
+
+def _scaled(nz: NoiseModel, f: float) -> NoiseModel:
+    """``nz`` with both mocap variances times ``f``."""
+    return replace(nz, mocap_rotation_sigma=nz.mocap_rotation_sigma * np.sqrt(f),
+                   mocap_position_sigma=nz.mocap_position_sigma * np.sqrt(f))
+
+
+def imu_white_noise(u: Array, gyro: Array, accel: Array) -> tuple[float, float]:
+    """Gyro and accel white-noise densities (per sqrt(Hz)) from the session's own samples.
+
+    The fourth difference of the samples removes smooth motion (a 1 Hz, 3 rad/s motion leaves
+    1e-5 rad/s at 200 Hz) and keeps 70 times the per-sample noise variance; a median absolute
+    deviation keeps the odd glitch out. Vibration the IMU really feels counts as noise, which is
+    what it is for the calibration.
+    """
+    dt = float(np.median(np.diff(u)))
+
+    def density(x: Array) -> float:
+        d4 = np.diff(x, n=4, axis=0)
+        mad = 1.4826 * np.median(np.abs(d4 - np.median(d4, axis=0)), axis=0)
+        # A coarse quantisation can make most differences zero (MAD 0): the std then.
+        sigma = np.where(mad > 0, mad, np.std(d4, axis=0)) / np.sqrt(70.0)
+        return float(np.sqrt(np.mean(sigma**2)) * np.sqrt(dt))
+
+    return density(gyro), density(accel)

@@ -1,0 +1,73 @@
+"""``mocap-calib export``: a calibration result as another tool's configuration file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mocap_calib.errors import InputError
+from mocap_calib.export.targets import (
+    FILE_NAMES,
+    TARGETS,
+    Exported,
+    ExportInputs,
+    export_calibration,
+)
+from mocap_calib.io.yaml_io import check_writable, load_noise, load_result, save_text
+from mocap_calib.workflows.intrinsics_export import INTRINSICS_FORMATS, export_intrinsics
+
+__all__ = ["TARGETS", "FILE_NAMES", "export_to_file", "export_result", "ALL_TARGETS"]
+
+#: Every ``--to``: the calibration targets and the intrinsics ones (multipos -> imu_tk).
+ALL_TARGETS = (*TARGETS, *INTRINSICS_FORMATS)
+
+
+def export_result(path: Path, target: str, out: Path | None = None, noise: Path | None = None,
+                  imu_rate_hz: float | None = None, imu_topic: str = "/imu0") -> list[str]:
+    """``mocap-calib export``: a calibration (or, for imu_tk, multipos intrinsics) in
+    ``target``'s format; returns the lines to print."""
+    if target in INTRINSICS_FORMATS:
+        return export_intrinsics(path, target, out or Path("imu")).summary().splitlines()
+    if target not in TARGETS:
+        raise InputError(f"unknown --to '{target}'; choose one of: {', '.join(ALL_TARGETS)}")
+    exported, written = export_to_file(path, target, out, noise, imu_rate_hz, imu_topic)
+    return [f"note: {n}" for n in exported.notes] + [f"wrote {written}  ({target})"]
+
+
+def export_to_file(calibration: Path, target: str, out: Path | None = None,
+                   noise: Path | None = None, imu_rate_hz: float | None = None,
+                   imu_topic: str = "/imu0") -> tuple[Exported, Path]:
+    """Read ``calibration`` (and ``noise``), build the ``target`` file and write it.
+
+    Args:
+        calibration: a result of ``mocap-calib calibrate`` (or a simulator truth file).
+        target: one of :data:`TARGETS`.
+        out: file to write (default: the tool's own file name, in the current folder).
+        noise: noise YAML (Kalibr keys, e.g. from ``mocap-calib allan``); default: the noise
+            model the calibration used.
+        imu_rate_hz: IMU rate; default: the one the calibration measured.
+        imu_topic: IMU topic for the targets that name it.
+
+    Returns:
+        What was exported and the path written.
+    """
+    if target not in TARGETS:
+        raise InputError(f"unknown --to '{target}'; choose one of: {', '.join(TARGETS)}")
+    out = Path(out) if out is not None else Path(FILE_NAMES[target])
+    check_writable(out)
+    result = load_result(calibration)
+    if noise is not None:
+        noise_model, source = load_noise(noise), f"from {noise}"
+    else:
+        noise_model = result.noise
+        source = f"the noise model of {calibration} (give --noise noise.yaml from 'allan')"
+    rate = imu_rate_hz or result.session.get("imu_rate_hz")
+    if rate is None:
+        raise InputError(f"{calibration}: the IMU rate is not in the file; pass --imu-rate HZ")
+    if not float(rate) > 0:
+        raise InputError(f"--imu-rate {rate}: must be positive")
+    inputs = ExportInputs(result, noise_model, source, float(rate), imu_topic, str(calibration))
+    exported = export_calibration(inputs, target)
+    if noise is None:
+        exported.notes.append(f"noise densities are those {calibration} was calibrated with; "
+                              "measure yours with 'mocap-calib allan' and pass --noise")
+    return exported, save_text(out, exported.text)

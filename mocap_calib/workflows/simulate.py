@@ -1,0 +1,65 @@
+"""``simulate``: write a simulated session with known truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mocap_calib.errors import InputError
+
+
+def effects_doc() -> str:
+    """What ``--effect`` accepts: every effect of the ladder and the mocap faults."""
+    from mocap_calib.core.model.effects import CANONICAL_EFFECTS
+    from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
+
+    return "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
+
+
+def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0,
+                       duration: float = 90.0, imu_rate: float = 200.0, mocap_rate: float = 100.0,
+                       effects: list[str] | None = None,
+                       mocap_noise_corr: float = 0.0, counts: bool = False
+                       ) -> list[tuple[Path, str]]:
+    """Simulate a session and write it in the EuRoC layout plus ``truth.yaml``.
+
+    Returns:
+        ``(path, description)`` of every file written.
+    """
+    from mocap_calib.io.euroc import write_euroc_imu, write_mav0
+    from mocap_calib.io.yaml_io import save_yaml
+    from mocap_calib.sim.flight import SimConfig, parse_effect, simulate_flight
+
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: exists and is not a folder; choose another OUT_DIR")
+    parsed = dict(parse_effect(e) for e in (effects or []))
+    if protocol == "multipos":
+        from mocap_calib.workflows.multipos import simulate_multipos_to_folder
+
+        return simulate_multipos_to_folder(out_dir, seed=seed, rate_hz=imu_rate,
+                                           effects=parsed, counts=counts)
+    if counts:
+        raise InputError("--counts applies to --protocol multipos only")
+    header = "mocap-calib simulation truth (SI units). See docs/conventions.md."
+    if protocol == "flight":
+        sim = simulate_flight(SimConfig(seed=seed, duration=duration, imu_rate=imu_rate,
+                                        mocap_rate=mocap_rate, effects=parsed,
+                                        mocap_noise_corr=mocap_noise_corr))
+        mav0 = write_mav0(out_dir, sim.imu, sim.mocap)
+        truth = save_yaml(out_dir / "truth.yaml", sim.truth, header)
+        return [(mav0 / "imu0" / "data.csv", f"{len(sim.imu)} IMU samples at {imu_rate:g} Hz"),
+                (mav0 / "vicon0" / "data.csv",
+                 f"{len(sim.mocap)} mocap poses at {mocap_rate:g} Hz"),
+                (truth, "true calibration, effects and noise")]
+    if parsed:
+        raise InputError(f"--effect applies to --protocol flight only, not '{protocol}'")
+    if protocol == "static":
+        from mocap_calib.sim.static import simulate_static
+
+        imu, truth_d = simulate_static(seed=seed, duration_s=duration, rate_hz=imu_rate)
+    else:
+        raise InputError(f"unknown --protocol '{protocol}'; choose flight, multipos or static")
+    path = write_euroc_imu(out_dir / "mav0" / "imu0" / "data.csv", imu)
+    truth = save_yaml(out_dir / "truth.yaml", truth_d, header)
+    return [(path, f"{len(imu)} IMU samples at {imu_rate:g} Hz ({protocol})"),
+            (truth, "true intrinsics and noise")]

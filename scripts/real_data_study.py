@@ -1,0 +1,185 @@
+"""Real-data study: calibrate every recording in ../shared/data, in full and in thirds, and
+with the noise densities scaled by 3 and 1/3.
+
+Prints, per recording: the full-session answer (R_MI against the reference, p_MI, t_d, exit),
+the largest pairwise |difference| / combined sigma between the thirds for R_MI, p_MI and t_d,
+and how far (in sigmas) the answer moves when the noise densities are scaled. This is computed
+here from separate runs, independently of the result's own ``consistency`` section.
+
+Usage: python scripts/real_data_study.py [--json out.json] [--only euroc,broad21] [--no-thirds]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from mocap_calib.core.calib.pipeline import CalibrationOptions
+from mocap_calib.core.model import so3
+from mocap_calib.errors import CalibrationError
+from mocap_calib.workflows.calibrate import InputSpec, load_session, resolve_noise
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+RECORDINGS = {
+    "euroc": ("EuRoC V2_03", InputSpec(path=DATA / "euroc_V2_03_difficult" / "mav0")),
+    "broad15": ("BROAD 15", InputSpec(imu=DATA / "broad_15_undisturbed_fast_translation_A" /
+                                      "data.csv", mocap=DATA /
+                                      "broad_15_undisturbed_fast_translation_A" / "data.csv",
+                                      columns="broad")),
+    "broad21": ("BROAD 21", InputSpec(imu=DATA / "broad_21_undisturbed_fast_combined" /
+                                      "data.csv", mocap=DATA /
+                                      "broad_21_undisturbed_fast_combined" / "data.csv",
+                                      columns="broad")),
+    "broad27": ("BROAD 27", InputSpec(imu=DATA / "broad_27_disturbed_phone_vibration_B" /
+                                      "data.csv", mocap=DATA /
+                                      "broad_27_disturbed_phone_vibration_B" / "data.csv",
+                                      columns="broad")),
+}
+
+
+def run(session, opts: CalibrationOptions) -> dict:
+    """One calibration; a refusal is recorded with its exit code and message."""
+    from mocap_calib.core.calib.pipeline import calibrate
+
+    t0 = time.perf_counter()
+    try:
+        r = calibrate(session.imu, session.mocap, opts)
+    except CalibrationError as err:
+        return {"exit": err.exit_code, "error": str(err), "seconds": time.perf_counter() - t0}
+    out = {"exit": 0, "seconds": time.perf_counter() - t0, "notes": r.notes}
+    out["R"] = None if r.rotation_wxyz is None else so3.quat_to_rotmat(r.rotation_wxyz)
+    out["sR"] = r.sigma_rotation
+    out["p"] = r.translation
+    out["sp"] = r.sigma_translation
+    out["td"] = r.time_offset
+    out["std"] = r.sigma_time_offset
+    out["g"] = r.gravity_in_mocap
+    out["ba"] = r.accel_bias
+    out["bg"] = r.gyro_bias
+    out["result"] = r
+    return out
+
+
+def reference(key: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """R_MI (and p_MI) to compare with: what EuRoC's own ground truth implies
+    (scripts/euroc_reference.py); identity for BROAD, whose optical data were rotated into the
+    IMU frame by the dataset's authors (no lever-arm reference)."""
+    if key != "euroc":
+        return np.eye(3), None
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from euroc_reference import gt_implied
+
+    gt = gt_implied(DATA / "euroc_V2_03_difficult" / "mav0")
+    return gt["R_MI"], gt["p_MI"]
+
+
+def z_pair(a: dict, b: dict) -> dict[str, float]:
+    """Largest per-axis |difference| / combined sigma of two runs."""
+    z = {}
+    if a.get("R") is not None and b.get("R") is not None:
+        d = so3.log(a["R"].T @ b["R"])
+        z["R_MI"] = float(np.max(np.abs(d) / np.hypot(a["sR"], b["sR"])))
+    if a.get("p") is not None and b.get("p") is not None:
+        z["p_MI"] = float(np.max(np.abs(a["p"] - b["p"]) / np.hypot(a["sp"], b["sp"])))
+    if a.get("td") is not None and b.get("td") is not None:
+        z["t_d"] = abs(a["td"] - b["td"]) / float(np.hypot(a["std"], b["std"]))
+    return z
+
+
+def moved(base: dict, other: dict) -> dict[str, float]:
+    """How far a run moved from the base run, in the base run's sigmas (largest axis)."""
+    z = {}
+    if base.get("R") is not None and other.get("R") is not None:
+        z["R_MI"] = float(np.max(np.abs(so3.log(base["R"].T @ other["R"])) / base["sR"]))
+    if base.get("p") is not None and other.get("p") is not None:
+        z["p_MI"] = float(np.max(np.abs(other["p"] - base["p"]) / base["sp"]))
+    if base.get("td") is not None and other.get("td") is not None:
+        z["t_d"] = abs(other["td"] - base["td"]) / base["std"]
+    return z
+
+
+def describe(key: str, r: dict, ref: tuple[np.ndarray, np.ndarray | None]) -> dict:
+    if r["exit"] != 0:
+        return {"exit": r["exit"], "error": r["error"]}
+    R_ref, p_ref = ref
+    out = {"exit": 0, "seconds": round(r["seconds"], 1)}
+    if r["R"] is not None:
+        out["R_MI_vs_ref_deg"] = float(np.degrees(np.linalg.norm(so3.log(R_ref.T @ r["R"]))))
+        out["sigma_R_deg"] = np.degrees(r["sR"]).round(4).tolist()
+    if r["p"] is not None:
+        out["p_MI_mm"] = (1e3 * r["p"]).round(2).tolist()
+        out["sigma_p_mm"] = (1e3 * r["sp"]).round(3).tolist()
+        if p_ref is not None:
+            out["p_MI_vs_ref_mm"] = (1e3 * (r["p"] - p_ref)).round(2).tolist()
+    if r["td"] is not None:
+        out["t_d_ms"] = round(1e3 * r["td"], 3)
+        out["sigma_t_d_ms"] = round(1e3 * r["std"], 4)
+    if r["g"] is not None:
+        out["tilt_deg"] = float(np.degrees(np.arccos(min(1.0, abs(r["g"][2])))))
+    if r["ba"] is not None:
+        out["accel_bias"] = np.round(r["ba"], 4).tolist()
+    res = r["result"]
+    for section in ("consistency", "sensitivity", "plausibility", "clock"):
+        if getattr(res, section, None):
+            out[section] = getattr(res, section)
+    out.get("consistency", {}).pop("segments", None)
+    return out
+
+
+def study(key: str, thirds: bool, sensitivity: bool) -> dict:
+    label, spec = RECORDINGS[key]
+    session = load_session(spec)
+    noise = resolve_noise(session, None, {})
+    opts = CalibrationOptions(noise=noise)
+    full = run(session, opts)
+    ref = reference(key)
+    rep: dict = {"recording": label, "full": describe(key, full, ref)}
+    dur = session.imu.duration
+    if thirds:
+        parts = [run(session, replace(opts, start=k * dur / 3, end=(k + 1) * dur / 3))
+                 for k in range(3)]
+        rep["thirds"] = [describe(key, p, ref) for p in parts]
+        ok = [p for p in parts if p["exit"] == 0]
+        zs = [z_pair(a, b) for a, b in itertools.combinations(ok, 2)]
+        rep["thirds_max_z"] = {k: round(max(z[k] for z in zs), 2)
+                               for k in ("R_MI", "p_MI", "t_d") if zs and all(k in z for z in zs)}
+    if sensitivity and full["exit"] == 0:
+        sens = {}
+        for f in (3.0, 1.0 / 3.0):
+            nz = replace(noise, **{k: getattr(noise, k) * f for k in (
+                "gyroscope_noise_density", "gyroscope_random_walk",
+                "accelerometer_noise_density", "accelerometer_random_walk")})
+            o = run(session, replace(opts, noise=nz))
+            sens[f"x{f:.3g}"] = ({k: round(v, 2) for k, v in moved(full, o).items()}
+                                 if o["exit"] == 0 else {"exit": o["exit"], "error": o["error"]})
+        rep["noise_sensitivity_sigmas"] = sens
+    return rep
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--only", default=",".join(RECORDINGS))
+    ap.add_argument("--no-thirds", action="store_true")
+    ap.add_argument("--no-sensitivity", action="store_true")
+    a = ap.parse_args()
+    reports = []
+    for key in a.only.split(","):
+        rep = study(key, not a.no_thirds, not a.no_sensitivity)
+        print(json.dumps(rep, indent=1), flush=True)
+        reports.append(rep)
+    if a.json:
+        a.json.write_text(json.dumps(reports, indent=1))
+
+
+if __name__ == "__main__":
+    main()
