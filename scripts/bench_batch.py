@@ -48,8 +48,10 @@ def run(manifest: Path, out: Path, *options: str) -> tuple[float, float]:
     code = "import sys; from mocap_calib.cli.main import main; sys.exit(main(sys.argv[1:]))"
     busy, own = _busy_s(), _own_s()
     t0 = time.perf_counter()
+    # Exit code 1 (some session failed) still times the batch; the failures are counted below.
     subprocess.run([sys.executable, "-c", code, "batch", str(manifest), "--out", str(out),
-                    "--quiet", *options], check=True, stdout=subprocess.DEVNULL)
+                    "--quiet", *options], check=False, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     others = (_busy_s() - busy) - (_own_s() - own)
     return wall, max(0.0, others) / (wall * (os.cpu_count() or 1))
@@ -63,7 +65,7 @@ def results(out: Path) -> dict[str, str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--duration", type=float, default=300.0, help="seconds per session")
+    ap.add_argument("--duration", type=float, default=120.0, help="seconds per session")
     ap.add_argument("--repeats", type=int, default=2, help="runs per setting (the best counts)")
     ap.add_argument("--no-dask", action="store_true")
     args = ap.parse_args()
@@ -94,8 +96,9 @@ def main() -> None:
             print(f"{name:<30} best {wall:6.2f} s   speed-up x{base / wall:.2f}   (others "
                   f"{others:.0%})")
         ref = files[settings[0][0]]
-        same = all(f == ref for f in files.values()) and len(ref) == 8
-        print(f"result files identical across settings (wall-time lines aside): {same}")
+        same = all(f == ref for f in files.values())
+        print(f"{len(ref)}/8 sessions calibrated; result files identical across settings "
+              f"(wall-time lines aside): {same}")
 
 
 if __name__ == "__main__":
