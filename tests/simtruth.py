@@ -56,3 +56,23 @@ def true_trajectory(cfg: SimConfig, sim: SimulatedSession) -> Truth:
     assert np.max(np.linalg.norm(p_WM - sim.mocap.position, axis=1)) < 5e-3
     assert np.max(so3.angle_deg(np.einsum("nji,njk->nik", R_WM, sim.mocap.rotation))) < 0.5
     return truth
+
+
+def z_scores(res, truth: dict) -> dict[str, np.ndarray]:
+    """Per-axis error / reported sigma of a calibration against the simulator's truth file
+    (computed here, not by the code under test)."""
+    import gtsam
+
+    T = truth["T_marker_imu"]
+    R_true = so3.quat_to_rotmat(np.array(T["rotation_wxyz"]))
+    d_g = np.asarray(gtsam.Unit3(res.gravity_in_mocap).localCoordinates(
+        gtsam.Unit3(np.array(truth["gravity_in_mocap"]))))
+    return {
+        "R_MI": so3.log(R_true.T @ res.R_marker_imu) / res.sigma_rotation,
+        "p_MI": (res.translation - np.array(T["translation"])) / res.sigma_translation,
+        "gyro_bias": (res.gyro_bias - np.array(truth["gyro_bias"])) / res.sigma_gyro_bias,
+        "accel_bias": (res.accel_bias - np.array(truth["accel_bias"])) / res.sigma_accel_bias,
+        "gravity": -d_g / res.sigma_gravity,
+        "time_offset": np.array([(res.time_offset - truth["time_offset"])
+                                 / res.sigma_time_offset]),
+    }

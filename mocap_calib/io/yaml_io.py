@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.model.versioned import KindError
 from mocap_calib.errors import InputError
@@ -154,3 +155,17 @@ def load_noise(path: str | Path, base: NoiseModel | None = None) -> NoiseModel:
                          "gyroscope_noise_density); pass a noise file written by 'mocap-calib "
                          "allan' or Kalibr")
     return NoiseModel.from_dict(values)
+
+
+def load_plausible(path: str | Path) -> PlausibleLimits:
+    """Plausibility limits: the defaults (``docs/diagnosis.md``) overridden by a YAML mapping,
+    e.g. ``accel_bias: 2.0`` or ``effects: {gyro_g_sensitivity: {max: 5e-3}}``."""
+    data = load_yaml(path, "plausibility limits file")
+    try:
+        return PlausibleLimits.from_dict(data)
+    except KeyError as err:
+        raise InputError(f"{path}: unknown limit '{err.args[0]}'; see docs/diagnosis.md for the "
+                         "names") from None
+    except (TypeError, ValueError, AttributeError) as err:
+        raise InputError(f"{path}: limits must be numbers ({err}); see docs/diagnosis.md"
+                         ) from None

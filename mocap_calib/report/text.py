@@ -92,6 +92,7 @@ def summary_table(r: CalibrationResult) -> str:
     lines.append(table(("stage", "factors", "residual RMS per axis (after)", "outliers", "iter",
                         "chi2/dof", "time"), stage_rows,
                        (False, True, False, True, True, True, True)))
+    lines += [""] + checks_lines(r)
     if r.unobservable:
         lines.append("")
         for k, why in r.unobservable.items():
@@ -99,6 +100,43 @@ def summary_table(r: CalibrationResult) -> str:
     for n in r.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)
+
+
+def checks_lines(r: CalibrationResult) -> list[str]:
+    """One line each: the clock search, the plausibility verdict, the segments' consistency
+    and the sensitivity to the noise densities."""
+    out = []
+    c = r.clock
+    if c:
+        out.append(f"clock: coarse t_d {1e3 * c['coarse_time_offset']:.3f} ms from "
+                   f"{' + '.join(c['signals'])} (peak {c['peak_z']:.1f}, margin "
+                   f"{c['margin_z']:.1f} null sigmas"
+                   + ("; chosen among equal peaks by the stage fits" if
+                      c.get("chosen_by_fit_among_peaks") else "") + ")"
+                   + (f", fine {1e3 * c['fine_time_offset']:.3f} ms"
+                      if c.get("fine_time_offset") is not None else ""))
+    pl = r.plausibility
+    if pl:
+        fig = pl.get("figures", {})
+        where = (f" (up axis {fig['up_axis']}, tilt {fig['tilt_deg']:.2f} deg)"
+                 if "up_axis" in fig else "")
+        out.append(f"plausibility: {pl['verdict']}{where}"
+                   + "".join(f"; FAILED: {x}" for x in pl.get("failed", [])))
+    cons = r.consistency
+    if cons.get("max_pairwise_z"):
+        z = ", ".join(f"{k} {v:.2f}" for k, v in cons["max_pairwise_z"].items())
+        out.append(f"consistency ({len(cons.get('segments', []))} segments): largest pairwise "
+                   f"|difference| / combined sigma: {z}")
+    elif cons.get("note"):
+        out.append(f"consistency: {cons['note']}")
+    moved = r.sensitivity.get("moved_sigmas") or {}
+    if moved:
+        keys = ("R_MI", "p_MI", "t_d")
+        parts = [f"{k} " + " / ".join(f"{moved[f].get(k, 0.0):.2f}" for f in moved)
+                 for k in keys if any(k in moved[f] for f in moved)]
+        out.append(f"sensitivity (noise densities {' / '.join(moved)}): moves "
+                   f"{', '.join(parts)} sigma")
+    return out
 
 
 def diagnose_table(report) -> str:

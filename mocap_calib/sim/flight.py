@@ -16,11 +16,11 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
-from mocap_calib.sim.trajectory import random_trajectory
+from mocap_calib.sim.trajectory import Trajectory, periodic_trajectory, random_trajectory
 
 Array = NDArray[np.float64]
 
@@ -36,6 +36,9 @@ DEFAULT_MAGNITUDE: dict[str, float] = {
     "gyro_bias_drift": 2e-5,
     "accel_bias_drift": 2e-3,
     "gravity_magnitude": 9.79,
+    "clock_drift": 1e-4,
+    "accel_delay": 0.004,
+    "accel_size_effect": 0.01,
     "mocap_dropouts": 5,
     "mocap_outliers": 5,
 }
@@ -48,6 +51,10 @@ EFFECT_HELP: dict[str, str] = {
     "gyro_bias_drift": "trend magnitude in rad/s per s, or 3 values",
     "accel_bias_drift": "trend magnitude in m/s^2 per s, or 3 values",
     "gravity_magnitude": "true |g| in m/s^2 (the calibration assumes 9.81)",
+    "clock_drift": "IMU clock rate error s (1e-4 = 100 ppm); default: 100 ppm, random sign",
+    "accel_delay": "how much the accelerometer lags the gyro, in s",
+    "accel_size_effect": "distance of the y and z accelerometers from the x one (m, random "
+    "directions), or 6 values r_y, r_z",
     "mocap_dropouts": "number of mocap gaps (0.05-1 s each, rows removed)",
     "mocap_outliers": "number of marker-swap events (1-4 samples jump by 3-10 cm, 5-30 deg)",
 }
@@ -87,10 +94,12 @@ _VALUE_COUNTS: dict[str, tuple[int, ...]] = {
     "gyro_g_sensitivity": (1, 9),
     "gyro_bias_drift": (1, 3),
     "accel_bias_drift": (1, 3),
+    "accel_size_effect": (1, 6),
 }
 #: Effects whose single value is a magnitude (std or count), so it cannot be negative.
 _NON_NEGATIVE = ("gyro_scale_misalignment", "accel_scale_misalignment", "gyro_g_sensitivity",
-                 "gyro_bias_drift", "accel_bias_drift", "gravity_magnitude", *MOCAP_FAULTS)
+                 "gyro_bias_drift", "accel_bias_drift", "gravity_magnitude", "accel_size_effect",
+                 *MOCAP_FAULTS)
 
 
 @dataclass(frozen=True)
@@ -109,6 +118,7 @@ class SimConfig:
     aggressiveness: float = 1.0
     rig_seed: int | None = None  # draw T_MI and the room's tilt from this seed (a fixed rig)
     mocap_noise_corr: float = 0.0  # s: AR(1) mocap noise with this time constant (0: white)
+    periodic_motion_s: float = 0.0  # > 0: a flight repeating with this period (clock tests)
 
     def validate(self) -> None:
         if not self.duration > 1.0:
@@ -175,15 +185,62 @@ def _random_rotation(rng: np.random.Generator) -> Array:
     return so3.quat_to_rotmat(q / np.linalg.norm(q))
 
 
+@dataclass
+class _Rig:
+    """The rig's truth: IMU on the marker body, the room's tilt, the initial biases."""
+
+    R_MI: Array
+    p_MI: Array
+    g_dir: Array
+    bg0: Array
+    ba0: Array
+
+
+@dataclass
+class _Truth:
+    """The injected effects' true values (neutral when not injected)."""
+
+    t_d: float = 0.0
+    g: float = 9.81
+    M_g: Array = field(default_factory=lambda: np.eye(3))
+    M_a: Array = field(default_factory=lambda: np.eye(3))
+    G: Array = field(default_factory=lambda: np.zeros((3, 3)))
+    dbg: Array = field(default_factory=lambda: np.zeros(3))
+    dba: Array = field(default_factory=lambda: np.zeros(3))
+    drift: float = 0.0  # clock_drift s
+    lag: float = 0.0  # accel_delay (s)
+    r_size: Array = field(default_factory=lambda: np.zeros(6))  # r_y, r_z (m)
+
+
 def simulate_flight(cfg: SimConfig) -> SimulatedSession:
-    """Simulate one mocap session of a drone flight with known calibration."""
+    """Simulate one mocap session of a drone flight with known calibration.
+
+    The IMU model is written out here on its own (not through ``core.model.imu_model``), so
+    that the estimator is tested against a truth it did not compute.
+    """
     cfg.validate()
     rng = np.random.default_rng(cfg.seed)
-    noise = cfg.noise
     effects = dict(cfg.effects)
-
-    # Calibration truth, drawn in a fixed order so the seed fixes everything.
+    # Everything is drawn in a fixed order so the seed fixes everything.
     traj = random_trajectory(rng, aggressiveness=cfg.aggressiveness)
+    if cfg.periodic_motion_s > 0:
+        traj = periodic_trajectory(np.random.default_rng([cfg.seed, 1]), cfg.periodic_motion_s)
+    rig = _draw_rig(rng, cfg)
+    tr = _draw_effects(rng, effects, cfg.gravity)
+    t_imu, gyro, accel, b_g, b_a = _imu_samples(rng, cfg, traj, rig, tr)
+    t_moc, R_meas, p_meas, keep, outlier_rows, gaps = _mocap_samples(rng, cfg, traj, rig,
+                                                                     effects)
+    imu = ImuSamples(t_imu, gyro, accel, cfg.imu_time_origin_ns, "simulated imu")
+    mocap = MocapPoses(t_moc[keep], so3.rotmat_to_quat(R_meas[keep]), p_meas[keep],
+                       cfg.mocap_time_origin_ns, "simulated mocap")
+    truth = _truth_file(cfg, effects, rig, tr, b_g, b_a)
+    truth["simulation"].update({"mocap_outlier_rows": outlier_rows,
+                                "mocap_gaps_start_length_s": gaps,
+                                "mocap_rows_removed": int((~keep).sum())})
+    return SimulatedSession(imu, mocap, truth, b_g, b_a)
+
+
+def _draw_rig(rng: np.random.Generator, cfg: SimConfig) -> _Rig:
     R_MI = _random_rotation(rng)
     p_MI = rng.uniform(-0.1, 0.1, 3)
     p_MI *= max(1.0, 0.04 / np.linalg.norm(p_MI))
@@ -195,71 +252,111 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
     # A fixed rig (same IMU on the same marker body, same room) across sessions: the drawn
     # values are replaced, the draws themselves still happen so the seed's sequence holds.
     if cfg.rig_seed is not None:
-        rig = np.random.default_rng(cfg.rig_seed)
-        R_MI = _random_rotation(rig)
-        p_MI = rig.uniform(-0.1, 0.1, 3)
+        r = np.random.default_rng(cfg.rig_seed)
+        R_MI = _random_rotation(r)
+        p_MI = r.uniform(-0.1, 0.1, 3)
         p_MI *= max(1.0, 0.04 / np.linalg.norm(p_MI))
-        axis = np.array([*rig.normal(size=2), 0.0])
-        g_dir = so3.exp(np.radians(rig.uniform(0.5, 3.0)) * axis / np.linalg.norm(axis)) @ np.array(
+        axis = np.array([*r.normal(size=2), 0.0])
+        g_dir = so3.exp(np.radians(r.uniform(0.5, 3.0)) * axis / np.linalg.norm(axis)) @ np.array(
             [0.0, 0.0, -1.0])
+    return _Rig(R_MI, p_MI, g_dir, bg0, ba0)
 
-    def eff(name: str) -> list[float] | None:
+
+def _draw_effects(rng: np.random.Generator, effects: dict[str, list[float] | None],
+                  gravity: float) -> _Truth:
+    """The injected effects' values: given, or drawn at their default magnitude."""
+    tr = _Truth(g=gravity)
+
+    def value(name: str) -> list[float] | None:
         return effects[name]
 
-    t_d = 0.0
-    if "time_offset" in effects:
-        v = eff("time_offset")
-        t_d = DEFAULT_MAGNITUDE["time_offset"] if v is None else v[0]
-    g = cfg.gravity
-    if "gravity_magnitude" in effects:
-        v = eff("gravity_magnitude")
-        g = DEFAULT_MAGNITUDE["gravity_magnitude"] if v is None else v[0]
-        if not 5.0 < g < 15.0:
-            raise InputError(f"gravity_magnitude={g}: give |g| in m/s^2, e.g. 9.79")
-    M_g = np.eye(3)
-    if "gyro_scale_misalignment" in effects:
-        M_g = M_g + _matrix_effect(rng, eff("gyro_scale_misalignment"),
-                                   DEFAULT_MAGNITUDE["gyro_scale_misalignment"])
-    M_a = np.eye(3)
-    if "accel_scale_misalignment" in effects:
-        M_a = M_a + _matrix_effect(rng, eff("accel_scale_misalignment"),
-                                   DEFAULT_MAGNITUDE["accel_scale_misalignment"], lower=True)
-    G = np.zeros((3, 3))
-    if "gyro_g_sensitivity" in effects:
-        G = _matrix_effect(rng, eff("gyro_g_sensitivity"), DEFAULT_MAGNITUDE["gyro_g_sensitivity"])
-    dbg = np.zeros(3)
-    if "gyro_bias_drift" in effects:
-        dbg = _vector_effect(rng, eff("gyro_bias_drift"), DEFAULT_MAGNITUDE["gyro_bias_drift"])
-    dba = np.zeros(3)
-    if "accel_bias_drift" in effects:
-        dba = _vector_effect(rng, eff("accel_bias_drift"), DEFAULT_MAGNITUDE["accel_bias_drift"])
+    def scalar(name: str) -> float:
+        v = value(name)
+        return DEFAULT_MAGNITUDE[name] if v is None else v[0]
 
-    # IMU: stamps on the IMU clock, measured at mocap-clock time stamp + t_d.
+    if "time_offset" in effects:
+        tr.t_d = scalar("time_offset")
+    if "gravity_magnitude" in effects:
+        tr.g = scalar("gravity_magnitude")
+        if not 5.0 < tr.g < 15.0:
+            raise InputError(f"gravity_magnitude={tr.g}: give |g| in m/s^2, e.g. 9.79")
+    if "gyro_scale_misalignment" in effects:
+        tr.M_g = np.eye(3) + _matrix_effect(rng, value("gyro_scale_misalignment"),
+                                            DEFAULT_MAGNITUDE["gyro_scale_misalignment"])
+    if "accel_scale_misalignment" in effects:
+        tr.M_a = np.eye(3) + _matrix_effect(rng, value("accel_scale_misalignment"),
+                                            DEFAULT_MAGNITUDE["accel_scale_misalignment"],
+                                            lower=True)
+    if "gyro_g_sensitivity" in effects:
+        tr.G = _matrix_effect(rng, value("gyro_g_sensitivity"),
+                              DEFAULT_MAGNITUDE["gyro_g_sensitivity"])
+    if "gyro_bias_drift" in effects:
+        tr.dbg = _vector_effect(rng, value("gyro_bias_drift"), DEFAULT_MAGNITUDE["gyro_bias_drift"])
+    if "accel_bias_drift" in effects:
+        tr.dba = _vector_effect(rng, value("accel_bias_drift"),
+                                DEFAULT_MAGNITUDE["accel_bias_drift"])
+    if "clock_drift" in effects:  # a rate error of either sign
+        v = value("clock_drift")
+        tr.drift = (DEFAULT_MAGNITUDE["clock_drift"] * rng.choice([-1.0, 1.0]) if v is None
+                    else v[0])
+    if "accel_delay" in effects:
+        tr.lag = scalar("accel_delay")
+    if "accel_size_effect" in effects:
+        v = value("accel_size_effect")
+        if v is not None and len(v) == 6:
+            tr.r_size = np.asarray(v, dtype=float)
+        else:
+            mag = DEFAULT_MAGNITUDE["accel_size_effect"] if v is None else v[0]
+            tr.r_size = np.r_[_vector_effect(rng, [mag], mag), _vector_effect(rng, [mag], mag)]
+    return tr
+
+
+def _imu_samples(rng: np.random.Generator, cfg: SimConfig, traj: Trajectory, rig: _Rig,
+                 tr: _Truth) -> tuple[Array, Array, Array, Array, Array]:
+    """IMU stamps on the IMU clock; a gyro sample stamped ``t`` was measured at mocap time
+    ``t + t_d + s (t - t_mid)``, an accel sample ``lag`` earlier."""
+    noise = cfg.noise
     n_imu = int(round(cfg.duration * cfg.imu_rate)) + 1
     t_imu = np.arange(n_imu) / cfg.imu_rate
-    s = t_imu + t_d
-    R_WI = traj.rotation(s)
-    w_I = traj.angular_velocity_body(s)
-    f_I = np.einsum("nji,nj->ni", R_WI, traj.acceleration(s) - g * g_dir)
+    t_mid = 0.5 * (t_imu[0] + t_imu[-1])
+    s_g = t_imu + tr.t_d + tr.drift * (t_imu - t_mid)
+    s_a = s_g - tr.lag
+    w_I = traj.angular_velocity_body(s_g)
+    f_g = np.einsum("nji,nj->ni", traj.rotation(s_g), traj.acceleration(s_g) - tr.g * rig.g_dir)
+    f_a = f_g if tr.lag == 0.0 else np.einsum(
+        "nji,nj->ni", traj.rotation(s_a), traj.acceleration(s_a) - tr.g * rig.g_dir)
+    if np.any(tr.r_size):
+        # y and z accelerometers at r_y, r_z: e_i.(alpha x r_i + w x (w x r_i)).
+        e = 1e-5
+        w_a = traj.angular_velocity_body(s_a)
+        w_rate = traj.angular_velocity_body
+        alpha = (w_rate(s_a + e) - w_rate(s_a - e)) / (2 * e)
+        f_a = f_a.copy()
+        for i, r in ((1, tr.r_size[0:3]), (2, tr.r_size[3:6])):
+            f_a[:, i] += (np.cross(alpha, r) + np.cross(w_a, np.cross(w_a, r)))[:, i]
     dt = 1.0 / cfg.imu_rate
     rw_g = np.cumsum(rng.normal(0.0, noise.gyroscope_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
     rw_a = np.cumsum(rng.normal(0.0, noise.accelerometer_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
     rw_g -= rw_g[0]
     rw_a -= rw_a[0]
-    t_mid = 0.5 * (t_imu[0] + t_imu[-1])
-    b_g = bg0 + rw_g + np.outer(t_imu - t_mid, dbg)
-    b_a = ba0 + rw_a + np.outer(t_imu - t_mid, dba)
+    b_g = rig.bg0 + rw_g + np.outer(t_imu - t_mid, tr.dbg)
+    b_a = rig.ba0 + rw_a + np.outer(t_imu - t_mid, tr.dba)
     n_g = rng.normal(0.0, noise.gyroscope_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
     n_a = rng.normal(0.0, noise.accelerometer_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
-    gyro = w_I @ M_g.T + f_I @ G.T + b_g + n_g
-    accel = f_I @ M_a.T + b_a + n_a
+    gyro = w_I @ tr.M_g.T + f_g @ tr.G.T + b_g + n_g
+    accel = f_a @ tr.M_a.T + b_a + n_a
+    return t_imu, gyro, accel, b_g, b_a
 
-    # Mocap: marker pose T_WM = T_WI T_MI^-1 at mocap stamps, plus noise.
+
+def _mocap_samples(rng: np.random.Generator, cfg: SimConfig, traj: Trajectory, rig: _Rig,
+                   effects: dict[str, list[float] | None]):
+    """Marker poses ``T_WM = T_WI T_MI^-1`` at mocap stamps plus noise, marker swaps and
+    dropouts: (stamps, R, p, rows kept, outlier rows, gaps)."""
+    noise = cfg.noise
     n_moc = int(round(cfg.duration * cfg.mocap_rate)) + 1
     t_moc = np.arange(n_moc) / cfg.mocap_rate
-    R_WIm = traj.rotation(t_moc)
-    R_WM = R_WIm @ R_MI.T
-    p_WM = traj.position(t_moc) - R_WM @ p_MI
+    R_WM = traj.rotation(t_moc) @ rig.R_MI.T
+    p_WM = traj.position(t_moc) - R_WM @ rig.p_MI
     n_rot = rng.normal(0.0, noise.mocap_rotation_sigma, (n_moc, 3))
     n_pos = rng.normal(0.0, noise.mocap_position_sigma, (n_moc, 3))
     if cfg.mocap_noise_corr > 0:
@@ -267,10 +364,9 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
         n_pos = ar1(n_pos, cfg.mocap_noise_corr * cfg.mocap_rate)
     R_meas = R_WM @ so3.exp(n_rot)
     p_meas = p_WM + n_pos
-
     outlier_rows: list[int] = []
     if "mocap_outliers" in effects:
-        v = eff("mocap_outliers")
+        v = effects["mocap_outliers"]
         count = int(DEFAULT_MAGNITUDE["mocap_outliers"] if v is None else v[0])
         if count > (n_moc - 20) // 10:
             raise InputError(f"mocap_outliers={count}: too many for {n_moc} mocap samples; "
@@ -288,35 +384,36 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
     keep = np.ones(n_moc, dtype=bool)
     gaps: list[list[float]] = []
     if "mocap_dropouts" in effects:
-        v = eff("mocap_dropouts")
+        v = effects["mocap_dropouts"]
         count = int(DEFAULT_MAGNITUDE["mocap_dropouts"] if v is None else v[0])
         for start in np.sort(rng.uniform(0.05, 0.95, count) * cfg.duration):
             length = rng.uniform(0.05, 1.0)
             keep &= ~((t_moc >= start) & (t_moc < start + length))
             gaps.append([float(start), float(length)])
+    return t_moc, R_meas, p_meas, keep, outlier_rows, gaps
 
-    imu = ImuSamples(t_imu, gyro, accel, cfg.imu_time_origin_ns, "simulated imu")
-    mocap = MocapPoses(t_moc[keep], so3.rotmat_to_quat(R_meas[keep]), p_meas[keep],
-                       cfg.mocap_time_origin_ns, "simulated mocap")
 
+def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Rig, tr: _Truth,
+                b_g: Array, b_a: Array) -> dict[str, Any]:
+    """The truth in the result file's keys, the injected effects and how it was simulated."""
     truth: dict[str, Any] = {
         **header("calibration", 1),
         "gyro_bias": b_g.mean(axis=0).tolist(),
         "accel_bias": b_a.mean(axis=0).tolist(),
         "T_marker_imu": {
-            "rotation_wxyz": so3.rotmat_to_quat(R_MI).tolist(),
-            "translation": p_MI.tolist(),
+            "rotation_wxyz": so3.rotmat_to_quat(rig.R_MI).tolist(),
+            "translation": rig.p_MI.tolist(),
         },
-        "gravity_in_mocap": g_dir.tolist(),
-        "time_offset": float(t_d),
+        "gravity_in_mocap": rig.g_dir.tolist(),
+        "time_offset": float(tr.t_d),
         "sigma": {
             "gyro_bias": [0.0] * 3, "accel_bias": [0.0] * 3, "rotation": [0.0] * 3,
             "translation": [0.0] * 3, "gravity_in_mocap": [0.0] * 2, "time_offset": 0.0,
         },
-        "gravity_magnitude": float(g),
+        "gravity_magnitude": float(tr.g),
         "model": "+".join(["base", *[e for e in effects if e in CANONICAL_EFFECTS]]),
         "effects": {},
-        "noise": noise.to_dict(),
+        "noise": cfg.noise.to_dict(),
         "simulation": {
             "seed": int(cfg.seed),
             "duration": float(cfg.duration),
@@ -326,24 +423,16 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
             "bias_definition": "mean of the true bias over the IMU samples",
             "gyro_bias_initial": b_g[0].tolist(),
             "accel_bias_initial": b_a[0].tolist(),
-            "mocap_outlier_rows": outlier_rows,
-            "mocap_gaps_start_length_s": gaps,
-            "mocap_rows_removed": int((~keep).sum()),
         },
     }
-    eff_truth: dict[str, dict[str, Any]] = truth["effects"]
-    if "time_offset" in effects:
-        eff_truth["time_offset"] = {"time_offset": float(t_d)}
-    if "gravity_magnitude" in effects:
-        eff_truth["gravity_magnitude"] = {"gravity_magnitude": float(g)}
-    if "gyro_scale_misalignment" in effects:
-        eff_truth["gyro_scale_misalignment"] = {"gyro_matrix": M_g.tolist()}
-    if "accel_scale_misalignment" in effects:
-        eff_truth["accel_scale_misalignment"] = {"accel_matrix": M_a.tolist()}
-    if "gyro_g_sensitivity" in effects:
-        eff_truth["gyro_g_sensitivity"] = {"g_sensitivity": G.tolist()}
-    if "gyro_bias_drift" in effects:
-        eff_truth["gyro_bias_drift"] = {"gyro_bias_rate": dbg.tolist()}
-    if "accel_bias_drift" in effects:
-        eff_truth["accel_bias_drift"] = {"accel_bias_rate": dba.tolist()}
-    return SimulatedSession(imu, mocap, truth, b_g, b_a)
+    values = {"time_offset": float(tr.t_d), "gravity_magnitude": float(tr.g),
+              "gyro_scale_misalignment": tr.M_g.tolist(),
+              "accel_scale_misalignment": tr.M_a.tolist(), "gyro_g_sensitivity": tr.G.tolist(),
+              "gyro_bias_drift": tr.dbg.tolist(), "accel_bias_drift": tr.dba.tolist(),
+              "clock_drift": float(tr.drift), "accel_delay": float(tr.lag),
+              "accel_size_effect": {"r_y": tr.r_size[0:3].tolist(),
+                                    "r_z": tr.r_size[3:6].tolist()}}
+    for name in effects:
+        if name in EFFECTS:
+            truth["effects"][name] = {EFFECTS[name].param: values[name]}
+    return truth

@@ -118,3 +118,20 @@ def random_trajectory(rng: np.random.Generator, room_half_extent: float = 2.0,
     pitch = _random_sines(rng, 4, np.radians(40.0), 0.1 * a, 0.9 * a)
     roll = _random_sines(rng, 4, np.radians(40.0), 0.1 * a, 0.9 * a)
     return Trajectory((px, py, pz), (yaw, pitch, roll))
+
+
+def periodic_trajectory(rng: np.random.Generator, period: float, room_half_extent: float = 2.0,
+                        height: float = 1.3) -> Trajectory:
+    """A flight that repeats itself every ``period`` seconds (every frequency a multiple of
+    ``1 / period``, no yaw drift): its signals look the same at lags of whole periods, so no
+    clock search can tell those lags apart."""
+    def sines(n: int, amp: float, kmax: int, offset: float = 0.0) -> _SineSum:
+        k = rng.integers(1, kmax + 1, n)
+        w = rng.uniform(0.5, 1.0, n)
+        return _SineSum(offset, 0.0, amp * w / w.sum(), k / period, rng.uniform(0, 2 * np.pi, n))
+
+    pos = (sines(3, 0.85 * room_half_extent, 2), sines(3, 0.85 * room_half_extent, 2),
+           sines(3, 0.6, 3, offset=height))
+    euler = (sines(3, 2.5, 2, offset=rng.uniform(-np.pi, np.pi)),
+             sines(4, np.radians(40.0), 4), sines(4, np.radians(40.0), 4))
+    return Trajectory(pos, euler)

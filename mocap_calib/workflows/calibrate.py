@@ -10,7 +10,9 @@ import numpy as np
 from mocap_calib.core.calib.pipeline import CalibrationOptions, IterationFn, ProgressFn, calibrate
 from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model.effects import EFFECTS, Model
-from mocap_calib.io.yaml_io import check_writable, save_result, save_text
+from mocap_calib.core.model.plausible import PlausibleLimits
+from mocap_calib.errors import InputError
+from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
 from mocap_calib.workflows.session import (
     InputSpec,
@@ -33,12 +35,21 @@ def calibration_options(*, model: str = "base+time_offset", gravity: float = 9.8
                         keyframe_spacing: float = 0.5, window: float = 5.0,
                         time_offset: float | None = None, robust: bool = True,
                         start: float | None = None, end: float | None = None,
-                        max_iterations: int = 30) -> CalibrationOptions:
-    """Calibration options from the command line's values."""
+                        max_iterations: int = 30, max_offset: float | None = None,
+                        segments: int = 3, accept_implausible: bool = False,
+                        plausible: Path | None = None) -> CalibrationOptions:
+    """Calibration options from the command line's values (``plausible``: a limits file)."""
+    if max_offset is not None and not max_offset > 0:
+        raise InputError(f"--max-offset {max_offset}: give a positive search range in s")
+    if not (segments == 0 or 2 <= segments <= 20):
+        raise InputError(f"--segments {segments}: give 0 (no consistency check) or 2-20")
     return CalibrationOptions(
         model=Model.parse(model), gravity=gravity, attitude_spacing=keyframe_spacing,
         velocity_spacing=keyframe_spacing, window=window, time_offset=time_offset,
-        robust=robust, start=start, end=end, max_iterations=max_iterations)
+        robust=robust, start=start, end=end, max_iterations=max_iterations,
+        max_offset=max_offset, consistency_segments=segments,
+        accept_implausible=accept_implausible,
+        plausible=PlausibleLimits() if plausible is None else load_plausible(plausible))
 
 
 def noise_overrides(*, gyro_noise: float | None = None, gyro_walk: float | None = None,

@@ -96,6 +96,18 @@ def calibrate(
     max_iterations: Annotated[int, typer.Option(
         help="Most Levenberg-Marquardt iterations per solve (a solve still improving at the "
         "limit is retried once from where it stopped; then the command exits 4).")] = 30,
+    max_offset: Annotated[float | None, typer.Option(
+        help="Search the clock offset only within +-this many seconds of the raw stamps.",
+        show_default=False)] = None,
+    segments: Annotated[int, typer.Option(
+        help="Calibrate this many time segments on their own and compare them (consistency; "
+        "0: skip).")] = 3,
+    accept_implausible: Annotated[bool, typer.Option(
+        "--accept-implausible", help="Write an answer that fails the plausibility checks "
+        "(marked as such) instead of exiting 4.")] = False,
+    plausible: Annotated[Path | None, typer.Option(
+        help="YAML file overriding the plausibility limits (see docs/diagnosis.md).",
+        show_default=False)] = None,
     no_robust: Annotated[bool, typer.Option(
         "--no-robust", help="Do not down-weight mocap outliers.")] = False,
     pose_source: POSE_SOURCE = "auto",
@@ -121,7 +133,9 @@ def calibrate(
                      rigid_body=rigid_body, rotation=rotation, mocap_rate=mocap_rate)
     opts = calibration_options(model=model, gravity=gravity, keyframe_spacing=keyframe_spacing,
                                window=window, time_offset=time_offset, robust=not no_robust,
-                               start=start, end=end, max_iterations=max_iterations)
+                               start=start, end=end, max_iterations=max_iterations,
+                               max_offset=max_offset, segments=segments,
+                               accept_implausible=accept_implausible, plausible=plausible)
     overrides = noise_overrides(gyro_noise=gyro_noise, gyro_walk=gyro_walk,
                                 accel_noise=accel_noise, accel_walk=accel_walk,
                                 mocap_noise_mm=mocap_noise_mm, mocap_noise_deg=mocap_noise_deg)

@@ -10,12 +10,14 @@ epochs):
   OptiTrack, ...) is tried and the best kept. This is the signal of translation-dominated
   sessions, where the body barely rotates.
 
-Each signal's correlation curve is turned into a z-score against its own null: the scatter of
-the correlation over all lags, which are almost all wrong. The signals' z-scores are combined
-(Stouffer). A lag is resolved when its peak stands out of the null and clears every other peak
-(more than a second away) by a margin; periodic motion gives several peaks of the same height
-and is not resolved. When the raw stamps already share an epoch, lags near zero are searched
-first. The pipeline then confirms the choice by the fine fit.
+Each signal's correlation at every lag is turned into the statistic of a test against "no
+relation": Fisher's ``atanh(r)`` times ``sqrt(n_eff - 3)``, with ``n_eff`` the overlap's length
+over the signal's own correlation time (smooth motion has few independent samples). Without a
+relation it is about standard normal, so it reads in null sigmas. The signals' statistics are
+combined (Stouffer). A lag is resolved when its peak stands out of the null and clears every
+other peak (more than a second away) by a margin; periodic motion gives several peaks of about
+the same height and is not resolved. When the raw stamps already share an epoch, lags near zero
+are searched first. The pipeline then confirms the choice by the fine fit.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ class ClockSearch:
         return self.peak_z >= MIN_PEAK_Z and self.margin_z >= MIN_MARGIN_Z
 
     def to_dict(self) -> dict[str, object]:
-        return {"method": "rotation-invariant cross-correlation (z-scored, combined)",
+        return {"method": "rotation-invariant cross-correlation (Fisher statistic, combined)",
                 "signals": list(self.signals), "coarse_time_offset": self.time_offset,
                 "peak_z": round(self.peak_z, 2), "margin_z": round(self.margin_z, 2),
                 "second_best_time_offset": self.second_offset,
@@ -160,11 +162,11 @@ def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM:
     return out
 
 
-def _correlation(x: Array, y: Array, dt: float) -> tuple[Array, Array]:
+def _correlation(x: Array, y: Array, dt: float) -> tuple[Array, Array, Array]:
     """Pearson correlation of ``y(j)`` and ``x(j - lag)`` over their overlap, for all lags (in
-    grid steps). Centred within each overlap: an uncentred one calls two rest periods (both
-    constant) perfectly correlated. Lags with too little overlap, or an overlap in which
-    either signal barely varies, are NaN."""
+    grid steps), and the overlap's sample count. Centred within each overlap: an uncentred one
+    calls two rest periods (both constant) perfectly correlated. Lags with too little overlap,
+    or an overlap in which either signal barely varies, are NaN."""
     def xc(a: Array, b: Array) -> Array:
         return signal.correlate(a, b, mode="full", method="fft")
 
@@ -177,15 +179,23 @@ def _correlation(x: Array, y: Array, dt: float) -> tuple[Array, Array]:
     min_overlap = max(int(5.0 / dt), int(0.2 * min(len(x), len(y))))
     valid = (n > min_overlap) & (vx > 0.05 * np.var(x) * n) & (vy > 0.05 * np.var(y) * n)
     corr = np.where(valid, cov / np.sqrt(np.maximum(vx * vy, 1e-300)), np.nan)
-    return corr, np.arange(-(len(x) - 1), len(y))
+    return corr, n, np.arange(-(len(x) - 1), len(y))
 
 
-def _zscore(c: Array) -> Array:
-    """Correlation in units of its own scatter over all lags (robust: median, MAD)."""
-    ok = np.isfinite(c)
-    med = float(np.median(c[ok]))
-    mad = 1.4826 * float(np.median(np.abs(c[ok] - med))) or 1e-12
-    return (c - med) / mad
+def _correlation_time(z: Array, dt: float) -> float:
+    """Integral time scale (s) of a mean-removed signal: its autocorrelation summed up to the
+    first zero crossing (the span over which samples are not independent)."""
+    ac = signal.correlate(z, z, mode="full", method="fft")[len(z) - 1:]
+    ac = ac / max(ac[0], 1e-300)
+    first_neg = np.flatnonzero(ac <= 0.0)
+    stop = int(first_neg[0]) if len(first_neg) else len(ac)
+    return max(dt, float(np.sum(ac[:stop])) * dt)
+
+
+def _statistic(corr: Array, n: Array, tau_c: float, dt: float) -> Array:
+    """Fisher's ``atanh(r) sqrt(n_eff - 3)``: about N(0, 1) at lags where nothing relates."""
+    n_eff = np.maximum(n * dt / tau_c, 4.0)
+    return np.arctanh(np.clip(corr, -0.9999, 0.9999)) * np.sqrt(n_eff - 3.0)
 
 
 def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
@@ -210,9 +220,10 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     # Every signal on one t_d axis: t_d = (start_m - clock_shift) - start_i + lag * dt.
     curves: dict[str, tuple[Array, Array]] = {}
     for sg in sigs:
-        corr, lags = _correlation(sg.x, sg.y, dt)
+        corr, n, lags = _correlation(sg.x, sg.y, dt)
         td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
-        curves[sg.name] = (td, _zscore(corr))
+        tau_c = max(_correlation_time(sg.x, dt), _correlation_time(sg.y, dt))
+        curves[sg.name] = (td, _statistic(corr, n, tau_c, dt))
     # Specific force: keep the up axis whose curve has the highest peak.
     force = {k: v for k, v in curves.items() if k.startswith("specific force")}
     if force:
@@ -224,9 +235,9 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     lo = max(float(v[0][0]) for v in curves.values())
     hi = min(float(v[0][-1]) for v in curves.values())
     td = np.arange(np.ceil(lo / dt), np.floor(hi / dt) + 1) * dt
-    z = sum(np.interp(td, t, np.nan_to_num(c, nan=-10.0)) for t, c in curves.values())
-    z = z / np.sqrt(len(curves))
-    valid = z > -5.0
+    stack = np.stack([np.interp(td, t, np.nan_to_num(c, nan=-1e6)) for t, c in curves.values()])
+    valid = np.all(stack > -1e5, axis=0)
+    z = stack.sum(axis=0) / np.sqrt(len(curves))
     if max_offset is not None:
         valid &= np.abs(td) <= max_offset
         if not np.any(valid):
@@ -240,9 +251,8 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     return _with_curve(_peak(td, z, valid), names, False, td, z)
 
 
-def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
-    zz = np.where(use, z, -np.inf)
-    k = int(np.argmax(zz))
+def _refine(td: Array, zz: Array, k: int) -> float:
+    """Sub-step position of the peak at index ``k`` (parabola through three points)."""
     frac = 0.0
     if 0 < k < len(zz) - 1 and np.isfinite(zz[k - 1]) and np.isfinite(zz[k + 1]):
         a, b, c = zz[k - 1], zz[k], zz[k + 1]
@@ -250,7 +260,13 @@ def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
         if den < 0:
             frac = 0.5 * (a - c) / den
     step = float(td[1] - td[0]) if len(td) > 1 else 0.0
-    t_best = float(td[k] + frac * step)
+    return float(td[k] + frac * step)
+
+
+def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
+    zz = np.where(use, z, -np.inf)
+    k = int(np.argmax(zz))
+    step = float(td[1] - td[0]) if len(td) > 1 else 0.0
     # Other peaks: local maxima further than the separation from the best.
     peaks, _ = signal.find_peaks(np.where(np.isfinite(zz), zz, -1e9),
                                  distance=max(1, int(PEAK_SEPARATION_S / max(step, 1e-9))))
@@ -258,10 +274,9 @@ def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
     far.sort(key=lambda p: -zz[p])
     second = far[0] if far else None
     margin = float(zz[k] - zz[second]) if second is not None else float(zz[k])
-    cands = [(t_best, float(zz[k]))] + [(float(td[p]), float(zz[p])) for p in far[:3]]
-    return ClockSearch(t_best, (), float(zz[k]), margin,
-                       None if second is None else float(td[second]), False,
-                       candidates=tuple(cands))
+    cands = [(_refine(td, zz, p), float(zz[p])) for p in [k, *far[:3]]]
+    return ClockSearch(cands[0][0], (), float(zz[k]), margin,
+                       None if second is None else cands[1][0], False, candidates=tuple(cands))
 
 
 def _with_curve(found: ClockSearch, names: tuple[str, ...], restricted: bool, td: Array,

@@ -112,8 +112,9 @@ def _init(pos: PositionResult, which: NDArray[np.int64]) -> PositionInit:
 
 
 def segment_consistency(s: PreparedSession, model: Model, pos: PositionResult, k: int = 3,
-                        max_iterations: int = 30) -> Consistency:
-    """Calibrate ``k`` time segments of the session on their own and compare them."""
+                        max_iterations: int = 30, one_step: bool = True) -> Consistency:
+    """Calibrate ``k`` time segments of the session on their own and compare them (each by
+    one Gauss-Newton step from the full solution unless ``one_step`` is off)."""
     win = pos.windows
     if k < 2:
         return Consistency()
@@ -128,7 +129,8 @@ def segment_consistency(s: PreparedSession, model: Model, pos: PositionResult, k
         try:
             seg = run_position_stage(s, model, pos.noise, win.subset(which), _init(pos, which),
                                      robust=False, adapt_noise=False,
-                                     weights=pos.weights[which], max_iterations=max_iterations)
+                                     weights=pos.weights[which], max_iterations=max_iterations,
+                                     one_step=one_step)
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             return Consistency(note=f"segment {i + 1} could not be calibrated on its own ({err})")
         sg = _sigmas(seg)
@@ -222,8 +224,9 @@ def _tangent(g: Array) -> Array:
 
 def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
                       factors: tuple[float, ...] = (3.0, 1.0 / 3.0),
-                      max_iterations: int = 30) -> Sensitivity:
-    """Refit with the IMU noise densities scaled (mocap noise and robust weights kept)."""
+                      max_iterations: int = 30, one_step: bool = True) -> Sensitivity:
+    """Refit with the IMU noise densities scaled (mocap noise and robust weights kept; one
+    Gauss-Newton step from the solution unless ``one_step`` is off)."""
     out = Sensitivity()
     sig = _sigmas(pos)
     everything = np.arange(pos.windows.count)
@@ -236,7 +239,8 @@ def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
         try:
             alt = run_position_stage(s, model, scaled, pos.windows, _init(pos, everything),
                                      robust=False, adapt_noise=False, weights=pos.weights,
-                                     max_iterations=max_iterations, covariance=False)
+                                     max_iterations=max_iterations, covariance=False,
+                                     one_step=one_step)
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             out.note = f"noise x{f:.3g}: refit failed ({err})"
             continue

@@ -7,7 +7,7 @@ position-stage innovations keep a correlation of 0.98 between 10 ms samples and 
 A white-noise likelihood then counts every sample as new information, and its sigmas are
 several times too small. The window filter models a fraction of the mocap variance as an AR(1)
 process (:mod:`mocap_calib.core.calib.window_engine`); its time constant and fraction are
-chosen here by the windows' exact likelihood, each candidate with its own level.
+chosen here by the windows' exact likelihood, each candidate at its own best level.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ CORRELATION_GRID: tuple[tuple[float, float], ...] = (
     (0.0, 0.0), *((T, rho) for T in (0.03, 0.1, 0.3, 1.0) for rho in (0.5, 0.9, 0.98)))
 #: Windows used for the choice (spread over the session): enough for a clear likelihood
 #: difference, few enough that the choice costs little on long sessions.
-MAX_WINDOWS = 16
+MAX_WINDOWS = 10
 #: Mocap rate (Hz) of the likelihood evaluations that choose the model.
 RATE_HZ = 30.0
 
@@ -72,21 +72,22 @@ def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
     base = problem.noise
     models = [replace(base, mocap_noise_corr_time=T, mocap_noise_corr_fraction=rho)
               for T, rho in grid]
-    # Level: the chi2 of a pass over its degrees of freedom (mocap noise dominates it).
-    chi2 = [float(x.sum()) for x in sub.likelihoods(th_sub, models, part="chi2")]
-    models = [_scaled(m, c / n_dof) for m, c in zip(models, chi2, strict=True)]
-    m2ll = [float(x.sum()) for x in sub.likelihoods(th_sub, models)]
+    # One pass per candidate: chi2 and log det give the likelihood profiled over a common
+    # scale of the innovation covariance (its optimum c = chi2 / n): -2 log L = n log(chi2/n)
+    # + log det + n. The mocap noise dominates the innovations, so c is its level.
+    parts = sub.likelihoods(th_sub, models)
+    chi2 = [float(c.sum()) for c, _ in parts]
+    m2ll = [n_dof * np.log(c / n_dof) + float(ld.sum()) + n_dof
+            for c, (_, ld) in zip(chi2, parts, strict=True)]
     best = int(np.argmin(m2ll))
-    levels = [_scaled(models[best], f) for f in (0.5, 2.0)]
-    m2ll_lv = [float(x.sum()) for x in sub.likelihoods(th_sub, levels)]
+    chosen = _scaled(models[best], chi2[best] / n_dof)
+    levels = [_scaled(chosen, f) for f in (0.5, 1.0, 2.0)]
+    m2ll_lv = [float(c.sum() + ld.sum()) for c, ld in sub.likelihoods(th_sub, levels)]
     rows = [{"time_constant_s": T, "fraction": rho, "level": 1.0, "minus_2_log_likelihood": v}
             for (T, rho), v in zip(grid, m2ll, strict=True)]
     rows += [{"time_constant_s": grid[best][0], "fraction": grid[best][1], "level": f,
-              "minus_2_log_likelihood": v} for f, v in zip((0.5, 2.0), m2ll_lv, strict=True)]
-    chosen = models[best]
-    if min(m2ll_lv) < m2ll[best]:
-        chosen = levels[int(np.argmin(m2ll_lv))]
-    return CorrelationFit(chosen, rows)
+              "minus_2_log_likelihood": v} for f, v in zip((0.5, 1.0, 2.0), m2ll_lv, strict=True)]
+    return CorrelationFit(levels[int(np.argmin(m2ll_lv))], rows)
 
 
 def _scaled(nz: NoiseModel, f: float) -> NoiseModel:

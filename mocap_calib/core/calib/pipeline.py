@@ -174,7 +174,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     s = prepare(imu, mocap, noise=opts.noise)
     notes = _session_notes(s)
     session_info = _session_info(imu, mocap, s)
-    effects0 = {e.name: e.zero() for e in model.units if e.sensor in ("gyro", "accel")}
+    effects0 = {e.name: e.zero() for e in model.units if e.in_effects}
     for pr in opts.priors:
         if pr.block in effects0:
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
@@ -201,7 +201,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         iterations=pos.history,
         trace=CalibrationTrace(session=s, model_state=ModelState.from_position(pos, model, t_mid),
                                noise_used=pos.noise, windows=pos.windows, weights=pos.weights,
-                               clock=clock))
+                               clock=clock, position=pos))
     result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
                       time.perf_counter() - t0)
     judge(result, s, pos, opts, clock, say)

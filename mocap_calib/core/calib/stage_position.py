@@ -116,7 +116,7 @@ class PositionResult:
     windows: Windows
     weights: Array
     noise: NoiseModel
-    cost: float  # chi^2 of the whole graph at the solution
+    cost: float  # chi^2 of the whole graph at the solution (NaN after a one-step refit)
     dof: int  # residual dimensions minus parameters
     solver: dict[str, Any]
     history: list[dict[str, Any]]
@@ -126,7 +126,7 @@ def _theta(values: gtsam.Values, model: Model, W: int, fixed: PositionInit, t_mi
     u3 = values.atUnit3(KEY_G)
     effects = {}
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             effects[eff.name] = np.asarray(values.atVector(key_effect(i)), dtype=float)
     knots = np.stack([np.asarray(values.atVector(key_knot(w))) for w in range(W)])
     return Theta(
@@ -149,7 +149,7 @@ def _block_keys(model: Model) -> dict[str, int]:
     if model.has("gravity_magnitude"):
         keys["gravity_magnitude"] = KEY_GM
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             keys[eff.name] = key_effect(i)
     return keys
 
@@ -236,7 +236,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
                        adapt_noise: bool = True, weights: Array | None = None,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
-                       covariance: bool = True) -> PositionResult:
+                       covariance: bool = True, one_step: bool = False) -> PositionResult:
     """Refine all parameters on the window factors.
 
     Args:
@@ -251,6 +251,9 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
         progress: called with a short message at every IRLS round.
         covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
+        one_step: a single Gauss-Newton step from ``init`` instead of LM rounds: for refits
+            from a nearby solution (segments, other noise densities), where the cost is nearly
+            quadratic over the step and one linearisation is enough.
     """
     t_start = time.perf_counter()
     pg = build_position_graph(s, model, noise, windows, init, priors)
@@ -259,12 +262,18 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         pg.problem.weights = np.asarray(weights, dtype=float).copy()
         robust = False
     history = _History(pg, on_iteration)
-    fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
-                        robust, adapt_noise, history, progress)
+    if one_step:
+        fit = _gauss_newton_step(pg)
+    else:
+        fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
+                            robust, adapt_noise, history, progress)
     sol, out = fit.values, pg.evals[-1]
     th = pg.theta(sol)
     blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
-    unc = (position_covariances(pg.graph, sol, pg.block_keys, windows, th.knots, pg.problem.noise,
+    # A one-step refit keeps the linearisation it stepped from: its covariance is that of the
+    # nearby start (one evaluation fewer).
+    at = pg.values if one_step else sol
+    unc = (position_covariances(pg.graph, at, pg.block_keys, windows, th.knots, pg.problem.noise,
                                 out.scores, blocks, windows.count) if covariance
            else PositionUncertainty({}, np.zeros((windows.count, 6)), _mean_bias(windows, th)))
     stats, series, chi2, dof = _figures(pg, fit, out, time.perf_counter() - t_start)
@@ -282,7 +291,9 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         knots=th.knots, knot_sigma=unc.knot_sigma, cov=unc.cov,
         unobservable=unobservable_blocks(unc.cov_model), stats=stats, series=series,
         chi2_per_dof=chi2, windows=windows, weights=pg.problem.weights, noise=pg.problem.noise,
-        cost=2.0 * pg.graph.error(sol), dof=int(dof), solver=solver, history=history.records)
+        # (a one-step refit's cost would cost an evaluation at the new values: not needed)
+        cost=float("nan") if one_step else 2.0 * pg.graph.error(sol), dof=int(dof),
+        solver=solver, history=history.records)
 
 
 class _History:
@@ -316,6 +327,14 @@ class _Fit:
     correlation: CorrelationFit | None = None
 
 
+def _gauss_newton_step(pg: PositionGraph) -> _Fit:
+    """One Gauss-Newton step from the start values (noise model and weights as given); the
+    evaluation stays the one at the start."""
+    pg.problem.freeze_whitening(False)
+    delta = pg.graph.linearize(pg.values).optimize()
+    return _Fit(pg.values.retract(delta), 1, np.ones(2), pg.evals[-1])
+
+
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
                   adapt_noise: bool, hook: _History,
                   progress: Callable[[str], None] | None) -> _Fit:
@@ -347,10 +366,13 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
             break
         last_out = evals[-1]
         changed = False
+        d_scale = 1.0  # how the whitened innovations shrink with the noise change below
         if fit_corr and correlation is None:
             correlation = fit_mocap_correlation(pp, pg.theta(sol))
             old, pp.noise = pp.noise, correlation.noise
-            noise_scale *= _variance_ratio(pp.noise, old)
+            ratio = _variance_ratio(pp.noise, old)
+            noise_scale *= ratio
+            d_scale = float(np.sqrt(np.prod(ratio)) ** -0.5)
             changed = True
         elif adapt_noise:
             s_rot, s_pos = pp.mocap_noise_scale(last_out)
@@ -358,10 +380,13 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
                 s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
                 pp.scale_mocap_noise(s_rot, s_pos)
                 noise_scale *= (s_rot, s_pos)
+                d_scale = float((s_rot * s_pos) ** -0.25)
                 changed = True
-        if robust and not changed:
+        if robust:
+            # The weights follow the innovations under the new noise level (mocap noise
+            # dominates them), so both updates share one round.
             w_before = pp.weights.copy()
-            if pp.update_weights(last_out.d_raw) < 0.25:
+            if pp.update_weights(last_out.d_raw * d_scale) < 0.25:
                 pp.weights = w_before  # keep the weights the solution was computed with
             else:
                 changed = True
@@ -428,7 +453,7 @@ def _start_values(model: Model, init: PositionInit, W: int) -> gtsam.Values:
     if model.has("gravity_magnitude"):
         values.insert(KEY_GM, np.array([init.g_mag]))
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             values.insert(key_effect(i), init.effects.get(eff.name, eff.zero()))
     for w in range(W):
         values.insert(key_knot(w), np.r_[init.gyro_bias, init.accel_bias] if init.knots is None
@@ -449,7 +474,7 @@ def _add_range_priors(graph: gtsam.NonlinearFactorGraph, model: Model,
     if model.has("gravity_magnitude"):
         range_priors["gravity_magnitude"] = (KEY_GM, init.g_mag)
     for i, eff in enumerate(model.units):
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             range_priors[eff.name] = (key_effect(i), init.effects.get(eff.name, eff.zero()))
     for block, (key, val) in range_priors.items():
         dim = {"rotation": 3, "translation": 3, "gravity": 2}.get(block)

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from mocap_calib.core.calib.clock import ClockSearch
     from mocap_calib.core.calib.result import CalibrationResult
     from mocap_calib.core.calib.session import PreparedSession
+    from mocap_calib.core.calib.stage_position import PositionResult
     from mocap_calib.core.calib.window_engine import Windows
 
 Array = NDArray[np.float64]
@@ -85,6 +86,7 @@ class CalibrationTrace:
     windows: Windows
     weights: Array
     clock: ClockSearch | None = None  # the coarse clock search (None: offset given)
+    position: PositionResult | None = None  # the position stage's own result
 
 
 def state_from_result(result: CalibrationResult, s: PreparedSession) -> ModelState:
@@ -103,7 +105,7 @@ def state_from_result(result: CalibrationResult, s: PreparedSession) -> ModelSta
     model = Model.parse(result.model)
     effects: dict[str, Array] = {}
     for eff in model.units:
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             value = (result.effects.get(eff.name) or {}).get(eff.param)
             effects[eff.name] = eff.zero() if value is None else eff.theta_from_report(value)
     g_dir = np.asarray(result.gravity_in_mocap, dtype=float)

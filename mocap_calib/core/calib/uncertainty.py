@@ -139,10 +139,14 @@ def _sandwich(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values, block_keys: 
     Z = splu(H).solve(E)  # H^-1 E
     meat = Z.T @ (H_other @ Z)
     glob = np.concatenate([offsets[block_keys[name]] + np.arange(d) for name, d in score_blocks])
-    for w in range(scores.shape[0]):
-        rows = np.concatenate([glob, offsets[key_knot(w)] + np.arange(6)])
-        T = scores[w] @ Z[rows]  # (B, q): each block's score mapped to the targets
-        meat += T.T @ T
+    # Each block's score mapped to the targets. Centred: at the optimum they sum to (about)
+    # zero anyway, and a refit evaluated near, not at, its optimum keeps its mean out of B.
+    T = np.concatenate([scores[w] @ Z[np.concatenate([glob, offsets[key_knot(w)] + np.arange(6)])]
+                        for w in range(scores.shape[0])])
+    T = T[np.any(T != 0.0, axis=1)]  # padding blocks of short windows hold no samples
+    if len(T) > 1:
+        T = (T - T.mean(axis=0)) * np.sqrt(len(T) / (len(T) - 1.0))
+    meat += T.T @ T
     out = {name: meat[sl, sl] for name, sl in spans.items()}
     out["gyro_bias"] = meat[col:col + 3, col:col + 3]
     out["accel_bias"] = meat[col + 3:col + 6, col + 3:col + 6]

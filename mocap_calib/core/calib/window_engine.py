@@ -36,8 +36,15 @@ from mocap_calib.core.calib.windows import (  # noqa: F401  (re-exported)
     make_windows,
 )
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import Model
-from mocap_calib.core.model.imu_model import Corrected, Intrinsics, correct
+from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.core.model.imu_model import (
+    Corrected,
+    Intrinsics,
+    accel_lag,
+    correct,
+    imu_times,
+    size_matrix,
+)
 from mocap_calib.core.model.preint import (
     StepIncrements,
     compose,
@@ -56,6 +63,22 @@ DIFFUSE = (1.0, 1.0, 0.5)
 #: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
 #: longer than the correlation of real mocap noise, short enough for many blocks per session.
 SCORE_BLOCK_S = 1.0
+
+
+def _signals_at(gyro: Array, accel: Array, interp, x: Array,
+                rates: bool) -> tuple[Array, Array, Array, Array | None, Array | None]:
+    """Raw gyro and accel (and, with ``rates``, their time derivatives) through ``interp`` at
+    times ``x``: the arguments of ``correct``."""
+    return (interp(gyro), interp(accel), x, interp.derivative(gyro) if rates else None,
+            interp.derivative(accel) if rates else None)
+
+
+def _step_mean(y_nodes: Array, hs: Array, h: Array) -> Array:
+    """(W, m, c) mean over each step of a signal given at the pieces' nodes (Simpson per piece,
+    exact for the cubic on each piece)."""
+    simpson = (y_nodes[..., 0:-1:2, :] + 4.0 * y_nodes[..., 1::2, :] + y_nodes[..., 2::2, :]) / 6.0
+    total = np.einsum("wmp,wmpc->wmc", hs, simpson)
+    return total / np.where(h > 0, h, 1.0)[..., None]
 
 
 def _mocap_cov(L: Array, sr2: float, sp2: float) -> Array:
@@ -243,12 +266,12 @@ class PositionProblem:
         out = self._filter(th, c, ci, res, F, dwf, gcols, g_in, noise, frozen, store)
         return out
 
-    def likelihoods(self, th: Theta, noises: list[NoiseModel], part: str = "both") -> list[Array]:
-        """-2 log-likelihood of every window (chi2 + log det; ``part`` "chi2" for the first
-        only) under each noise model, at the same parameters: the trajectory is integrated
-        once, only the filter runs per model (without the Jacobian columns)."""
+    def likelihoods(self, th: Theta, noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
+        """Per noise model, every window's chi2 and log det of its innovations (-2 log L is
+        their sum) at the same parameters: the trajectory is integrated once, only the filter
+        runs per model (without the Jacobian columns)."""
         win = self.win
-        out = [np.zeros(win.count) for _ in noises]
+        out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
         keep = self.noise
         try:
             for c in self.chunks:
@@ -263,9 +286,9 @@ class PositionProblem:
                 for i, nz in enumerate(noises):
                     self.noise = nz
                     noise = self._noise(th, h, R_WM)
-                    chi2, logdet = _likelihood_pass(res.r, self._transition_full(F, noise),
-                                                    noise, self.weights[c], win.mask[c])
-                    out[i][c] = chi2 if part == "chi2" else chi2 + logdet
+                    out[i][0][c], out[i][1][c] = _likelihood_pass(
+                        res.r, self._transition_full(F, noise), noise, self.weights[c],
+                        win.mask[c])
         finally:
             self.noise = keep
         return out
@@ -274,14 +297,26 @@ class PositionProblem:
                    h: Array, sensitivities: bool = True
                    ) -> tuple[StepIncrements, Corrected, Array | None]:
         """Step increments of the corrected IMU and ``d(w, f)/dtheta`` at every step."""
-        s, L = self.s, self.layout
+        s, L, model = self.s, self.layout, self.model
         W, m, p = len(c), self.win.steps, L.dim
+        # The clock effects move the samples in time: the drift stretches the IMU's time axis,
+        # the accelerometer's lag shifts its samples against the gyro's.
+        timing = Intrinsics(np.zeros(3), np.zeros(3), th.effects, th.t_mid)
+        ut = imu_times(model, timing, s.u)
+        lag = accel_lag(model, timing)
+        # The lagging accelerometer is resampled at the gyro's sample times (a smooth function
+        # of the lag), so the pieces stay aligned with the samples and the cost smooth in it.
+        accel, accel_dot = s.accel, None
+        if any(e.acts_on == "accel_lag" for e in model.units):
+            at = hermite(ut, ut + lag)
+            accel, accel_dot = at(s.accel), at.derivative(s.accel)
+        rates = any(e.acts_on == "size" for e in model.units)  # terms in w and dw/dt
         # IMU signals on pieces between IMU samples (see preint.Pieces), corrected with each
         # window's knot biases.
-        pc = pieces(s.u, tau[:, :-1], tau[:, 1:], th.delta)  # nodes (W, m, 2n+1)
+        pc = pieces(ut, tau[:, :-1], tau[:, 1:], th.delta)  # nodes (W, m, 2n+1)
         intr = Intrinsics(th.knots[c, None, None, 0:3], th.knots[c, None, None, 3:6], th.effects,
                           th.t_mid)
-        corr = correct(self.model, intr, pc(s.gyro), pc(s.accel), pc.nodes - th.delta,
+        corr = correct(model, intr, *_signals_at(s.gyro, accel, pc, pc.nodes - th.delta, rates),
                        sensitivities=False)
         inc = integrate_pieces(corr.w, corr.f, pc.hs)
         if not sensitivities:
@@ -289,25 +324,44 @@ class PositionProblem:
 
         # Sensitivities at step midpoints.
         u_mid = 0.5 * (tau[:, :-1] + tau[:, 1:]) - th.delta
-        ipm = hermite(s.u, u_mid)
         intr_m = Intrinsics(th.knots[c, None, 0:3], th.knots[c, None, 3:6], th.effects, th.t_mid)
-        cm = correct(self.model, intr_m, ipm(s.gyro), ipm(s.accel), u_mid)
+        cm = correct(model, intr_m, *_signals_at(s.gyro, accel, hermite(ut, u_mid), u_mid, rates))
         dwf = self._buffer("dwf", (W, m, 6, p))  # d(w, f)/dtheta at each step
         dw, df = dwf[:, :, 0:3, :], dwf[:, :, 3:6, :]
+        # Signals read at shifted times: d/dt of the signal, averaged over a step, is
+        # (end - start) / h exactly (it telescopes, so the signal's noise does not add up).
+        hinv = np.where(h > 0, 1.0 / np.where(h > 0, h, 1.0), 0.0)[..., None, None]
+        w_rate = (corr.w[:, :, -1] - corr.w[:, :, 0])[..., None] * hinv
+        f_rate = (corr.f[:, :, -1] - corr.f[:, :, 0])[..., None] * hinv
         for name, _ in L.blocks:
             sl = L.slice(name)
+            kind = EFFECTS[name].acts_on if name in EFFECTS else name
             if name == "knot":
                 dw[:, :, :, sl.start:sl.start + 3] = cm.dw["gyro_bias"]
                 dw[:, :, :, sl.start + 3:sl.stop] = cm.dw["accel_bias"]
                 df[:, :, :, sl.start:sl.start + 3] = cm.df["gyro_bias"]
                 df[:, :, :, sl.start + 3:sl.stop] = cm.df["accel_bias"]
-            elif name == "time_offset":
-                # Signals are read at u = tau - delta: d/d delta = -d/du. Averaged over the step
-                # the integral of the interpolant's derivative is (end - start) / h, exactly:
-                # it telescopes, so the signal's noise does not add up along the window.
-                hinv = np.where(h > 0, 1.0 / np.where(h > 0, h, 1.0), 0.0)[..., None, None]
-                dw[:, :, :, sl] = -(corr.w[:, :, -1] - corr.w[:, :, 0])[..., None] * hinv
-                df[:, :, :, sl] = -(corr.f[:, :, -1] - corr.f[:, :, 0])[..., None] * hinv
+            elif kind == "clock":  # read at u = tau - delta: d/d delta = -d/du
+                dw[:, :, :, sl] = -w_rate
+                df[:, :, :, sl] = -f_rate
+            elif kind == "clock_rate":  # samples moved by s (u - t_mid)
+                lever = (u_mid - th.t_mid)[..., None, None]
+                dw[:, :, :, sl] = -w_rate * lever
+                df[:, :, :, sl] = -f_rate * lever
+            elif kind == "accel_lag":  # accel resampled at x + lag: its step mean, exactly
+                # A raw accel change acts like an accel bias of the opposite sign.
+                a_mean = _step_mean(pc(accel_dot), pc.hs, h)[..., None]
+                dw[:, :, :, sl] = -cm.dw["accel_bias"] @ a_mean
+                df[:, :, :, sl] = -cm.df["accel_bias"] @ a_mean
+            elif kind == "size":  # terms in w and dw/dt, which vary within a step: its mean
+                A = size_matrix(corr.w, corr.dw_du)
+                d = np.zeros(A.shape[:-2] + (3, 6))
+                d[..., 1, 0:3] = -A[..., 1, :]
+                d[..., 2, 3:6] = -A[..., 2, :]
+                mean = _step_mean(d.reshape(d.shape[:-2] + (18,)), pc.hs, h).reshape(W, m, 3, 6)
+                df[:, :, :, sl] = mean
+                # f feeds the gyro through G: the accel-bias sensitivities carry that link.
+                dw[:, :, :, sl] = cm.dw["accel_bias"] @ np.linalg.inv(cm.df["accel_bias"]) @ mean
             elif name in cm.dw:
                 dw[:, :, :, sl] = cm.dw[name]
                 df[:, :, :, sl] = cm.df[name]

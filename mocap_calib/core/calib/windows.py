@@ -149,7 +149,7 @@ def layout_for(model: Model) -> Layout:
     if model.has("gravity_magnitude"):
         blocks.append(("gravity_magnitude", 1))
     for eff in model.units:
-        if eff.sensor in ("gyro", "accel"):
+        if eff.in_effects:
             blocks.append((eff.name, eff.dim))
     blocks.append(("knot", 6))
     return Layout(tuple(blocks))

@@ -16,12 +16,17 @@ gyro_bias_drift            gyro    ``r_g (t - t_mid)``      (3, ``gyro_bias_rate
 accel_bias_drift           accel   ``r_a (t - t_mid)``      (3, ``accel_bias_rate``)
 gravity_magnitude          world   ``|g|`` estimated        (1, ``gravity_magnitude``)
 time_offset                world   ``t_d`` estimated        (1, ``time_offset``)
+clock_drift                world   stamp ``t`` at ``t + t_d + s (t - t_mid)``  (1, ``s``)
+accel_delay                accel   accel stamp ``t`` at ``t + t_d - delta``   (1, ``delta``)
+accel_size_effect          accel   ``e_i.(alpha x r_i + w x (w x r_i))``, i = y, z  (6)
 =========================  ======  ==========================================================
 
 ``M_a`` is lower-triangular because the IMU frame is the accelerometer's orthogonalised frame; a
 full ``M_a`` would trade a rotation with ``R_MI``. The estimator inverts the model sample by
-sample; each unit only says how its term depends on its parameters (``basis`` or ``regressor``),
-so adding an effect touches no other code.
+sample; each unit says which kind of term it is (``acts_on``) and how it depends on its
+parameters, so adding an effect of an existing kind touches no other code; a new kind is taught
+once to :mod:`mocap_calib.core.model.imu_model` (and, for time terms, the engine's step
+Jacobian).
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ from mocap_calib.errors import InputError
 Array = NDArray[np.float64]
 
 Sensor = Literal["gyro", "accel", "world"]
-ActsOn = Literal["w", "f", "time", "gravity", "clock"]
+ActsOn = Literal["w", "f", "time", "gravity", "clock", "clock_rate", "accel_lag", "size"]
 
 
 def _basis_full() -> Array:
@@ -64,12 +69,20 @@ class Effect:
         param: name of its parameter in results (units in ``unit``).
         dim: number of scalar parameters.
         sensor: which measurement the term enters (``world`` for gravity and clock).
-        acts_on: ``w``/``f``: a matrix times the true rate / specific force; ``time``: a vector
-            times ``t - t_mid``; ``gravity``/``clock``: handled by the world model.
+        acts_on: the kind of term, each handled once by the measurement model and the engine:
+            ``w``/``f``: a matrix times the true rate / specific force; ``time``: a vector
+            times ``t - t_mid``; ``gravity``/``clock``: the world's ``|g|`` and the clock
+            offset (own graph variables); ``clock_rate``: the IMU clock's rate error (sample
+            times stretched about ``t_mid``); ``accel_lag``: the accelerometer's samples
+            shifted in time against the gyro's; ``size``: the accelerometer triad's lever arms
+            (terms in the angular rate and acceleration).
         unit: unit of the parameter, for reports.
         description: one line for ``--help`` and reports.
         limits: plausible magnitudes for a MEMS IMU (names and values, see
             :mod:`mocap_calib.core.model.plausible`); overridable per session.
+        range_sigma: the weak prior around the start value (parameter units) that keeps
+            every graph well posed; a parameter whose posterior sigma is not well below it
+            was not determined by the data (:mod:`mocap_calib.core.model.ranges`).
     """
 
     name: str
@@ -80,6 +93,13 @@ class Effect:
     unit: str
     description: str
     limits: tuple[tuple[str, float], ...] = ()
+    range_sigma: float = 0.05  # weak prior (1 sigma) that keeps the graph well posed
+
+    @property
+    def in_effects(self) -> bool:
+        """Its parameters form an effect vector (all but the clock offset and ``|g|``, which
+        are world variables of their own)."""
+        return self.acts_on not in ("clock", "gravity")
 
     @property
     def basis(self) -> Array:
@@ -104,6 +124,8 @@ class Effect:
             if self.name.endswith("scale_misalignment"):
                 m = m + np.eye(3)
             return m.tolist()
+        if self.acts_on == "size":
+            return {"r_y": theta[0:3].tolist(), "r_z": theta[3:6].tolist()}
         if self.dim == 1:
             return float(theta[0])
         return theta.tolist()
@@ -112,6 +134,8 @@ class Effect:
         sigma = np.asarray(sigma, dtype=float)
         if self.acts_on in ("w", "f"):
             return np.einsum("k,kij->ij", sigma, self.basis).tolist()
+        if self.acts_on == "size":
+            return {"r_y": sigma[0:3].tolist(), "r_z": sigma[3:6].tolist()}
         if self.dim == 1:
             return float(sigma[0])
         return sigma.tolist()
@@ -123,6 +147,8 @@ class Effect:
             if self.name.endswith("scale_misalignment"):
                 m = m - np.eye(3)
             return np.einsum("kij,ij->k", self.basis, m)
+        if self.acts_on == "size" and isinstance(value, dict):
+            return np.r_[np.asarray(value["r_y"], float), np.asarray(value["r_z"], float)]
         return np.atleast_1d(np.asarray(value, dtype=float)).reshape(self.dim)
 
 
@@ -130,24 +156,44 @@ EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in (
         Effect("time_offset", "time_offset", 1, "world", "clock", "s",
-               "IMU stamp t was measured at mocap time t + t_d"),
+               "IMU stamp t was measured at mocap time t + t_d",
+               range_sigma=0.05),
         Effect("gyro_scale_misalignment", "gyro_matrix", 9, "gyro", "w", "-",
                "w_m = M_g w + b_g with M_g near identity (scale and axis misalignment)",
-               (("scale", 0.03), ("misalignment_deg", 2.0))),
+               (("scale", 0.03), ("misalignment_deg", 2.0)),
+               range_sigma=0.05),
         Effect("accel_scale_misalignment", "accel_matrix", 6, "accel", "f", "-",
                "a_m = M_a f + b_a with M_a lower-triangular near identity",
-               (("scale", 0.03), ("misalignment_deg", 2.0))),
+               (("scale", 0.03), ("misalignment_deg", 2.0)),
+               range_sigma=0.05),
         Effect("gyro_g_sensitivity", "g_sensitivity", 9, "gyro", "f", "rad/s per m/s^2",
                "w_m = w + G f + b_g (gyro responds to specific force)",
-               (("max", 1e-3),)),
+               (("max", 1e-3),),
+               range_sigma=0.01),
         Effect("gyro_bias_drift", "gyro_bias_rate", 3, "gyro", "time", "rad/s^2",
                "gyro bias trend beyond the random walk: b_g(t) = b_g + r_g (t - t_mid)",
-               (("max", 1e-3),)),
+               (("max", 1e-3),),
+               range_sigma=1e-3),
         Effect("accel_bias_drift", "accel_bias_rate", 3, "accel", "time", "m/s^3",
                "accel bias trend beyond the random walk: b_a(t) = b_a + r_a (t - t_mid)",
-               (("max", 0.05),)),
+               (("max", 0.05),),
+               range_sigma=0.05),
         Effect("gravity_magnitude", "gravity_magnitude", 1, "world", "gravity", "m/s^2",
-               "|g| differs from the value assumed", (("min", 9.76), ("max", 9.84))),
+               "|g| differs from the value assumed", (("min", 9.76), ("max", 9.84)),
+               range_sigma=0.5),
+        Effect("clock_drift", "clock_drift", 1, "world", "clock_rate", "-",
+               "the IMU clock runs at another rate: IMU stamp t was measured at mocap time "
+               "t + t_d + s (t - t_mid)", (("max", 1e-3),),
+               range_sigma=2e-3),
+        Effect("accel_delay", "accel_delay", 1, "accel", "accel_lag", "s",
+               "the accelerometer lags the gyro: an accel sample stamped t measured the specific "
+               "force at mocap time t + t_d - delta", (("max", 0.02),),
+               range_sigma=0.05),
+        Effect("accel_size_effect", "accel_size_effect", 6, "accel", "size", "m",
+               "accelerometer triad size effect: the y and z accelerometers sit at r_y, r_z "
+               "(IMU frame), a_m,i = e_i.(f + alpha x r_i + w x (w x r_i)) + b_a,i",
+               (("max", 0.03),),
+               range_sigma=0.1),
     )
 }
 

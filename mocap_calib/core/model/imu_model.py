@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS, Model
 
 Array = NDArray[np.float64]
@@ -106,14 +107,61 @@ def correct(model: Model, params: Intrinsics, gyro_m: Array, accel_m: Array, u: 
     if gyro_dot is not None and accel_dot is not None:
         df_du = (accel_dot - ra) @ Ma_inv.T
         dw_du = (gyro_dot - rg - df_du @ G.T) @ Mg_inv.T
+    A = None
+    r_size = _size_arms(model, params)
+    if r_size is not None and (np.any(r_size) or sensitivities):
+        # The triad's size terms need the true rate and its derivative: f here is at the
+        # accelerometers' positions; take their terms out (w follows through G). Callers
+        # without the signals' derivatives (the first stages) get the rate terms only.
+        A = size_matrix(w, np.zeros_like(w) if dw_du is None else dw_du)
+        f = f - _size_terms(A, r_size)
+        w = (gyro_m - params.gyro_bias - du * rg - f @ G.T) @ Mg_inv.T
     if not sensitivities:
         return Corrected(w, f, {}, {}, dw_du, df_du)
-    dw, df = _sensitivities(model, Ma_inv, Mg_inv, G, w, f, du)
+    dw, df = _sensitivities(model, Ma_inv, Mg_inv, G, w, f, du, A)
     return Corrected(w, f, dw, df, dw_du, df_du)
 
 
+def imu_times(model: Model, params: Intrinsics, u: Array) -> Array:
+    """When the IMU samples stamped ``u`` were taken, on a clock running at the mocap's rate
+    (``clock_drift``: ``u + s (u - t_mid)``; the clock offset is added by the caller)."""
+    s = sum((float(params.theta(e.name)[0]) for e in model.units if e.acts_on == "clock_rate"),
+            0.0)
+    return u if s == 0.0 else u + s * (u - params.t_mid)
+
+
+def accel_lag(model: Model, params: Intrinsics) -> float:
+    """How much later (s) an accel sample is stamped than the gyro sample of the same instant
+    (``accel_delay``): the accelerometer's signal at time ``x`` is its samples' at ``x + lag``."""
+    return sum((float(params.theta(e.name)[0]) for e in model.units if e.acts_on == "accel_lag"),
+               0.0)
+
+
+def _size_arms(model: Model, params: Intrinsics) -> Array | None:
+    units = [e for e in model.units if e.acts_on == "size"]
+    if not units:
+        return None
+    return sum(params.theta(e.name) for e in units)
+
+
+def size_matrix(w: Array, alpha: Array) -> Array:
+    """(..., 3, 3) ``[alpha]x + [w]x [w]x``: the specific force at lever arm ``r`` is
+    ``f + A r``."""
+    W = so3.hat(w)
+    return so3.hat(alpha) + W @ W
+
+
+def _size_terms(A: Array, r: Array) -> Array:
+    """(..., 3): the size terms of the x (at the origin), y and z accelerometers."""
+    out = np.zeros(A.shape[:-1])
+    out[..., 1] = A[..., 1, :] @ r[0:3]
+    out[..., 2] = A[..., 2, :] @ r[3:6]
+    return out
+
+
 def _sensitivities(model: Model, Ma_inv: Array, Mg_inv: Array, G: Array, w: Array, f: Array,
-                   du: Array) -> tuple[dict[str, Array], dict[str, Array]]:
+                   du: Array, A: Array | None = None
+                   ) -> tuple[dict[str, Array], dict[str, Array]]:
     """``dw/dtheta`` and ``df/dtheta`` of every parameter block at corrected ``w``, ``f``."""
     shape = f.shape[:-1]
     df: dict[str, Array] = {}
@@ -128,6 +176,11 @@ def _sensitivities(model: Model, Ma_inv: Array, Mg_inv: Array, G: Array, w: Arra
             df[eff.name] = -np.einsum("ij,kjl,...l->...ik", Ma_inv, eff.basis, f)
         elif eff.acts_on == "time":
             df[eff.name] = -Ma_inv * du[..., None]
+        elif eff.acts_on == "size" and A is not None:
+            d = np.zeros(shape + (3, 6))
+            d[..., 1, 0:3] = -A[..., 1, :]
+            d[..., 2, 3:6] = -A[..., 2, :]
+            df[eff.name] = d
     for name, d in df.items():
         dw[name] = -np.einsum("ij,jk,...kl->...il", Mg_inv, G, d)
     dw["gyro_bias"] = np.broadcast_to(-Mg_inv, shape + (3, 3))
@@ -147,10 +200,13 @@ def _sensitivities(model: Model, Ma_inv: Array, Mg_inv: Array, G: Array, w: Arra
 
 
 
-def forward(model: Model, params: Intrinsics, w: Array, f: Array, u: Array) -> tuple[Array, Array]:
-    """The measurement model forwards: raw gyro and accel for true ``w``, ``f`` at times ``u``.
+def forward(model: Model, params: Intrinsics, w: Array, f: Array, u: Array,
+            alpha: Array | None = None) -> tuple[Array, Array]:
+    """The measurement model forwards: raw gyro and accel for true ``w``, ``f`` at times ``u``
+    (``alpha``: the angular acceleration, needed by ``accel_size_effect``).
 
-    The inverse of :func:`correct`.
+    The inverse of :func:`correct` (the clock effects act on the sample times instead:
+    :func:`imu_times`, :func:`accel_lag`).
     """
     Ea = _matrix_sum(model, params, "accel", "f")
     Eg = _matrix_sum(model, params, "gyro", "w")
@@ -160,7 +216,13 @@ def forward(model: Model, params: Intrinsics, w: Array, f: Array, u: Array) -> t
               if e.acts_on == "time" and e.sensor == "accel"), np.zeros(3))
     rg = sum((params.theta(e.name) for e in model.units
               if e.acts_on == "time" and e.sensor == "gyro"), np.zeros(3))
-    accel = f @ (np.eye(3) + Ea).T + params.accel_bias + du * ra
+    f_sensed = f
+    r_size = _size_arms(model, params)
+    if r_size is not None:
+        if alpha is None:
+            raise ValueError("accel_size_effect needs the angular acceleration")
+        f_sensed = f + _size_terms(size_matrix(w, alpha), r_size)
+    accel = f_sensed @ (np.eye(3) + Ea).T + params.accel_bias + du * ra
     gyro = w @ (np.eye(3) + Eg).T + f @ G.T + params.gyro_bias + du * rg
     return gyro, accel
 

@@ -85,7 +85,12 @@ def effect_problem(effect: str, value: object, limits: PlausibleLimits) -> str |
     lim = limits.effects.get(effect)
     if not lim or value is None:
         return None
-    v = np.asarray(value, dtype=float)
+    eff = EFFECTS[effect]
+    if eff.acts_on == "size":  # the lever arms' lengths
+        th = eff.theta_from_report(value)
+        v = np.array([np.linalg.norm(th[0:3]), np.linalg.norm(th[3:6])])
+    else:
+        v = np.asarray(value, dtype=float)
     if effect.endswith("scale_misalignment"):
         scale = float(np.abs(np.diag(v) - 1.0).max())
         mis = float(np.degrees(np.abs(v - np.diag(np.diag(v))).max()))

@@ -1,0 +1,92 @@
+"""The checks after the fit: one-step refits against full ones, the plausibility gate, the
+clock search's refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocap_calib.core.calib.consistency import noise_sensitivity, segment_consistency
+from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
+from mocap_calib.core.model import so3
+from mocap_calib.errors import ObservabilityError, PlausibilityError
+from mocap_calib.sim.flight import SimConfig, simulate_flight
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    sim = simulate_flight(SimConfig(seed=41, duration=60.0, effects={"time_offset": [0.004]},
+                                    mocap_noise_corr=0.2))
+    res = calibrate(sim.imu, sim.mocap, CalibrationOptions(consistency_segments=0,
+                                                           sensitivity=False))
+    return sim, res
+
+
+def test_one_step_refits_match_full_refits(calibrated) -> None:
+    """Segments and noise-density refits take one Gauss-Newton step from the full solution:
+    it must land where LM to convergence does (to a small fraction of a sigma)."""
+    _, res = calibrated
+    tr = res.diagnostics.trace
+    s, model, pos = tr.session, tr.model_state.model, tr.position
+    one = segment_consistency(s, model, pos, 3)
+    full = segment_consistency(s, model, pos, 3, one_step=False)
+    for a, b in zip(one.segments, full.segments, strict=True):
+        assert np.all(np.abs(so3.log(a.R_MI.T @ b.R_MI)) < 0.05 * b.sigma_R)
+        assert np.all(np.abs(a.p_MI - b.p_MI) < 0.05 * b.sigma_p)
+        assert abs(a.t_d - b.t_d) < 0.05 * b.sigma_t_d
+        np.testing.assert_allclose(a.sigma_p, b.sigma_p, rtol=0.05)
+    one_s = noise_sensitivity(s, model, pos)
+    full_s = noise_sensitivity(s, model, pos, one_step=False)
+    for f in ("x3", "x0.333"):
+        for k, v in full_s.moved[f].items():
+            assert one_s.moved[f][k] == pytest.approx(v, abs=0.05 + 0.05 * v), (f, k)
+
+
+def test_implausible_answer_exits_4_or_is_marked() -> None:
+    """An accel bias of 3 m/s^2 (far beyond a MEMS part's) is refused, and with the user's
+    consent written with the verdict."""
+    sim = simulate_flight(SimConfig(seed=42, duration=40.0, effects={"time_offset": [0.003],
+                                                                      "accel_bias_drift": [0.0]}))
+    imu = sim.imu
+    biased = type(imu)(imu.t, imu.gyro, imu.accel + np.array([3.0, 0.0, 0.0]),
+                       imu.time_origin_ns, imu.source)
+    opts = CalibrationOptions(consistency_segments=0, sensitivity=False)
+    with pytest.raises(PlausibilityError, match=r"accel bias of [23]\.\d+ m/s\^2"):
+        calibrate(biased, sim.mocap, opts)
+    res = calibrate(biased, sim.mocap, CalibrationOptions(consistency_segments=0,
+                                                          sensitivity=False,
+                                                          accept_implausible=True))
+    assert res.plausibility["verdict"] == "implausible"
+    assert any("IMPLAUSIBLE" in n for n in res.notes)
+    clean = calibrate(sim.imu, sim.mocap, opts)
+    assert clean.plausibility == {**clean.plausibility, "verdict": "plausible", "failed": []}
+
+
+def test_periodic_motion_clock_is_refused_unless_the_range_is_limited() -> None:
+    """A flight that repeats every 4 s: lags 4 s apart fit equally well. Exit 3 naming the
+    candidates; --max-offset within one period resolves it."""
+    sim = simulate_flight(SimConfig(seed=1, duration=60.0, effects={"time_offset": [0.004]},
+                                    periodic_motion_s=4.0))
+    opts = CalibrationOptions(consistency_segments=0, sensitivity=False)
+    with pytest.raises(ObservabilityError, match="cannot resolve the clock offset.*--max-offset"):
+        calibrate(sim.imu, sim.mocap, opts)
+    res = calibrate(sim.imu, sim.mocap, CalibrationOptions(max_offset=1.0,
+                                                           consistency_segments=0,
+                                                           sensitivity=False))
+    assert res.time_offset == pytest.approx(0.004, abs=3e-4)
+
+
+def test_translation_only_session_aligns_by_specific_force() -> None:
+    """Almost no rotation (BROAD 15's kind of session): angular speed alone cannot align the
+    clocks, specific force can."""
+    sim = simulate_flight(SimConfig(seed=43, duration=60.0, effects={"time_offset": [-0.004]}))
+    from mocap_calib.core.calib.clock import search_clock
+    from mocap_calib.core.calib.session import prepare
+
+    s = prepare(sim.imu, sim.mocap)
+    # Keep the accelerometer, flatten the rotation signal: the gyro then tells nothing.
+    still = np.tile(np.median(s.gyro, axis=0), (len(s.u), 1))
+    found = search_clock(s.u, still, s.accel, s.tau, np.broadcast_to(s.R_WM[0], s.R_WM.shape),
+                         s.p_WM, s.clock_shift)
+    assert found.signals == ("specific force (+z up)",)
+    assert found.resolved and found.time_offset == pytest.approx(-0.004, abs=0.01)
