@@ -40,6 +40,10 @@ class CalibrateArgs:
     start: float | None = None
     end: float | None = None
     max_iterations: int = 30
+    max_offset: float | None = None
+    segments: int = 3
+    accept_implausible: bool = False
+    plausible: Path | None = None
     no_robust: bool = False
     pose_source: str = "auto"
     columns: str | None = None
@@ -90,7 +94,9 @@ def calibrate_args(args: CalibrateArgs, extra_priors: list | None = None) -> Cal
     opts = calibration_options(model=a.model, gravity=a.gravity,
                                keyframe_spacing=a.keyframe_spacing, window=a.window,
                                time_offset=a.time_offset, robust=not a.no_robust, start=a.start,
-                               end=a.end, max_iterations=a.max_iterations)
+                               end=a.end, max_iterations=a.max_iterations,
+                               max_offset=a.max_offset, segments=a.segments,
+                               accept_implausible=a.accept_implausible, plausible=a.plausible)
     if extra_priors:
         opts = replace(opts, priors=[*opts.priors, *extra_priors])
     overrides = noise_overrides(gyro_noise=a.gyro_noise, gyro_walk=a.gyro_walk,
