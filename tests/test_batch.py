@@ -33,14 +33,7 @@ TIMING = re.compile(r"^\s*-?\s*(seconds|total_seconds|position_batch_seconds):")
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory) -> tuple[Path, dict]:
-    manifest, truth = simulate_fleet(tmp_path_factory.mktemp("fleet"),
-                                     FleetSimConfig(duration=25.0))
-    # The clock offset is known here (every calibrate option works in a manifest): the coarse
-    # clock search refuses some 25 s simulated sessions as ambiguous, and the batch is what
-    # these tests are about. The fine offset is still estimated (time_offset in the model).
-    manifest.write_text(f"defaults: {{time_offset: {FleetSimConfig().time_offset}}}\n"
-                        + manifest.read_text())
-    return manifest, truth
+    return simulate_fleet(tmp_path_factory.mktemp("fleet"), FleetSimConfig(duration=25.0))
 
 
 @pytest.fixture(scope="module")
