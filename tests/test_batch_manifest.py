@@ -175,15 +175,16 @@ def test_dask_is_imported_only_by_the_dask_engine() -> None:
 
 def test_manifest_keys_are_the_calibrate_options() -> None:
     """Every option of 'mocap-calib calibrate' is a manifest key with the same default, and
-    nothing else (out, rrd, report and quiet belong to the batch)."""
+    nothing else (out, rrd, report, html and quiet belong to the batch)."""
     import inspect
     from dataclasses import fields
 
+    from mocap_calib.batch.manifest import REFUSED
     from mocap_calib.batch.session import CalibrateArgs
     from mocap_calib.cli.commands.calibrate import calibrate
 
     params = {k: p.default for k, p in inspect.signature(calibrate).parameters.items()
-              if k not in ("out", "rrd", "report", "quiet")}
+              if k not in REFUSED}
     ours = {f.name: f.default for f in fields(CalibrateArgs)}
     assert set(ours) == set(params)
     for k, v in params.items():

@@ -39,6 +39,7 @@ REFUSED = {
     "rrd": "run 'mocap-calib calibrate --rrd' on that session alone",
     "report": "the batch writes OUT/batch.yaml and the fleet summary",
     "quiet": "use 'mocap-calib batch --quiet'",
+    "html": "pass --html to 'mocap-calib batch': OUT/batch.html shows every session",
 }
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TYPES = typing.get_type_hints(CalibrateArgs)
