@@ -8,7 +8,9 @@ all). Pairs hidden together must both be found, and nothing else. Also reported:
 low-band residual RMS over the noise floor.
 
 Usage: python scripts/diagnose_hit_rate.py [--seeds N] [--duration S] [--jobs J] [--extra-nulls M]
-       [--effects a,b,...] [--json out.json]
+       [--effects a,b,...] [--json out.json] [--engine local|dask] [--scheduler ADDRESS]
+The cases run on the batch engine: a local process pool, or Dask (`pip install
+'mocap-calib[cluster]'`; a LocalCluster, or the cluster at --scheduler).
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ import argparse
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 
+from mocap_calib.batch.engine import map_jobs
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 
 PAIRS = (("gyro_scale_misalignment", "accel_scale_misalignment"),
@@ -54,6 +56,8 @@ def main() -> None:
     ap.add_argument("--effects", default=",".join(CANONICAL_EFFECTS))
     ap.add_argument("--no-pairs", action="store_true")
     ap.add_argument("--json")
+    ap.add_argument("--engine", default="local", help="local or dask")
+    ap.add_argument("--scheduler", default=None, help="Dask scheduler address")
     args = ap.parse_args()
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     d = args.duration
@@ -63,8 +67,11 @@ def main() -> None:
         cases += [(pair, s, d, 0.0) for pair in PAIRS for s in seeds]
     extra = range(args.first_seed + args.seeds, args.first_seed + args.seeds + args.extra_nulls)
     cases += [((), s, d, c) for s in extra for c in (0.0, REALISTIC_CORR_S)]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(run_case, cases))
+    outcomes = map_jobs(run_case, cases, args.engine, args.jobs, args.scheduler)
+    for o in outcomes:
+        if not o.ok:
+            print(f"case {cases[o.index][:2]} failed: {o.error}", flush=True)
+    results = [o.value for o in outcomes if o.ok]
     hits = total = false_alarms = nulls = pair_ok = pairs = 0
     ratios = []
     per_effect: dict[str, list[tuple[int, int]]] = {}

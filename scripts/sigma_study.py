@@ -9,20 +9,25 @@ below: padded) and few exceed 3. Two simulators:
 - realistic: mocap noise correlated over a time constant drawn from 0.1-0.5 s per seed (AR(1),
   same per-sample sigma), as real mocap noise is; the bias random walk is on in both.
 
+Also printed: the worst |error| per parameter (largest axis; rotations in deg, lengths in mm,
+time in ms). The sessions run on the batch engine: a local process pool, or Dask
+(`pip install 'mocap-calib[cluster]'`; a LocalCluster, or the cluster at --scheduler).
+
 Usage: python scripts/sigma_study.py [--seeds 30] [--first-seed 1000] [--workers 2]
-       [--simulators clean,realistic] [--json out.json]
+       [--simulators clean,realistic] [--json out.json] [--engine local|dask]
+       [--scheduler ADDRESS]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import gtsam
 import numpy as np
 
+from mocap_calib.batch.engine import map_jobs
 from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.model import so3
 from mocap_calib.sim.flight import SimConfig, simulate_flight
@@ -38,8 +43,14 @@ def config(simulator: str, seed: int) -> SimConfig:
                      mocap_noise_corr=corr)
 
 
-def z_scores(simulator: str, seed: int) -> dict[str, list[float]]:
-    """Per-axis error / sigma of one simulated session (empty on a refusal)."""
+#: Display units of the absolute errors.
+UNITS = {"R_MI": ("deg", np.degrees(1.0)), "p_MI": ("mm", 1e3), "gyro_bias": ("rad/s", 1.0),
+         "accel_bias": ("m/s^2", 1.0), "gravity": ("deg", np.degrees(1.0)),
+         "time_offset": ("ms", 1e3)}
+
+
+def z_scores(simulator: str, seed: int) -> dict[str, dict[str, list[float]]]:
+    """Per-axis error / sigma and |error| (display units) of one simulated session."""
     sim = simulate_flight(config(simulator, seed))
     r = calibrate(sim.imu, sim.mocap, CalibrationOptions())
     tr = sim.truth
@@ -57,20 +68,23 @@ def z_scores(simulator: str, seed: int) -> dict[str, list[float]]:
     sig = {"R_MI": r.sigma_rotation, "p_MI": r.sigma_translation,
            "gyro_bias": r.sigma_gyro_bias, "accel_bias": r.sigma_accel_bias,
            "gravity": r.sigma_gravity, "time_offset": np.array([r.sigma_time_offset])}
-    return {k: (np.asarray(err[k]) / np.asarray(sig[k])).tolist() for k in PARAMS}
+    return {"z": {k: (np.asarray(err[k]) / np.asarray(sig[k])).tolist() for k in PARAMS},
+            "err": {k: (np.abs(err[k]) * UNITS[k][1]).tolist() for k in PARAMS}}
 
 
-def _job(args: tuple[str, int]) -> tuple[str, int, dict[str, list[float]]]:
+def _job(args: tuple[str, int]) -> tuple[str, int, dict[str, dict[str, list[float]]]]:
     simulator, seed = args
     return simulator, seed, z_scores(simulator, seed)
 
 
-def summarise(results: list[dict[str, list[float]]]) -> dict[str, dict[str, float]]:
+def summarise(results: list[dict[str, dict[str, list[float]]]]) -> dict[str, dict[str, float]]:
     out = {}
     for k in PARAMS:
-        z = np.concatenate([np.asarray(r[k]) for r in results])
+        z = np.concatenate([np.asarray(r["z"][k]) for r in results])
+        e = np.concatenate([np.asarray(r["err"][k]) for r in results])
         out[k] = {"n": int(z.size), "std": float(np.std(z)), "max_abs": float(np.max(np.abs(z))),
-                  "over_3": int(np.sum(np.abs(z) > 3))}
+                  "over_3": int(np.sum(np.abs(z) > 3)), "worst_error": float(e.max()),
+                  "unit": UNITS[k][0]}
     return out
 
 
@@ -81,19 +95,31 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--simulators", default="clean,realistic")
     ap.add_argument("--json")
+    ap.add_argument("--engine", default="local", help="local or dask")
+    ap.add_argument("--scheduler", default=None, help="Dask scheduler address")
     a = ap.parse_args()
     sims = a.simulators.split(",")
     jobs = [(s, seed) for s in sims for seed in range(a.first_seed, a.first_seed + a.seeds)]
     by_sim: dict[str, list[Any]] = {s: [] for s in sims}
-    with ProcessPoolExecutor(a.workers) as pool:
-        for simulator, _seed, z in pool.map(_job, jobs):
-            by_sim[simulator].append(z)
+    for o in map_jobs(_job, jobs, a.engine, a.workers, a.scheduler):
+        if not o.ok:
+            # A refusal is not an error / sigma; it is counted and shown.
+            print(f"{jobs[o.index]} refused or failed: {o.error}", flush=True)
+            continue
+        simulator, _seed, z = o.value
+        by_sim[simulator].append(z)
     table = {s: summarise(v) for s, v in by_sim.items()}
     print(f"error / sigma per axis, {a.seeds} seeds from {a.first_seed}, 90 s sessions")
     print(f"{'parameter':<12}" + "".join(f"{s + ' std':>16}{s + ' max':>16}" for s in sims))
     for k in PARAMS:
         print(f"{k:<12}" + "".join(f"{table[s][k]['std']:>16.2f}{table[s][k]['max_abs']:>16.2f}"
                                    for s in sims))
+    print("worst |error| (largest axis)")
+    for k in PARAMS:
+        print(f"{k:<12}" + "".join(f"{table[s][k]['worst_error']:>16.3g}" for s in sims)
+              + f"  {table['clean'][k]['unit'] if 'clean' in table else ''}")
+    for s in sims:
+        print(f"{s}: {len(by_sim[s])}/{a.seeds} sessions calibrated")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(table, fh, indent=1)

@@ -89,7 +89,7 @@ def rec(rrd: Path) -> Recording:
 
 
 def test_entities_exist(rec: Recording) -> None:
-    expected = ["summary", "guide", "world/mocap/trajectory", "world/marker", "world/imu",
+    expected = ["summary", "checks", "guide", "world/mocap/trajectory", "world/marker", "world/imu",
                 "world/imu/lever", "world/gravity", "solver/cost", "solver/time_offset"]
     expected += [f"world/dead_reckoning/{k}" for k in ("mocap", "before", "after")]
     expected += [f"dead_reckoning/{k}/position_error" for k in ("before", "after")]
@@ -147,6 +147,8 @@ def test_summary_text(rec: Recording, calibrated: tuple[Any, CalibrationResult])
     _, result = calibrated
     texts = [x for row in rec.column("summary", "TextDocument:text") for x in row]
     assert texts == [summary_table(result)]
+    checks = [x for row in rec.column("checks", "TextDocument:text") for x in row]
+    assert len(checks) == 1 and "consistency (3 segments)" in checks[0]
     assert "gyro_bias" in texts[0] and "position" in texts[0]
 
 

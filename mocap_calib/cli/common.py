@@ -53,6 +53,9 @@ ROTATION = Annotated[str | None, typer.Option(
 MOCAP_RATE = Annotated[float | None, typer.Option(
     help="Mocap frame rate in Hz, for exports without one (frame numbers only).",
     show_default=False)]
+HTML = Annotated[Path | None, typer.Option(
+    help="Also write a self-contained HTML report (tables and plots, opens offline in any "
+    "browser; render it to a picture with scripts/render_report.sh).", show_default=False)]
 
 
 class Progress:

@@ -9,19 +9,7 @@ import numpy as np
 from mocap_calib.core.intrinsics.attitude_drift import AttitudeDriftResult
 from mocap_calib.core.intrinsics.multipos.result import MultiposResult
 from mocap_calib.core.intrinsics.noise_result import AllanResult, SensorNoise
-
-
-def text_table(header: Sequence[str], rows: Sequence[Sequence[str]],
-               right: Sequence[bool]) -> str:
-    """Columns padded to their widest cell; ``right`` aligns numeric columns right."""
-    w = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
-
-    def line(r: Sequence[str]) -> str:
-        return "  ".join(f"{c:>{w[i]}}" if right[i] else f"{c:<{w[i]}}"
-                         for i, c in enumerate(r)).rstrip()
-
-    return "\n".join([line(header), "-" * (sum(w) + 2 * (len(w) - 1)), *map(line, rows)])
-
+from mocap_calib.report.text import table
 
 # --------------------------------------------------------------------------------------------
 # multipos
@@ -110,7 +98,7 @@ def multipos_summary(r: MultiposResult) -> str:
         for i in range(3):
             rows.append((f"{sensor} bias {'xyz'[i]}", f"{bias[i]:+.6f}", f"{bsig[i]:.2g}", unit))
     rows += _g_rows(r)
-    lines = [text_table(("parameter", "estimate", "1-sigma", "unit"), rows,
+    lines = [table(("parameter", "estimate", "1-sigma", "unit"), rows,
                         (False, True, True, False)), ""]
     lines.append(f"accel residual RMS  {1e3 * r.accel_residual_rms:.3g} mm/s^2 "
                  f"(|h| - g over the static intervals; chi2/dof {r.accel_chi2:.3g})")
@@ -159,7 +147,7 @@ def allan_summary(r: AllanResult) -> str:
                          _pm(s.random_walk[ax], s.random_walk_sigma[ax]),
                          f"{s.bias_instability[ax]:.4g}", f"{s.tau_at_minimum[ax]:.4g}",
                          f"{s.fit_chi2[ax]:.3g}"))
-    lines = [text_table(("sensor", "axis", "noise density N", "random walk K",
+    lines = [table(("sensor", "axis", "noise density N", "random walk K",
                          "bias instab. B", "tau(min) s", "chi2"), rows,
                         (False, False, True, True, True, True, True)),
              "units: gyroscope N rad/s/sqrt(Hz), K rad/s^2/sqrt(Hz), B rad/s; "
@@ -193,7 +181,7 @@ def drift_summary(r: AttitudeDriftResult, calibration_file: str, calibration_kin
              f"initial attitude: {src.get(r.initial_source, r.initial_source)}, reference: "
              f"{src.get(r.reference_source, r.reference_source)}",
              f"calibration: {calibration_file} ({calibration_kind})", "",
-             text_table(("at the segment end", "raw gyro (deg)", "calibrated (deg)"), rows,
+             table(("at the segment end", "raw gyro (deg)", "calibrated (deg)"), rows,
                         (False, True, True)), "",
              f"reduction of the tilt drift: {100 * r.reduction:.1f} %"]
     if len(r.series_t):

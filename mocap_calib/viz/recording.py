@@ -17,7 +17,8 @@ Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 - ``solver/<cost|time_offset|gravity_tilt>``, ``solver/<p_MI|R_MI|gyro_bias|accel_bias>/<x|y|z>``:
   position-stage iterates on ``iteration``.
 - ``diagnose/<step>/<stage>/...``: optional extra residual series, laid out like ``residuals``.
-- ``summary`` (:func:`mocap_calib.report.text.summary_table`), ``guide``: text documents.
+- ``summary`` (:func:`mocap_calib.report.text.summary_table`), ``checks`` (clock search,
+  plausibility, segment consistency, noise sensitivity), ``guide``: text documents.
 
 The 3D poses are decimated to at most :data:`POSE_RATE_HZ` (by picking samples) and the IMU
 signals to :data:`IMU_RATE_HZ` (by block means, which also low-pass their noise), which keeps a
@@ -47,7 +48,7 @@ from mocap_calib.core.diagnosis.predict import predict_imu
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
-from mocap_calib.report.text import summary_table
+from mocap_calib.report.text import checks_lines, summary_table
 from mocap_calib.viz._rerun import AXIS_RGB, GRAY, ITERATION, TIMELINE, Logger, default_blueprint
 
 Array = NDArray[np.float64]
@@ -131,6 +132,7 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
     try:
         log.rec.log("world", log.rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log.text("summary", summary_table(result))
+        log.text("checks", "\n".join(checks_lines(result)) or "no checks were run")
         log.text("guide", _GUIDE, markdown=True)
         _log_world(log, s, st)
         _log_dead_reckoning(log, dead_reckoning(s, st))

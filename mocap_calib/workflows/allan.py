@@ -16,6 +16,7 @@ from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, save_yaml
 from mocap_calib.report.intrinsics_text import allan_summary
 from mocap_calib.workflows.imu_input import ImuSpec, ProgressFn, say
+from mocap_calib.workflows.provenance import RunClock
 
 _HEADER = ("mocap-calib allan noise model (Kalibr imu.yaml keys, SI units). See "
            "docs/conventions.md.")
@@ -29,7 +30,7 @@ class AllanRun:
         result: the noise model per axis and the Allan curves.
         imu: the static log.
         notes: one-line notes (inputs).
-        written: files written (the YAML, then the recording).
+        written: files written (the HTML report, the YAML, then the recording).
     """
 
     result: AllanResult
@@ -50,7 +51,8 @@ class AllanRun:
 
 def run_allan(spec: ImuSpec, *, out: Path | None = None, rrd: Path | None = None,
               aggregate: str = "mean", tau_min_s: float | None = None,
-              require_random_walk: bool = True, progress: ProgressFn | None = None) -> AllanRun:
+              require_random_walk: bool = True, progress: ProgressFn | None = None,
+              html: Path | None = None) -> AllanRun:
     """Read a long static IMU log, fit its Allan-deviation noise model and write it.
 
     Args:
@@ -62,6 +64,7 @@ def run_allan(spec: ImuSpec, *, out: Path | None = None, rrd: Path | None = None
         require_random_walk: fail when the log does not resolve the random walks (otherwise
             they are written as null).
         progress: one-line progress callback.
+        html: self-contained HTML report to write (None: none).
 
     Raises:
         InputError: bad input files, timestamps or options.
@@ -71,7 +74,8 @@ def run_allan(spec: ImuSpec, *, out: Path | None = None, rrd: Path | None = None
         raise InputError(f"--aggregate {aggregate}: use mean or max")
     if tau_min_s is not None and not (np.isfinite(tau_min_s) and tau_min_s > 0):
         raise InputError(f"--tau-min {tau_min_s}: must be a positive time in s")
-    check_writable(out, rrd)
+    clock = RunClock()
+    check_writable(out, rrd, html)
     say(progress, f"reading {spec.name}")
     imu, notes = spec.load()
     for n in notes:
@@ -81,6 +85,11 @@ def run_allan(spec: ImuSpec, *, out: Path | None = None, rrd: Path | None = None
                                 tau_min_s=tau_min_s, require_random_walk=require_random_walk,
                                 unresolved_fix="pass --allow-unresolved")
     run = AllanRun(result, imu, notes)
+    if html is not None:
+        from mocap_calib.workflows.html_intrinsics import write_allan_html
+
+        say(progress, "writing HTML report")
+        run.written.append(write_allan_html(html, result, [spec.imu], clock))
     if out is not None:
         run.written.append(save_yaml(out, run.to_dict(), _HEADER))
     if rrd is not None:

@@ -14,6 +14,7 @@ from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
+from mocap_calib.workflows.provenance import RunClock
 from mocap_calib.workflows.session import (
     InputSpec,
     LoadedSession,
@@ -92,6 +93,7 @@ class CalibrateOutputs:
     out: Path
     report: Path | None = None
     rrd: Path | None = None
+    html: Path | None = None
 
 
 @dataclass
@@ -109,7 +111,8 @@ def calibrate_to_files(spec: InputSpec, options: CalibrationOptions, outputs: Ca
                        prior_files: list[Path] | None = None,
                        progress: ProgressFn | None = None) -> CalibrateRun:
     """The ``calibrate`` command: check the outputs, calibrate, write result/report/recording."""
-    check_writable(outputs.out, outputs.report, outputs.rrd)
+    clock = RunClock()
+    check_writable(outputs.out, outputs.report, outputs.rrd, outputs.html)
     result, session = run_calibration(spec, options, noise_file, overrides, prior_files or [],
                                       progress)
     # The result file is written last, so that an interrupted run leaves no result behind.
@@ -125,6 +128,14 @@ def calibrate_to_files(spec: InputSpec, options: CalibrationOptions, outputs: Ca
     if outputs.report is not None:
         save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")
         run.written.append(f"wrote {outputs.report}")
+    if outputs.html is not None:
+        from mocap_calib.workflows.html_report import write_calibration_html
+
+        if progress is not None:
+            progress("writing HTML report")
+        write_calibration_html(outputs.html, result, [spec.path, spec.imu, spec.mocap,
+                                                      noise_file, *(prior_files or [])], clock)
+        run.written.append(f"wrote {outputs.html}")
     save_result(outputs.out, result)
     run.written.insert(0, f"wrote {outputs.out}")
     return run

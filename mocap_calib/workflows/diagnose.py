@@ -12,6 +12,7 @@ from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
+from mocap_calib.workflows.provenance import RunClock
 from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
 
 
@@ -78,12 +79,22 @@ class DiagnoseRun:
 
 def diagnose_to_files(spec: InputSpec, options: DiagnoseOptions, out: Path, rrd: Path | None,
                       noise_file: Path | None = None,
-                      progress: ProgressFn | None = None) -> DiagnoseRun:
-    """The ``diagnose`` command: check the outputs, diagnose, write report and recording."""
-    check_writable(out, rrd)
+                      progress: ProgressFn | None = None, html: Path | None = None) -> DiagnoseRun:
+    """The ``diagnose`` command: check the outputs, diagnose, write report, recording and
+    HTML page."""
+    clock = RunClock()
+    check_writable(out, rrd, html)
     report, session = run_diagnosis(spec, options, noise_file, None, progress)
+    if html is not None:
+        from mocap_calib.workflows.html_report import write_diagnosis_html
+
+        if progress is not None:
+            progress("writing HTML report")
+        write_diagnosis_html(html, report, [spec.path, spec.imu, spec.mocap, noise_file], clock)
     save_yaml(out, report.to_dict(), "mocap-calib model diagnosis report (see docs/diagnosis.md)")
     run = DiagnoseRun(report, diagnose_table(report), [f"wrote {out}"])
+    if html is not None:
+        run.written.append(f"wrote {html}")
     if rrd is not None:
         from mocap_calib.viz.recording import write_calibration_recording
 

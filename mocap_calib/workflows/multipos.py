@@ -23,6 +23,7 @@ from mocap_calib.io.result_files import INTRINSICS_FIX, read_intrinsics
 from mocap_calib.io.yaml_io import check_writable, save_yaml
 from mocap_calib.report.intrinsics_text import multipos_summary
 from mocap_calib.workflows.imu_input import ImuSpec, ProgressFn, say
+from mocap_calib.workflows.provenance import RunClock
 
 #: Parameters a multipos prior constrains by default: the matrices. Turn-on biases change from
 #: one power-up to the next by more than a session's sigma, so they are opt-in.
@@ -184,7 +185,7 @@ class MultiposOptions:
 
 def run_multipos(spec: ImuSpec, *, out: Path | None = None,
                  options: MultiposOptions | None = None,
-                 progress: ProgressFn | None = None) -> MultiposRun:
+                 progress: ProgressFn | None = None, html: Path | None = None) -> MultiposRun:
     """Read an IMU log, calibrate its intrinsics from a multi-position session, and write them.
 
     Args:
@@ -192,15 +193,17 @@ def run_multipos(spec: ImuSpec, *, out: Path | None = None,
         out: intrinsics YAML to write (None: write nothing).
         options: the calibration options.
         progress: one-line progress callback.
+        html: self-contained HTML report to write (None: none).
 
     Raises:
         InputError: bad input files or options.
         ObservabilityError: no initial rest, too short, too few orientations.
         ConvergenceError: a fit failed.
     """
+    clock = RunClock()
     o = options or MultiposOptions()
     nominal = o.nominal(spec.raw)
-    check_writable(out)
+    check_writable(out, html)
     prior_files = list(o.prior_files)
     # Check the priors before the (longer) IMU read so a wrong file fails fast.
     for p in prior_files:
@@ -224,6 +227,13 @@ def run_multipos(spec: ImuSpec, *, out: Path | None = None,
         nominal=nominal, g_sensitivity=o.g_sensitivity,
         threshold_multiples=tuple(o.thresholds) or tuple(range(2, 11)))
     run = MultiposRun(result, imu, notes)
+    if html is not None:
+        from mocap_calib.workflows.html_intrinsics import write_multipos_html
+
+        say(progress, "writing HTML report")
+        run.written.append(write_multipos_html(html, result, imu, [spec.imu, spec.accel,
+                                                                   spec.gyro, *prior_files],
+                                               clock))
     if out is not None:
         run.written.append(save_yaml(out, run.to_dict(), _HEADER))
     return run

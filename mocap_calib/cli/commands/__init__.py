@@ -3,7 +3,7 @@
 import importlib
 
 COMMANDS = ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift", "export",
-            "groundtruth")
+            "groundtruth", "batch")
 
 for _name in COMMANDS:
     importlib.import_module(f"{__name__}.{_name}")

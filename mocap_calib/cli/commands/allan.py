@@ -11,6 +11,7 @@ from mocap_calib.cli.common import (
     ACCEL_UNIT,
     COLUMNS,
     GYRO_UNIT,
+    HTML,
     IMU,
     IMU_TOPIC,
     STAMP,
@@ -46,6 +47,7 @@ def allan(
         "--allow-unresolved", help="Write the result even if the log is too short to resolve "
         "the random walks (written as null; calibrate then keeps its defaults for them).")]
     = False,
+    html: HTML = None,
     columns: COLUMNS = None,
     time_unit: TIME_UNIT = None,
     gyro_unit: GYRO_UNIT = None,
@@ -60,8 +62,11 @@ def allan(
     spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp)
     run = run_allan(spec, out=out, rrd=rrd,
                     aggregate=aggregate, tau_min_s=tau_min,
-                    require_random_walk=not allow_unresolved, progress=Progress(quiet))
+                    require_random_walk=not allow_unresolved, progress=Progress(quiet),
+                    html=html)
     typer.echo(run.summary())
     typer.echo(f"\nwrote {out}")
+    if html is not None:
+        typer.echo(f"wrote {html}")
     if rrd is not None:
         typer.echo(f"wrote {run.written[-1]}  (open with: mocap-calib view {run.written[-1]})")

@@ -11,6 +11,7 @@ from mocap_calib.cli.common import (
     ACCEL_UNIT,
     COLUMNS,
     GYRO_UNIT,
+    HTML,
     IMU,
     IMU_TOPIC,
     MAV0,
@@ -58,6 +59,7 @@ def calibrate(
     report: Annotated[Path | None, typer.Option(
         help="Also write the summary (estimates, 1-sigma, stage figures, notes) as a text "
         "report.", show_default=False)] = None,
+    html: HTML = None,
     model: Annotated[str, typer.Option(
         help="Measurement model: base plus effects joined by '+', e.g. "
         "base+time_offset+gyro_scale_misalignment. Effects: " + _EFFECTS_HELP)]
@@ -139,7 +141,7 @@ def calibrate(
     overrides = noise_overrides(gyro_noise=gyro_noise, gyro_walk=gyro_walk,
                                 accel_noise=accel_noise, accel_walk=accel_walk,
                                 mocap_noise_mm=mocap_noise_mm, mocap_noise_deg=mocap_noise_deg)
-    run = calibrate_to_files(spec, opts, CalibrateOutputs(out, report, rrd), noise, overrides,
+    run = calibrate_to_files(spec, opts, CalibrateOutputs(out, report, rrd, html), noise, overrides,
                              prior or [], Progress(quiet))
     typer.echo(run.summary)
     typer.echo("")

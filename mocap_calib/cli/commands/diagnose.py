@@ -11,6 +11,7 @@ from mocap_calib.cli.common import (
     ACCEL_UNIT,
     COLUMNS,
     GYRO_UNIT,
+    HTML,
     IMU,
     IMU_TOPIC,
     MAV0,
@@ -47,6 +48,7 @@ def diagnose(
     rrd: Annotated[Path | None, typer.Option(
         help="Also write a rerun recording with the residuals of every step.",
         show_default=False)] = None,
+    html: HTML = None,
     start: Annotated[str, typer.Option(
         help="Starting model, e.g. base or base+time_offset.")] = "base",
     candidates: Annotated[str | None, typer.Option(
@@ -87,7 +89,7 @@ def diagnose(
                      quat_order, position_unit, imu_topic=imu_topic, mocap_topic=mocap_topic,
                      mocap_frame=mocap_frame, stamp=stamp, mocap_format=mocap_format,
                      rigid_body=rigid_body, rotation=rotation, mocap_rate=mocap_rate)
-    run = diagnose_to_files(spec, opts, out, rrd, noise, Progress(quiet))
+    run = diagnose_to_files(spec, opts, out, rrd, noise, Progress(quiet), html=html)
     typer.echo(run.summary)
     typer.echo("")
     for line in run.written:

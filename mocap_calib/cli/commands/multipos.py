@@ -11,6 +11,7 @@ from mocap_calib.cli.common import (
     ACCEL_UNIT,
     COLUMNS,
     GYRO_UNIT,
+    HTML,
     IMU,
     IMU_TOPIC,
     STAMP,
@@ -83,6 +84,7 @@ def multipos(
     min_orientations: Annotated[int, typer.Option(
         help="Fewest distinct static orientations accepted.")] = 9,
     gravity: Annotated[float, typer.Option(help="Local |g| in m/s^2.")] = 9.81,
+    html: HTML = None,
     columns: COLUMNS = None,
     time_unit: TIME_UNIT = None,
     gyro_unit: GYRO_UNIT = None,
@@ -102,6 +104,8 @@ def multipos(
         prior_biases=prior_biases, prior_sigma_scale=prior_sigma_scale)
     spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp, raw=raw,
                    accel=accel, gyro=gyro)
-    run = run_multipos(spec, out=out, options=options, progress=Progress(quiet))
+    run = run_multipos(spec, out=out, options=options, progress=Progress(quiet), html=html)
     typer.echo(run.summary())
     typer.echo(f"\nwrote {out}")
+    if html is not None:
+        typer.echo(f"wrote {html}")

@@ -4,7 +4,8 @@ noise densities.
 - Consistency: the session's windows are split by time into ``k`` segments, each calibrated on
   its own (from the full solution, with its noise model and robust weights), each with its own
   sigmas. If the sigmas are honest, the segments agree within them: the largest pairwise
-  |difference| / combined sigma per parameter stays below about 3.
+  |difference| / combined sigma per parameter stays below about 3. User priors are left out
+  there: a prior shared by all segments would correlate them and hide a disagreement.
 - Sensitivity: the IMU noise densities (white and random walk) scaled by 3 and by 1/3 reweight
   the data; an answer that moves by more than its sigma depends on an assumption the session
   cannot check.
@@ -21,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
+from mocap_calib.core.calib.position_graph import Prior
 from mocap_calib.core.calib.session import PreparedSession
 from mocap_calib.core.calib.stage_position import PositionInit, PositionResult, run_position_stage
 from mocap_calib.core.model import so3
@@ -231,9 +233,14 @@ def _shifts(alt: PositionResult,
 
 def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
                       factors: tuple[float, ...] = (3.0, 1.0 / 3.0),
-                      max_iterations: int = 30, one_step: bool = True) -> Sensitivity:
+                      max_iterations: int = 30, one_step: bool = True,
+                      priors: list[Prior] | None = None) -> Sensitivity:
     """Refit with the IMU noise densities scaled (robust weights kept, the mocap noise chosen
-    again; one Gauss-Newton step from the solution unless ``one_step`` is off)."""
+    again; one Gauss-Newton step from the solution unless ``one_step`` is off).
+
+    User priors come from earlier sessions calibrated under the same densities, so their
+    sigmas scale with them: the balance between prior and data stays, and a prior that
+    disagrees with a short session by chance does not pass for a systematic."""
     out = Sensitivity()
     sig = _sigmas(pos)
     everything = np.arange(pos.windows.count)
@@ -245,9 +252,11 @@ def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
                          accelerometer_random_walk=nz.accelerometer_random_walk * f)
         try:
             # As a run given these densities would: the mocap noise chosen again too.
+            scaled_priors = [replace(p, sigma=np.asarray(p.sigma) * f) for p in priors or []]
             alt = run_position_stage(s, model, scaled, pos.windows, _init(pos, everything),
-                                     robust=False, adapt_noise=True, weights=pos.weights,
-                                     max_iterations=max_iterations, one_step=one_step)
+                                     scaled_priors, robust=False, adapt_noise=True,
+                                     weights=pos.weights, max_iterations=max_iterations,
+                                     one_step=one_step)
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             out.note = f"noise x{f:.3g}: refit failed ({err})"
             continue

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import gtsam
@@ -78,6 +78,15 @@ class PositionResult:
     dof: int  # residual dimensions minus parameters
     solver: dict[str, Any]
     history: list[dict[str, Any]]
+    covariances: Callable[[], PositionUncertainty] | None = field(default=None, repr=False)
+
+    def with_covariance(self) -> PositionResult:
+        """This result with its covariances (computed now when the fit left them out)."""
+        if self.cov or self.covariances is None:
+            return self
+        unc = self.covariances()
+        return replace(self, cov=unc.cov, knot_sigma=unc.knot_sigma,
+                       unobservable=unobservable_blocks(unc.cov_model))
 
 
 def block_value(pos: PositionResult, name: str, clock_shift: float) -> Array:
@@ -128,7 +137,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     """
     t_start = time.perf_counter()
     pg = build_position_graph(s, model, noise, windows, init, priors)
-    pg.problem.collect_scores = covariance
+    pg.problem.collect_scores = True  # cheap, and a later covariance needs them
     if weights is not None:
         pg.problem.weights = np.asarray(weights, dtype=float).copy()
         robust = False
@@ -144,8 +153,12 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
     # A one-step refit keeps the linearisation it stepped from: its covariance is that of the
     # nearby start (one evaluation fewer).
     at = pg.values if one_step else sol
-    unc = (position_covariances(pg.graph, at, pg.block_keys, windows, th.knots, pg.problem.noise,
-                                out.scores, blocks, windows.count) if covariance
+
+    def covariances() -> PositionUncertainty:
+        return position_covariances(pg.graph, at, pg.block_keys, windows, th.knots,
+                                    pg.problem.noise, out.scores, blocks, windows.count)
+
+    unc = (covariances() if covariance
            else PositionUncertainty({}, np.zeros((windows.count, 6)), _mean_bias(windows, th)))
     stats, series, chi2, dof = _figures(pg, fit, out, time.perf_counter() - t_start)
     solver = {"position_batch_seconds": round(pg.batch.seconds, 3),
@@ -164,7 +177,7 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         chi2_per_dof=chi2, windows=windows, weights=pg.problem.weights, noise=pg.problem.noise,
         # (a one-step refit's cost would cost an evaluation at the new values: not needed)
         cost=float("nan") if one_step else 2.0 * pg.graph.error(sol), dof=int(dof),
-        solver=solver, history=history.records)
+        solver=solver, history=history.records, covariances=None if covariance else covariances)
 
 
 class _History:

@@ -102,17 +102,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     """
     t0 = time.perf_counter()
     half = max(2, int(round(0.05 * s.mocap_rate)))  # +-50 ms quadratic fit
-    _, vM, valid = local_derivative(s.tau, s.p_WM, half, s.gap)
-    kf = keyframes(s.tau, spacing)
-    kf = kf[valid[kf]]
-    i0, i1 = kf[:-1], kf[1:]
-    ok = (s.segments_without_gaps(i0, i1) & s.imu_covers(s.tau[i0], s.tau[i1], delta)
-          # a keyframe dropped (invalid derivative) leaves a longer interval: keep it short
-          & (s.tau[i1] - s.tau[i0] < 2.5 * spacing))
-    i0, i1 = i0[ok], i1[ok]
-    if len(i0) < 10:
-        raise ObservabilityError(f"only {len(i0)} gap-free velocity intervals; the session is "
-                                 "too short or the mocap has too many gaps")
+    vM, kf, i0, i1 = _intervals(s, delta, spacing, half)
     dt = s.tau[i1] - s.tau[i0]
     w_kf = correct_fn(*(hermite(s.u, s.tau[kf] - delta)(x) for x in (s.gyro, s.accel)),
                       s.tau[kf] - delta, np.zeros(3))[0]
@@ -132,31 +122,8 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     dv, A = preint(b_lin)
     data = _Data(vM[i1] - vM[i0], lever[j1] - lever[j0], R_i, dv, A, dt)
 
-    # Linear initial guess: x = [p_MI, g_W, b_a].
+    p0, g_free, b0, g_norm = _linear_start(data, gravity)
     n = len(i0)
-    M = np.zeros((n, 3, 9))
-    M[:, :, 0:3] = data.LM
-    M[:, :, 3:6] = -np.eye(3) * dt[:, None, None]
-    M[:, :, 6:9] = R_i @ A
-    rhs = -(data.dvM - np.einsum("nij,nj->ni", R_i, dv))
-    # Solve around a level world (g along -z): directions the motion leaves undetermined (e.g.
-    # accel bias along a body axis that stays vertical) keep that guess instead of blowing up.
-    x0 = np.r_[np.zeros(3), 0.0, 0.0, -gravity, np.zeros(3)]
-    A = M.reshape(-1, 9)
-    H = A.T @ A
-    H_reg = H + 1e-9 * np.trace(H) / 9.0 * np.eye(9)
-    x = x0 + np.linalg.solve(H_reg, A.T @ (rhs.reshape(-1) - A @ x0))
-    p0, g_free, b0 = x[0:3], x[3:6], x[6:9]
-    g_norm = float(np.linalg.norm(g_free))
-    # Residual-scaled uncertainty of the free gravity vector: only check |g| where it is known.
-    res = rhs.reshape(-1) - A @ x
-    s2 = float(res @ res) / max(1, A.shape[0] - 9)
-    g_sig = np.sqrt(np.diag(np.linalg.inv(H_reg))[3:6] * s2)
-    if np.all(g_sig < 0.05 * gravity) and not 0.7 * gravity < g_norm < 1.3 * gravity:
-        raise ObservabilityError(
-            f"the accelerometer and mocap disagree on gravity (|g| fits as {g_norm:.2f} m/s^2, "
-            f"expected {gravity:.2f}); check the accel units, the mocap units (m) and the time "
-            "offset")
 
     # Noise: velocity fits at both ends, accel noise, attitude noise times the increment.
     sv2 = 12.0 * noise.mocap_position_sigma**2 / (
@@ -223,3 +190,50 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
                           np.asarray(marg.marginalCovariance(KEY_BA)),
                           np.asarray(marg.marginalCovariance(KEY_P)),
                           np.asarray(marg.marginalCovariance(KEY_G)), stats, series)
+
+
+def _intervals(s: PreparedSession, delta: float, spacing: float,
+               half: int) -> tuple[Array, Array, Array, Array]:
+    """Marker velocity at every mocap sample, the usable keyframes and the intervals between
+    them (start and end indices)."""
+    _, vM, valid = local_derivative(s.tau, s.p_WM, half, s.gap)
+    kf = keyframes(s.tau, spacing)
+    kf = kf[valid[kf]]
+    i0, i1 = kf[:-1], kf[1:]
+    ok = (s.segments_without_gaps(i0, i1) & s.imu_covers(s.tau[i0], s.tau[i1], delta)
+          # a keyframe dropped (invalid derivative) leaves a longer interval: keep it short
+          & (s.tau[i1] - s.tau[i0] < 2.5 * spacing))
+    i0, i1 = i0[ok], i1[ok]
+    if len(i0) < 10:
+        raise ObservabilityError(f"only {len(i0)} gap-free velocity intervals; the session is "
+                                 "too short or the mocap has too many gaps")
+    return vM, kf, i0, i1
+
+
+def _linear_start(data: _Data, gravity: float) -> tuple[Array, Array, Array, float]:
+    """Linear initial guess of ``p_MI``, the free gravity vector and ``b_a`` (and ``|g|``)."""
+    n = len(data.dt)
+    M = np.zeros((n, 3, 9))
+    M[:, :, 0:3] = data.LM
+    M[:, :, 3:6] = -np.eye(3) * data.dt[:, None, None]
+    M[:, :, 6:9] = data.R_i @ data.A
+    rhs = -(data.dvM - np.einsum("nij,nj->ni", data.R_i, data.dv))
+    # Solve around a level world (g along -z): directions the motion leaves undetermined (e.g.
+    # accel bias along a body axis that stays vertical) keep that guess instead of blowing up.
+    x0 = np.r_[np.zeros(3), 0.0, 0.0, -gravity, np.zeros(3)]
+    Am = M.reshape(-1, 9)
+    H = Am.T @ Am
+    H_reg = H + 1e-9 * np.trace(H) / 9.0 * np.eye(9)
+    x = x0 + np.linalg.solve(H_reg, Am.T @ (rhs.reshape(-1) - Am @ x0))
+    p0, g_free, b0 = x[0:3], x[3:6], x[6:9]
+    g_norm = float(np.linalg.norm(g_free))
+    # Residual-scaled uncertainty of the free gravity vector: only check |g| where it is known.
+    res = rhs.reshape(-1) - Am @ x
+    s2 = float(res @ res) / max(1, Am.shape[0] - 9)
+    g_sig = np.sqrt(np.diag(np.linalg.inv(H_reg))[3:6] * s2)
+    if np.all(g_sig < 0.05 * gravity) and not 0.7 * gravity < g_norm < 1.3 * gravity:
+        raise ObservabilityError(
+            f"the accelerometer and mocap disagree on gravity (|g| fits as {g_norm:.2f} m/s^2, "
+            f"expected {gravity:.2f}); check the accel units, the mocap units (m) and the time "
+            "offset")
+    return p0, g_free, b0, g_norm

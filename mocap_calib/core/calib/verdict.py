@@ -67,7 +67,8 @@ def judge(r: CalibrationResult, s: PreparedSession, pos: PositionResult,
                                    opts.max_iterations)
     if opts.sensitivity:
         say("sensitivity: IMU noise densities x3 and x1/3")
-        sens = noise_sensitivity(s, opts.model, pos, max_iterations=opts.max_iterations)
+        sens = noise_sensitivity(s, opts.model, pos, max_iterations=opts.max_iterations,
+                                 priors=opts.priors)
     total = _inflate(r, cons, sens)
     r.consistency, r.sensitivity = cons.to_dict(), sens.to_dict(total)
 

@@ -132,7 +132,8 @@ class _Session:
     coarse_delta: float | None = None
 
     def fit(self, m: Model, base: PositionResult, nz: NoiseModel,
-            extra: dict[str, Array] | None = None, adapt: bool = False) -> PositionResult:
+            extra: dict[str, Array] | None = None, adapt: bool = False,
+            covariance: bool = True) -> PositionResult:
         init = PositionInit(
             R_MI=base.R_MI, p_MI=base.p_MI, g_dir=base.g_dir, g_mag=base.g_mag,
             delta=base.delta, gyro_bias=base.gyro_bias_mean, accel_bias=base.accel_bias_mean,
@@ -142,7 +143,8 @@ class _Session:
                 init.delta = float(v[0])
         return run_position_stage(self.s, m, nz, self.windows, init, robust=False,
                                   adapt_noise=adapt, weights=self.weights,
-                                  max_iterations=self.opts.calibration.max_iterations)
+                                  max_iterations=self.opts.calibration.max_iterations,
+                                  covariance=covariance)
 
     def residuals(self, pos: PositionResult, m: Model, nz: NoiseModel) -> Residuals:
         return Residuals.of(analyse_residuals(self.s, ModelState.from_position(pos, m, self.t_mid),
@@ -262,13 +264,15 @@ def _score_candidates(ds: _Session, model: Model, current: PositionResult, noise
         say(f"step {step}: trying {cand}")
         m = model.with_effect(cand)
         try:
-            f = ds.fit(m, current, noise, ds.start_values(cand))
+            # Covariances (for the robust test) only where the likelihood ratio is significant.
+            f = ds.fit(m, current, noise, ds.start_values(cand), covariance=False)
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             # A candidate that cannot be fitted (GTSAM raises RuntimeError on an
             # indeterminate system) is not the answer.
             ds.notes.append(f"step {step}: {cand} could not be fitted ({err})")
             continue
-        score = _test(ds, cand, f, current)
+        score = _test(ds, cand, f, current, threshold)
+        f = f.with_covariance() if score.log10_p < threshold else f
         # The measurement-domain check is only needed where the test is significant.
         res = ds.residuals(f, m, noise) if score.log10_p < threshold else cur_res
         fits[cand] = (f, res)
@@ -279,13 +283,20 @@ def _score_candidates(ds: _Session, model: Model, current: PositionResult, noise
     return scores, fits
 
 
-def _test(ds: _Session, cand: str, f: PositionResult, current: PositionResult) -> CandidateScore:
+def _test(ds: _Session, cand: str, f: PositionResult, current: PositionResult,
+          threshold: float) -> CandidateScore:
     """The candidate's statistic: the smaller of the noise-scaled likelihood ratio and the
-    robust Wald statistic of its parameters against the nested model's values."""
+    robust Wald statistic of its parameters against the nested model's values (the Wald only
+    where the likelihood ratio alone would pass: it can only lower the statistic)."""
     k = EFFECTS[cand].dim
     d = current.cost - f.cost
     scale = max(1.0, f.cost / max(f.dof, 1))
     lr = max(d, 0.0) / scale
+    if _log10_sf(lr, k) >= threshold:
+        params, sig = effect_estimate(f, cand, ds.s.clock_shift)
+        return CandidateScore(cand, k, float(d), float(scale), float(lr), _log10_sf(lr, k),
+                              False, 0.0, params, sig, wald=float("nan"))
+    f = f.with_covariance()
     shift = block_value(f, cand, 0.0) - (block_value(current, cand, 0.0)
                                          if EFFECTS[cand].acts_on in ("clock", "gravity")
                                          else 0.0)
@@ -347,6 +358,7 @@ def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
     why = _why_unexplained(cur_res, noise, opts)
     if why and cur_res.analysis is not None:
         say("describing the residual no candidate explains")
+        current = current.with_covariance()
         unexplained = {"why": why, **unexplained_signature(
             ds.s, ModelState.from_position(current, model, ds.t_mid), cur_res.analysis, current,
             opts.unexplained_ratio)}

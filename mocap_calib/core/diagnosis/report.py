@@ -46,7 +46,8 @@ class CandidateScore:
 
     def to_dict(self) -> dict[str, Any]:
         d = {"effect": self.effect, "dof": self.dof, "delta_chi2": round(self.delta_chi2, 3),
-             "noise_scale": round(self.scale, 4), "wald_robust": round(self.wald, 3),
+             "noise_scale": round(self.scale, 4),
+             "wald_robust": None if np.isnan(self.wald) else round(self.wald, 3),
              "statistic": round(self.statistic, 3), "log10_p": round(self.log10_p, 3),
              "significant": self.significant, "residual_drop": round(self.residual_drop, 4)}
         if self.implausible:
@@ -58,7 +59,8 @@ class CandidateScore:
         return cls(str(d["effect"]), int(d["dof"]), float(d["delta_chi2"]),
                    float(d["noise_scale"]), float(d["statistic"]), float(d["log10_p"]),
                    bool(d["significant"]), float(d["residual_drop"]),
-                   wald=float(d.get("wald_robust", 0.0)), implausible=d.get("implausible"))
+                   wald=float("nan") if d.get("wald_robust") is None
+                   else float(d["wald_robust"]), implausible=d.get("implausible"))
 
 
 @dataclass

@@ -218,7 +218,7 @@ def forward(model: Model, params: Intrinsics, w: Array, f: Array, u: Array,
               if e.acts_on == "time" and e.sensor == "gyro"), np.zeros(3))
     f_sensed = f
     r_size = _size_arms(model, params)
-    if r_size is not None:
+    if r_size is not None and np.any(r_size):
         if alpha is None:
             raise ValueError("accel_size_effect needs the angular acceleration")
         f_sensed = f + _size_terms(size_matrix(w, alpha), r_size)

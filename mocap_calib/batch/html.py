@@ -1,0 +1,21 @@
+"""``--html``: one self-contained page over the batch (the HTML report's batch view)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+def check_html_available() -> None:
+    """The report needs matplotlib; importing the writer fails early when it is missing."""
+    from mocap_calib.workflows.html_report import write_batch_report  # noqa: F401
+
+
+def write_html(out_dir: Path, sessions: list[dict[str, Any]], fleet_dir: Path) -> Path:
+    from mocap_calib.workflows.html_report import write_batch_report
+
+    fleet_file = fleet_dir / "fleet.yaml"
+    fleet = yaml.safe_load(fleet_file.read_text()) if fleet_file.is_file() else None
+    return Path(write_batch_report(out_dir / "batch.html", sessions, fleet))

@@ -1,0 +1,250 @@
+"""The batch manifest: a YAML list of sessions, checked completely before any work starts.
+
+    defaults:            # optional: keys every session gets unless it sets them itself
+      columns: broad
+    sessions:
+      - id: drone1-0301
+        imu_id: drone1
+        date: 2024-03-01
+        imu: drone1/imu.csv
+        mocap: take_0301.csv
+        rigid_body: drone1
+        model: base+time_offset
+
+Besides ``id`` (a folder name under OUT), ``imu_id`` (the IMU or airframe) and ``date``, a
+session takes any option of ``mocap-calib calibrate`` by its long name with underscores (the
+folder argument is ``mav0``). Relative paths are relative to the manifest's folder. Every
+problem (missing file, unknown key, duplicate id, wrong type) is one line.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import difflib
+import re
+import typing
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from mocap_calib.batch.session import CalibrateArgs
+from mocap_calib.errors import InputError
+from mocap_calib.io.yaml_io import load_yaml
+
+SESSION_KEYS = ("id", "imu_id", "date")
+ARG_KEYS = tuple(f.name for f in fields(CalibrateArgs))
+#: ``calibrate`` options that make no sense per session in a batch, and what to do instead.
+REFUSED = {
+    "out": "each result goes to OUT/<id>/calib.yaml",
+    "rrd": "run 'mocap-calib calibrate --rrd' on that session alone",
+    "report": "the batch writes OUT/batch.yaml and the fleet summary",
+    "quiet": "use 'mocap-calib batch --quiet'",
+    "html": "pass --html to 'mocap-calib batch': OUT/batch.html shows every session",
+}
+_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+_TYPES = typing.get_type_hints(CalibrateArgs)
+
+
+class ManifestError(InputError):
+    """Every problem of a manifest, one line each."""
+
+    def __init__(self, problems: list[str]) -> None:
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+@dataclass(frozen=True)
+class SessionEntry:
+    """One checked session: where it goes, whose it is, when, and its ``calibrate`` options."""
+
+    id: str
+    imu_id: str
+    date: str  # ISO form of the manifest's date
+    time_ns: int  # the date as ns since the Unix epoch (UTC): the session's place in a trend
+    args: CalibrateArgs
+
+
+@dataclass(frozen=True)
+class Manifest:
+    path: Path
+    sessions: list[SessionEntry]
+
+
+def _kind(name: str) -> str:
+    t = str(_TYPES[name])
+    if "tuple" in t:
+        return "paths"
+    for k in ("Path", "bool", "float", "int", "str"):
+        if k in t:
+            return k.lower()
+    raise AssertionError(name)
+
+
+def _date_ns(value: Any) -> tuple[str, int] | None:
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            value = (dt.date.fromisoformat(text) if len(text) == 10
+                     else dt.datetime.fromisoformat(text))
+        except ValueError:
+            return None
+    if isinstance(value, dt.datetime):
+        stamp = value if value.tzinfo else value.replace(tzinfo=dt.UTC)
+        return value.isoformat(), int(round(stamp.timestamp() * 1e9))
+    if isinstance(value, dt.date):
+        midnight = dt.datetime(value.year, value.month, value.day, tzinfo=dt.UTC)
+        return value.isoformat(), int(midnight.timestamp()) * 1_000_000_000
+    return None
+
+
+class _Checker:
+    """Collects the problems of one manifest while building its sessions."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.root = path.parent
+        self.problems: list[str] = []
+
+    def bad(self, where: str, what: str, fix: str) -> None:
+        self.problems.append(f"{self.path}: {where}: {what}; {fix}")
+
+    def value(self, where: str, key: str, value: Any) -> Any:
+        """The option's value in its type (paths resolved and checked), or None if wrong."""
+        kind = _kind(key)
+        if kind in ("path", "paths"):
+            items = value if kind == "paths" and isinstance(value, list) else [value]
+            out = []
+            for v in items:
+                if not isinstance(v, str) or not v.strip():
+                    self.bad(where, f"{key} must be a path, got {v!r}", "give a file path")
+                    return None
+                p = Path(v).expanduser()
+                p = p if p.is_absolute() else self.root / p
+                if key == "mav0" and not p.is_dir():
+                    self.bad(where, f"mav0 folder {p} not found", "check the path")
+                elif key != "mav0" and not p.exists():
+                    self.bad(where, f"{key} file {p} not found",
+                             "check the path (relative paths start at the manifest's folder)")
+                out.append(p)
+            return tuple(out) if kind == "paths" else out[0]
+        if kind == "bool":
+            if not isinstance(value, bool):
+                self.bad(where, f"{key} must be true or false, got {value!r}", f"write {key}: true")
+                return None
+            return value
+        if kind == "float":
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                self.bad(where, f"{key} must be a number, got {value!r}", "give a number")
+                return None
+            return float(value)
+        if kind == "int":
+            if isinstance(value, bool) or not isinstance(value, int):
+                self.bad(where, f"{key} must be a whole number, got {value!r}", "give e.g. 30")
+                return None
+            return value
+        if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+            self.bad(where, f"{key} must be text, got {value!r}", "give a string")
+            return None
+        return str(value)
+
+    def unknown(self, where: str, key: str) -> None:
+        if key in REFUSED:
+            self.bad(where, f"key '{key}' is not a batch option", REFUSED[key])
+            return
+        close = difflib.get_close_matches(key, [*SESSION_KEYS, *ARG_KEYS], n=1)
+        hint = f"did you mean '{close[0]}'?" if close else \
+            "use id, imu_id, date or a calibrate option with underscores, e.g. rigid_body"
+        self.bad(where, f"unknown key '{key}'", hint)
+
+    def options(self, where: str, raw: dict[str, Any]) -> dict[str, Any]:
+        out = {}
+        for key, v in raw.items():
+            key = str(key)
+            if key in SESSION_KEYS:
+                continue
+            if key not in ARG_KEYS:
+                self.unknown(where, key)
+            elif v is None:
+                out[key] = None  # unsets a default
+            else:
+                checked = self.value(where, key, v)
+                if checked is not None:
+                    out[key] = checked
+        return out
+
+
+def _session(chk: _Checker, n: int, raw: Any, defaults: dict[str, Any],
+             seen: dict[str, int]) -> SessionEntry | None:
+    where = f"session #{n}"
+    if not isinstance(raw, dict):
+        chk.bad(where, "is not a mapping", "write each session as 'key: value' lines under '- '")
+        return None
+    sid = raw.get("id")
+    if isinstance(sid, (str, int)) and not isinstance(sid, bool) and _ID.match(str(sid)):
+        sid = str(sid)
+        where = f"session '{sid}' (#{n})"
+        if sid in seen:
+            chk.bad(where, f"duplicate id (also session #{seen[sid]})",
+                    "give every session its own id")
+        seen.setdefault(sid, n)
+    else:
+        chk.bad(where, "missing or invalid id" if sid is None else f"invalid id {sid!r}",
+                "give an id of letters, digits, '.', '_' or '-' (it names OUT/<id>/)")
+        sid = None
+    imu_id = raw.get("imu_id")
+    if not isinstance(imu_id, (str, int)) or isinstance(imu_id, bool) or not str(imu_id):
+        chk.bad(where, "missing imu_id", "name the IMU or airframe, e.g. imu_id: drone1")
+    date = _date_ns(raw.get("date"))
+    if date is None:
+        chk.bad(where, "missing or unreadable date" if raw.get("date") is None else
+                f"unreadable date {raw.get('date')!r}", "write it as 2024-03-01 or "
+                "2024-03-01T14:30:00")
+    opts = {k: v for k, v in {**defaults, **chk.options(where, raw)}.items() if v is not None}
+    if opts.get("mav0") is None and (opts.get("imu") is None or opts.get("mocap") is None):
+        chk.bad(where, "no inputs", "give mav0 (a folder) or both imu and mocap")
+    elif opts.get("mav0") is not None and (opts.get("imu") or opts.get("mocap")):
+        chk.bad(where, "both mav0 and imu/mocap", "give either a mav0 folder or imu and mocap")
+    if isinstance(opts.get("model"), str):
+        from mocap_calib.core.model.effects import Model
+
+        try:
+            Model.parse(opts["model"])
+        except InputError as err:
+            chk.bad(where, str(err).split(";")[0], "fix model")
+    if sid is None or date is None or not isinstance(imu_id, (str, int)):
+        return None
+    return SessionEntry(sid, str(imu_id), date[0], date[1], CalibrateArgs(**opts))
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    """Read and check a manifest; raises :class:`ManifestError` listing every problem."""
+    path = Path(path)
+    data = load_yaml(path, "manifest")
+    chk = _Checker(path)
+    for key in data:
+        if key not in ("sessions", "defaults"):
+            chk.bad("top level", f"unknown key '{key}'", "the manifest has 'sessions' (a list) "
+                    "and optionally 'defaults'")
+    defaults_raw = data.get("defaults") or {}
+    if not isinstance(defaults_raw, dict):
+        chk.bad("defaults", "is not a mapping", "write 'key: value' lines under defaults")
+        defaults_raw = {}
+    for key in SESSION_KEYS:
+        if key in defaults_raw and key != "date":
+            chk.bad("defaults", f"'{key}' cannot be a default", "set it in each session")
+    defaults = chk.options("defaults", {k: v for k, v in defaults_raw.items() if k != "id"})
+    raw_sessions = data.get("sessions")
+    if not isinstance(raw_sessions, list) or not raw_sessions:
+        chk.bad("top level", "no sessions", "list them under 'sessions:'")
+        raw_sessions = []
+    seen: dict[str, int] = {}
+    sessions = []
+    for n, raw in enumerate(raw_sessions, start=1):
+        if isinstance(raw, dict) and "date" not in raw and "date" in defaults_raw:
+            raw = {**raw, "date": defaults_raw["date"]}
+        entry = _session(chk, n, raw, defaults, seen)
+        if entry is not None:
+            sessions.append(entry)
+    if chk.problems:
+        raise ManifestError(chk.problems)
+    return Manifest(path, sessions)

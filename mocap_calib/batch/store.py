@@ -1,0 +1,96 @@
+"""What the batch keeps on disk: content hashes of a session's inputs, atomic writes, and the
+``session.batch`` record inside each result that lets a rerun skip it."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+import mocap_calib
+from mocap_calib.batch.manifest import SessionEntry
+from mocap_calib.errors import InputError
+
+#: Files of a mav0 folder that can change a calibration (not the camera images).
+_FOLDER_SUFFIXES = (".csv", ".yaml", ".yml", ".txt")
+_CHUNK = 1 << 20
+
+
+class Digests:
+    """SHA-256 of file contents, each file read once per batch (a swarm's shared mocap take)."""
+
+    def __init__(self) -> None:
+        self._cache: dict[Path, str] = {}
+
+    def file(self, path: Path) -> str:
+        path = path.resolve()
+        if path not in self._cache:
+            h = hashlib.sha256()
+            try:
+                with path.open("rb") as f:
+                    while chunk := f.read(_CHUNK):
+                        h.update(chunk)
+            except OSError as err:
+                raise InputError(f"{path}: cannot read ({err.strerror or err}); check its "
+                                 "permissions") from None
+            self._cache[path] = h.hexdigest()
+        return self._cache[path]
+
+    def path(self, path: Path) -> str:
+        if not path.is_dir():
+            return self.file(path)
+        parts = [f"{p.relative_to(path).as_posix()}={self.file(p)}"
+                 for p in sorted(path.rglob("*")) if p.is_file() and p.suffix in _FOLDER_SUFFIXES]
+        return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def input_hash(entry: SessionEntry, digests: Digests, history: list[str] | None = None) -> str:
+    """Hash of everything that determines a session's result: the contents of its input files
+    (not their names, so a moved data folder is still finished), its options, the hashes of
+    the earlier sessions it takes priors from, and the mocap-calib version."""
+    opts: dict[str, Any] = {}
+    for key, value in asdict(entry.args).items():
+        if isinstance(value, Path):
+            value = digests.path(value)
+        elif isinstance(value, tuple):
+            value = [digests.path(v) for v in value]
+        opts[key] = value
+    record = {"options": opts, "history": list(history or []),
+              "imu_id": entry.imu_id, "date": entry.date, "version": mocap_calib.__version__}
+    return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()
+
+
+def finished_hash(result_path: Path) -> str | None:
+    """The ``session.batch.input_hash`` of an existing result, or None (absent, unreadable)."""
+    try:
+        data = yaml.safe_load(result_path.read_text())
+        return str(data["session"]["batch"]["input_hash"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return None
+
+
+def write_atomic(path: Path, write: Callable[[Path], Any]) -> Path:
+    """Write through a temporary file in the same folder and rename it into place: a reader,
+    a kill or Ctrl-C sees the old file or the new one, never half of one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def remove_leftovers(folder: Path) -> None:
+    """Temporary files of a batch that was killed while writing."""
+    if folder.is_dir():
+        for tmp in folder.glob(".*.tmp"):
+            tmp.unlink(missing_ok=True)

@@ -1,0 +1,68 @@
+"""Benchmark: what ``calibrate --html`` adds to a run, and how large the report is.
+
+A simulated session (200 Hz IMU, 100 Hz mocap, a few ms of clock offset, a few mocap gaps) is
+written as a mav0 folder and calibrated through the workflow; then the HTML report is made
+from the result, in the same process with matplotlib not yet imported (so its import counts).
+Each session length runs in its own process.
+Targets (issue 13): for a 10-minute session the report adds under 3 s and is under 5 MB.
+
+Usage: python scripts/bench_report.py [minutes ...]      (default: 10)
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+TARGET_SECONDS = 3.0
+TARGET_MB = 5.0
+
+
+def run_one(minutes: float, seed: int = 3) -> dict:
+    from mocap_calib.workflows import html_report
+    from mocap_calib.workflows.calibrate import InputSpec, calibration_options, run_calibration
+    from mocap_calib.workflows.provenance import RunClock
+    from mocap_calib.workflows.simulate import simulate_to_folder
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "session"
+        simulate_to_folder(folder, seed=seed, duration=60.0 * minutes,
+                           effects=["time_offset=0.004"])
+        clock = RunClock()
+        t0 = time.perf_counter()
+        result, _ = run_calibration(InputSpec(folder), calibration_options())
+        t_cal = time.perf_counter() - t0
+        assert "matplotlib" not in sys.modules, "matplotlib was imported by the calibration"
+        out = Path(tmp) / "report.html"
+        t1 = time.perf_counter()
+        html_report.write_calibration_html(out, result, [folder], clock)
+        t_report = time.perf_counter() - t1  # what --html adds (matplotlib import included)
+        t2 = time.perf_counter()
+        html_report.calibration_extras(result)  # again, for the breakdown
+        t_extras = time.perf_counter() - t2
+        size_mb = out.stat().st_size / 1e6
+    return {
+        "minutes": minutes, "calibration_s": round(t_cal, 2), "report_s": round(t_report, 2),
+        "of_which_residual_analysis_and_dead_reckoning_s": round(t_extras, 2),
+        "report_mb": round(size_mb, 3),
+        "within_targets": bool(t_report < TARGET_SECONDS and size_mb < TARGET_MB),
+    }
+
+
+def main() -> None:
+    if len(sys.argv) > 2 and sys.argv[1] == "--one":
+        print(json.dumps(run_one(float(sys.argv[2]))))
+        return
+    minutes = [float(a) for a in sys.argv[1:]] or [10.0]
+    for m in minutes:
+        proc = subprocess.run([sys.executable, __file__, "--one", str(m)], capture_output=True,
+                              text=True, check=True)
+        print(proc.stdout.strip().splitlines()[-1], flush=True)
+
+
+if __name__ == "__main__":
+    main()
