@@ -130,8 +130,9 @@ def _near(x: float, target: float, tol: float = 0.15) -> bool:
     return target != 0 and abs(x / target - 1.0) < tol
 
 
-def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float, imu: SmoothedImu | None = None,
-                refine: bool = True) -> Fit | None:
+def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float,
+                imu: SmoothedImu | None = None, refine: bool = True,
+                gravity: float = 9.81) -> Fit | None:
     """The closed-form fit of the mocap poses ``R``, ``p`` (one reading) near offset ``t_d``
     (refined within +-0.3 s by the rotation fit when ``refine``)."""
     imu = imu or SmoothedImu.of(s)
@@ -158,7 +159,7 @@ def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float, imu: Smoothe
         t_d, delta = t_d + float(d), delta + float(d)
     g_I, f_I = imu.at(gr.T[ok] - delta)
     rot_ratio, reflected, scale, Q, b = rotation_fit(g_I, gr.w_M[ok])
-    force = _force(gr, ok, f_I @ Q.T, b)
+    force = _force(gr, ok, f_I @ Q.T, b, gravity)
     return Fit(float(t_d), rot_ratio, reflected, scale, force.ratio, force.k, force.g,
                force.k_known, force.g_known, force.k_sign_known)
 
@@ -173,7 +174,8 @@ class _Force:
     k_sign_known: bool = True
 
 
-def _force(gr: MocapGrid, ok: NDArray[np.bool_], y: Array, b: Array) -> _Force:
+def _force(gr: MocapGrid, ok: NDArray[np.bool_], y: Array, b: Array,
+           gravity: float) -> _Force:
     """Specific force ``y = Q f_I = k R_MW a_W - R_MW g_W + K p + c``, linear in
     ``(k, g_W, p, c)``; about one axis only ``Q`` is free about that axis, and the angle is
     scanned (the accelerometer decides)."""
@@ -191,7 +193,7 @@ def _force(gr: MocapGrid, ok: NDArray[np.bool_], y: Array, b: Array) -> _Force:
     var = float(np.sum((y - y.mean(axis=0)) ** 2))
     sw = np.linalg.svd(b, compute_uv=False)
     if sw[1] >= 0.1 * sw[0]:
-        return _solve(M, H, Hi, y.reshape(-1), var)
+        return _solve(M, H, Hi, y.reshape(-1), var, gravity)
     # One rotation axis n: rows rotated by phi about n, y(phi) = y0 + cos y1 + sin y2.
     n = np.linalg.svd(b, full_matrices=False)[2][0]
     y0 = np.outer(y @ n, n)
@@ -199,7 +201,7 @@ def _force(gr: MocapGrid, ok: NDArray[np.bool_], y: Array, b: Array) -> _Force:
     trials = []
     for phi in np.radians(np.arange(0.0, 360.0, 5.0)):
         yp = (y0 + np.cos(phi) * y1 + np.sin(phi) * y2).reshape(-1)
-        trials.append(_solve(M, H, Hi, yp, var))
+        trials.append(_solve(M, H, Hi, yp, var, gravity))
     best = min(trials, key=lambda f: f.ratio)
     other = [f for f in trials if np.sign(f.k) != np.sign(best.k)]
     sign_known = not other or min(f.ratio for f in other) > 1.2 * best.ratio + 0.01
@@ -207,30 +209,45 @@ def _force(gr: MocapGrid, ok: NDArray[np.bool_], y: Array, b: Array) -> _Force:
                   best.g_known, sign_known)
 
 
-def _solve(M: Array, H: Array, Hi: Array, y: Array, var: float) -> _Force:
+def _solve(M: Array, H: Array, Hi: Array, y: Array, var: float, gravity: float) -> _Force:
     """Least squares; a parameter is known when moving it by 1 (``k``) or 1 m/s^2 (``|g|``)
-    would at least double the misfit: ``sqrt(RSS (H^-1)_jj)`` below that."""
-    x = Hi @ (M.T @ y)
-    rss = float(np.sum((y - M @ x) ** 2))
+    would at least double the misfit: ``sqrt(RSS (H^-1)_jj)`` below that. ``k`` is taken with
+    ``|g_W|`` held at ``gravity`` (along the fitted direction): free, the two can trade off
+    against each other when the model misses something (an accelerometer scale error)."""
+    My = M.T @ y
+    x = Hi @ My
+    yy = float(y @ y)
+    rss = max(yy - 2.0 * float(x @ My) + float(x @ H @ x), 0.0)
     g = x[1:4]
     gn = float(np.linalg.norm(g))
     gd = g / max(gn, 1e-9)
-    sig_k = float(np.sqrt(max(rss * Hi[0, 0], 0.0)))
     sig_g = float(np.sqrt(max(rss * (gd @ Hi[1:4, 1:4] @ gd), 0.0)))
+    k, sig_k = float(x[0]), float(np.sqrt(max(rss * Hi[0, 0], 0.0)))
+    if gn > 1.0:
+        idx, gi = [0, 4, 5, 6, 7, 8, 9], [1, 2, 3]
+        gf = gravity * gd
+        b = My[idx] - H[np.ix_(idx, gi)] @ gf
+        H2 = H[np.ix_(idx, idx)]
+        H2i = np.linalg.pinv(H2, rcond=1e-12)
+        x2 = H2i @ b
+        y2 = yy - 2.0 * float(gf @ My[gi]) + float(gf @ H[np.ix_(gi, gi)] @ gf)
+        rss2 = max(y2 - 2.0 * float(x2 @ b) + float(x2 @ H2 @ x2), 0.0)
+        k, sig_k = float(x2[0]), float(np.sqrt(max(rss2 * H2i[0, 0], 0.0)))
     # A direction the motion does not excite at all: pinv gives it no variance; check it.
     null = np.linalg.eigh(H)
     weak = null[1][:, null[0] <= 1e-9 * null[0][-1]]
     k_free = weak.size and np.abs(weak[0]).max() > 1e-3
     g_free = weak.size and np.abs(gd @ weak[1:4]).max() > 1e-3
-    return _Force(float(np.sqrt(rss / max(var, 1e-12))), float(x[0]), gn,
+    return _Force(float(np.sqrt(rss / max(var, 1e-12))), k, gn,
                   bool(sig_k < 0.3 and not k_free), bool(sig_g < 1.0 and not g_free))
 
 
 def _best(s: PreparedSession, R: Array, p: Array, offsets: list[float],
-          imu: SmoothedImu) -> Fit | None:
+          imu: SmoothedImu, gravity: float = 9.81) -> Fit | None:
     """The best fit over the offsets, with the score of the best one over a second away
     (``runner_up``: a clock offset is unambiguous when that is clearly worse)."""
-    fits = [f for f in (fit_reading(s, R, p, t, imu) for t in offsets) if f is not None]
+    fits = [f for f in (fit_reading(s, R, p, t, imu, gravity=gravity) for t in offsets)
+            if f is not None]
     if not fits:
         return None
     best = min(fits, key=lambda f: f.score)
@@ -250,7 +267,8 @@ def _offsets(s: PreparedSession, R: Array, p: Array, known: list[float],
     return list(dict.fromkeys(round(t, 4) for t in out))[:8]
 
 
-def _chance(s: PreparedSession, R: Array, p: Array, t_d: float, imu: SmoothedImu) -> float | None:
+def _chance(s: PreparedSession, R: Array, p: Array, t_d: float,
+            imu: SmoothedImu) -> float | None:
     """Median score at clock offsets seconds away from ``t_d`` (known to be wrong)."""
     scores = [f.score for f in (fit_reading(s, R, p, t_d + d, imu, refine=False)
                                 for d in (-9.0, -6.0, -4.0, 4.0, 6.0, 9.0)) if f is not None]
@@ -277,29 +295,21 @@ def _parameter_fixes(fit: Fit, gravity: float, position_unit_m: float = 1.0) -> 
         fixes.append("the gyro looks like it is in deg/s: pass --gyro-unit deg/s")
     elif _near(fit.gyro_scale, 180 / np.pi, 0.1):
         fixes.append("the gyro looks like it is in rad/s, not deg/s: pass --gyro-unit rad/s")
-    elif not _near(fit.gyro_scale, 1.0, 0.3):
-        fixes.append(f"the gyro reads {1 / fit.gyro_scale:.3g} times the mocap's rotation "
-                     "rates: check its unit")
-    k = fit.position_scale
-    if fit.k_known and fit.k_sign_known and k < 0:
-        fixes.append("the accelerometer's sign looks flipped (it reads minus the specific "
-                     "force, e.g. -g when level): negate the accelerometer readings")
-    if fit.k_known and not _near(abs(k), 1.0, 0.3):
-        metres = abs(k) * position_unit_m
-        hit = [u for u, m in POSITION_UNITS.items() if _near(metres, m, 0.3)]
-        read = _unit_name(position_unit_m)
-        if hit:
-            fixes.append(f"the mocap positions look like {_unit_name(POSITION_UNITS[hit[0]])}, "
-                         f"not {read}: pass --position-unit {hit[0]}")
-        else:
-            fixes.append(f"the mocap positions read as {read} are {1 / abs(k):.3g} times what "
-                         "the accelerometer shows: check their unit (m, cm or mm)")
-    g = fit.gravity
+    k, g = fit.position_scale, fit.gravity
     if fit.g_known and _near(g, gravity / 9.80665, 0.2):
         fixes.append("the accelerometer looks like it is in g: pass --accel-unit g")
-    elif fit.g_known and not _near(g, gravity, 0.2):
-        fixes.append(f"the accelerometer reads gravity as {g:.3g}, not {gravity:g}: check its "
-                     "unit")
+        return fixes
+    if not fit.k_known or (fit.g_known and not _near(g, gravity, 0.2)):
+        return fixes  # the specific-force fit does not pin the scale down: judge nothing
+    if fit.k_sign_known and k < 0 and _near(-k, 1.0, 0.3):
+        fixes.append("the accelerometer's sign looks flipped (it reads minus the specific "
+                     "force, e.g. -g when level): negate the accelerometer readings")
+    metres = abs(k) * position_unit_m
+    hit = [u for u, m in POSITION_UNITS.items() if _near(metres, m, 0.3)]
+    # Only a unit the data fit is named (never a guess): other scales are not a unit mistake.
+    if hit and not _near(abs(k), 1.0, 0.3):
+        fixes.append(f"the mocap positions look like {_unit_name(POSITION_UNITS[hit[0]])}, "
+                     f"not {_unit_name(position_unit_m)}: pass --position-unit {hit[0]}")
     return fixes
 
 
@@ -328,7 +338,7 @@ def check_conventions(s: PreparedSession, offsets: list[float], gravity: float =
     fits: dict[str, Fit] = {}
     for kind in READINGS:
         R, p = read_as(kind, s.R_WM, s.p_WM)
-        f = _best(s, R, p, _offsets(s, R, p, offsets, max_offset), imu)
+        f = _best(s, R, p, _offsets(s, R, p, offsets, max_offset), imu, gravity)
         if f is not None:
             fits[kind] = f
     if not fits:
