@@ -24,9 +24,12 @@ def run(key: str) -> dict:
     opts = DiagnoseOptions()
     opts.calibration.noise = resolve_noise(session, None, {})
     rep = diagnose(session.imu, session.mocap, opts)
+    # The last step is the final calibration with the model found (clock search and noise
+    # model chosen from the session, as `calibrate` does).
     steps = [{"model": s.model, "gyro_gap": round(s.residuals.ratio("gyro"), 2),
-              "accel_gap": round(s.residuals.ratio("accel"), 2), "added": s.added}
-             for s in rep.steps]
+              "accel_gap": round(s.residuals.ratio("accel"), 2), "added": s.added,
+              "final_calibration": k == len(rep.steps) - 1}
+             for k, s in enumerate(rep.steps)]
     return {"recording": label, "found": rep.found,
             "implausible": [{k: x[k] for k in ("effect", "reason")} for x in rep.implausible],
             "steps": steps, "unexplained": rep.unexplained, "seconds": round(rep.seconds, 1)}

@@ -192,6 +192,11 @@ class Sensitivity:
         shifts = [d[param] for d in self.shift.values() if param in d]
         return np.max(np.stack(shifts), axis=0) if shifts else None
 
+    def largest_move(self, param: str) -> Array | None:
+        """Per component, the largest plain |change| over the factors (None: not computed)."""
+        moves = [d[param] for d in self.raw.values() if param in d]
+        return np.max(np.stack(moves), axis=0) if moves else None
+
     def to_dict(self, total_sigma: dict[str, Array] | None = None) -> dict[str, Any]:
         d: dict[str, Any] = {"moved_statistical_sigmas": {
             f: {k: round(v, 3) for k, v in m.items()} for f, m in self.moved.items()}}

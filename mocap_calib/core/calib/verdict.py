@@ -84,8 +84,12 @@ def _inflate(r: CalibrationResult, cons: Consistency, sens: Sensitivity) -> dict
 
     1. times the segments' Birge ratio where they disagree significantly (the others share
        the model error the segments reveal and take the largest factor);
-    2. with the shift under noise densities x3 / x1/3 added in quadrature: the session cannot
-       tell the densities to better than that, so the answer is not known better either.
+    2. with the shift under noise densities x3 / x1/3 beyond chance added in quadrature: the
+       session cannot tell the densities to better than that, so the answer is not known
+       better either;
+    3. and never below the largest plain move under those densities: a reweighted estimator
+       is noisier (its sandwich variance is larger), so part of its move is chance, but a user
+       who assumed the other densities would get that answer, and the sigma should cover it.
 
     Returns the reported sigma of every parameter (for the sensitivity in those sigmas).
     """
@@ -97,9 +101,11 @@ def _inflate(r: CalibrationResult, cons: Consistency, sens: Sensitivity) -> dict
         if v is None:
             continue
         v = np.atleast_1d(np.asarray(v, dtype=float)) * f.get(param, worst)
-        sys = sens.systematic(param)
+        sys, move = sens.systematic(param), sens.largest_move(param)
         if sys is not None and sys.shape == v.shape:
             v = np.sqrt(v**2 + sys**2)
+        if move is not None and move.shape == v.shape:
+            v = np.maximum(v, move)
         total[param] = v
         setattr(r, attr, float(v[0]) if param == "t_d" else v)
     if worst > 1.0:
@@ -109,5 +115,5 @@ def _inflate(r: CalibrationResult, cons: Consistency, sens: Sensitivity) -> dict
                        f"x{worst:.2f})")
     if sens.shift:
         r.notes.append("sigmas include the shift under IMU noise densities x3 and x1/3 "
-                       "(added in quadrature)")
+                       "(beyond chance, added in quadrature) and cover its plain move")
     return total

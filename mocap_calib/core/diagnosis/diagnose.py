@@ -212,7 +212,7 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             cur_res = ds.residuals(current, model, noise)
         else:
             cur_res = res
-    report = _finish(imu, mocap, ds, model, current, noise, cur_res, steps, say)
+    report = _finish(imu, mocap, ds, model, current, steps, say)
     report.found, report.implausible, report.threshold_log10_p = found, implausible, threshold
     report.seconds = time.perf_counter() - t0
     return report
@@ -343,8 +343,8 @@ def _why_unexplained(res: Residuals, noise: NoiseModel, opts: DiagnoseOptions) -
 
 
 def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
-            current: PositionResult, noise: NoiseModel, cur_res: Residuals,
-            steps: list[DiagnoseStep], say: Callable[[str], None]) -> DiagnoseReport:
+            current: PositionResult, steps: list[DiagnoseStep],
+            say: Callable[[str], None]) -> DiagnoseReport:
     """The final calibration with the model found, and the signature of any gap left."""
     opts = ds.opts
     say(f"final calibration with {model}")
@@ -355,12 +355,17 @@ def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
     unexplained = None
-    why = _why_unexplained(cur_res, noise, opts)
-    if why and cur_res.analysis is not None:
+    # The final calibration (clock search, noise model chosen from the session) is what the
+    # user gets; the gap it leaves, not the search's last step, decides what is unexplained.
+    why = _why_unexplained(final_res, fx.noise_used, opts)
+    if why and final_res.analysis is not None:
         say("describing the residual no candidate explains")
-        current = current.with_covariance()
+        if fx.position is not None:
+            pos, s_final, st = fx.position, fx.session, fx.model_state
+        else:
+            pos = current.with_covariance()
+            s_final, st = ds.s, ModelState.from_position(pos, model, ds.t_mid)
         unexplained = {"why": why, **unexplained_signature(
-            ds.s, ModelState.from_position(current, model, ds.t_mid), cur_res.analysis, current,
-            opts.unexplained_ratio)}
+            s_final, st, final_res.analysis, pos, opts.unexplained_ratio)}
     return DiagnoseReport([], str(opts.start), str(model), steps, final, final_res, 0.0,
                           ds.notes, 0.0, [], unexplained)
