@@ -26,7 +26,6 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.io.euroc import IMU_HEADER, POSE_HEADER, write_euroc_imu, write_mav0
 from mocap_calib.io.tables import write_table
-from mocap_calib.io.yaml_io import save_yaml
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight
 
 DURATION = 30.0
@@ -278,10 +277,6 @@ def _multipos_log(kind: str) -> ImuSamples:
 def _prior_yaml() -> bytes:
     return yaml.safe_dump({"kind": "calibration", "version": 1, "gyro_bias": "fast",
                            "T_marker_imu": {"rotation_wxyz": [1, 0]}}).encode()
-
-
-def _write_result_truth(d: Path) -> Path:
-    return save_yaml(d / "truth.yaml", clean().truth)
 
 
 CASES: list[Case] = [
