@@ -24,17 +24,19 @@ def long_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-@pytest.mark.parametrize(("sig", "code", "when"), [
-    (signal.SIGINT, 130, "start"),  # while starting up and reading the inputs
-    (signal.SIGINT, 130, "stage 3/3"),  # while solving
-    (signal.SIGTERM, 143, "stage 3/3"),
+@pytest.mark.parametrize(("sig", "code", "when", "command"), [
+    (signal.SIGINT, 130, "start", "calibrate"),  # while starting up and reading the inputs
+    (signal.SIGINT, 130, "stage 3/3", "calibrate"),  # while solving
+    (signal.SIGTERM, 143, "stage 3/3", "calibrate"),
+    (signal.SIGINT, 130, "starting model", "diagnose"),  # other commands stop the same way
 ])
 def test_signal_stops_without_writing(long_session: Path, tmp_path: Path, sig: int, code: int,
-                                      when: str) -> None:
+                                      when: str, command: str) -> None:
     out = tmp_path / "calib.yaml"
     out.write_text("previous result\n")
-    proc = subprocess.Popen([str(ENTRY), "calibrate", str(long_session), "--out", str(out),
-                             "--report", str(tmp_path / "r.txt")],
+    report = ["--report", str(tmp_path / "r.txt")] if command == "calibrate" else []
+    proc = subprocess.Popen([str(ENTRY), command, str(long_session), "--out", str(out),
+                             *report],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
     reached = threading.Event()

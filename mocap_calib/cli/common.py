@@ -29,7 +29,7 @@ TIME_UNIT = Annotated[str | None, typer.Option(
 GYRO_UNIT = Annotated[str | None, typer.Option(help="rad/s or deg/s.", show_default=False)]
 ACCEL_UNIT = Annotated[str | None, typer.Option(help="m/s^2 or g.", show_default=False)]
 QUAT_ORDER = Annotated[str | None, typer.Option(help="wxyz or xyzw.", show_default=False)]
-POSITION_UNIT = Annotated[str | None, typer.Option(help="m or mm.", show_default=False)]
+POSITION_UNIT = Annotated[str | None, typer.Option(help="m, cm or mm.", show_default=False)]
 IMU_TOPIC = Annotated[str | None, typer.Option(
     help="Bag/ULog IMU topic (sensor_msgs/Imu; ULog: sensor_combined). Default: the only one.",
     show_default=False)]

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 
 import typer
 
-from mocap_calib.errors import CalibrationError, Interrupted
+from mocap_calib.errors import CalibrationError, Interrupted, ObservabilityError
 
 app = typer.Typer(
     name="mocap-calib",
@@ -64,6 +64,13 @@ def _is_usage_error(err: BaseException) -> bool:
                                                                 int)
 
 
+def _is_indeterminate(err: BaseException) -> bool:
+    """GTSAM's indeterminate-system exception (a RuntimeError with a multi-line text), wherever
+    a solver outside the wrapped calls raises it."""
+    text = str(err)
+    return isinstance(err, RuntimeError) and ("ndeterminant" in text or "ndeterminate" in text)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return (and exit with) its exit code."""
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
@@ -86,7 +93,12 @@ def main(argv: list[str] | None = None) -> int:
         print("error: interrupted; no result was written", file=sys.stderr)
         code = 130
     except Exception as err:  # click usage errors and anything unexpected
-        if _is_usage_error(err):
+        if _is_indeterminate(err) and not debug:
+            print("error: the data do not determine every parameter (GTSAM: indeterminate "
+                  "linear system); check the inputs' units and conventions, or record motion "
+                  "about all axes", file=sys.stderr)
+            code = ObservabilityError.exit_code
+        elif _is_usage_error(err):
             err.show()  # type: ignore[attr-defined]
             code = err.exit_code  # type: ignore[attr-defined]
         elif isinstance(err, MemoryError):

@@ -26,7 +26,8 @@ IntArray = NDArray[np.int64]
 TIME_UNITS: dict[str, int] = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 GYRO_UNITS: tuple[str, ...] = ("rad/s", "deg/s")
 ACCEL_UNITS: tuple[str, ...] = ("m/s^2", "g")
-POSITION_UNITS: tuple[str, ...] = ("m", "mm")
+#: Metres per unit of a position column.
+POSITION_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 QUAT_ORDERS: tuple[str, ...] = ("wxyz", "xyzw")
 
 MIN_IMU_ROWS = 100
@@ -40,6 +41,9 @@ IMU_GAP_FACTOR = 5.0
 #: Plausible sample rates (Hz) of either stream, to catch a wrong time unit.
 MIN_RATE_HZ = 1.0
 MAX_RATE_HZ = 1e5
+#: No motion-capture system streams faster than this (Hz).
+MAX_MOCAP_RATE_HZ = 1e4
+TIME_NAMES = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
 #: Above this 99th percentile of |w| (rad/s) the gyro is almost surely in deg/s.
 GYRO_P99_MAX = 25.0
 #: If even the quietest 5 % of samples turn faster than this (rad/s), it is deg/s.
@@ -50,7 +54,8 @@ ACCEL_COUNTS_MIN = 200.0
 GYRO_COUNTS_DEG_MIN = 4000.0
 _COUNTS_FIX = ("'mocap-calib multipos --raw' calibrates raw counts; the other commands need "
                "SI units: convert the log (or pass --gyro-unit / --accel-unit)")
-#: Positions spanning more than this (m) in one axis are almost surely millimetres.
+_UNIT_NAMES = {"m": "metres", "cm": "centimetres", "mm": "millimetres"}
+#: Positions spanning more than this (m) in one axis are not metres.
 POSITION_RANGE_MAX = 100.0
 
 
@@ -208,6 +213,21 @@ def normalise_quaternions(quat: Array, lines: Lines, rows: IntArray | None = Non
     return quat
 
 
+def time_unit_hint(raw_step: float, declared: str, kind: str = "IMU"
+                   ) -> tuple[str, float] | None:
+    """The time unit (other than ``declared``) in which samples ``raw_step`` apart (in the
+    file's own numbers) have a plausible rate for the stream, with that rate; the most typical
+    rate (near 300 Hz) wins when several fit (they are 1000x apart). None if none fits."""
+    if not (np.isfinite(raw_step) and raw_step > 0):
+        return None
+    top = MAX_MOCAP_RATE_HZ if kind == "mocap" else MAX_RATE_HZ
+    fits = [(u, 1e9 / (raw_step * f)) for u, f in TIME_UNITS.items() if u != declared]
+    fits = [(u, r) for u, r in fits if MIN_RATE_HZ <= r <= top]
+    if not fits:
+        return None
+    return min(fits, key=lambda ur: abs(np.log10(ur[1]) - 2.5))
+
+
 def check_time_unit(ns: IntArray, unit: str, kind: str, lines: Lines) -> None:
     """Raise if the median sample spacing implies an implausible rate for the declared unit.
 
@@ -223,17 +243,17 @@ def check_time_unit(ns: IntArray, unit: str, kind: str, lines: Lines) -> None:
     if step_ns <= 0:
         return
     rate = 1e9 / step_ns
-    if MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+    top = MAX_MOCAP_RATE_HZ if kind == "mocap" else MAX_RATE_HZ
+    if MIN_RATE_HZ <= rate <= top:
         return
-    raw_step = step_ns / TIME_UNITS[unit]  # spacing in the file's own numbers
-    fits = [(u, 1e9 / (raw_step * f)) for u, f in TIME_UNITS.items() if u != unit]
-    fits = [(u, r) for u, r in fits if MIN_RATE_HZ <= r <= MAX_RATE_HZ]
+    hint = time_unit_hint(step_ns / TIME_UNITS[unit], unit, kind)
     what = (f"{kind} samples are {step_ns * 1e-9:.3g} s apart ({rate:.3g} Hz) if the "
             f"timestamps are in {unit}, which is implausible")
-    if fits:
-        # Several units can fit (they are 1000x apart); prefer the most typical rate.
-        best, best_rate = min(fits, key=lambda ur: abs(np.log10(ur[1]) - 2.5))
-        fix = f"the timestamps look like {best} ({best_rate:.3g} Hz); pass --time-unit {best}"
+    if hint:
+        best, best_rate = hint
+        fix = (f"the timestamps look like {best} ({TIME_NAMES[best]}, {best_rate:.3g} Hz); pass "
+               f"--time-unit {best} (or convert this file's stamps to {unit} if the other "
+               f"file's are in {unit})")
     else:
         fix = "check the time column and --time-unit (s, ms, us or ns)"
     raise lines.error(what, fix)
@@ -305,8 +325,20 @@ def check_position_unit(position: Array, position_unit: str, lines: Lines) -> No
         return
     span = float(np.max(np.ptp(position, axis=0)))
     if span > POSITION_RANGE_MAX:
-        raise lines.error(f"positions span {span:.4g} m, more than a mocap volume",
-                          "the positions look like millimetres; pass --position-unit mm")
+        # The span alone cannot tell centimetres from millimetres: name every unit that
+        # gives a room-sized span; calibrate's convention check says which one the
+        # accelerometer agrees with.
+        fits = [(u, span * m) for u, m in POSITION_UNITS.items()
+                if u != "m" and 0.1 <= span * m <= POSITION_RANGE_MAX]
+        if fits:
+            shown = " or ".join(f"{_UNIT_NAMES[u]} (a {s:.3g} m span)" for u, s in fits)
+            fix = ("pass " + " or ".join(f"--position-unit {u}" for u, _ in fits)
+                   + (", whichever the file uses" if len(fits) > 1 else ""))
+            what = f"positions span {span:.4g} m, more than a mocap volume: not metres; {shown}"
+        else:
+            what = f"positions span {span:.4g} m, more than a mocap volume, in any unit"
+            fix = "check the position columns"
+        raise lines.error(what, fix)
 
 
 def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
@@ -367,7 +399,8 @@ def validate_mocap(ns: IntArray, quat_wxyz: Array, position: Array, lines: Lines
     check_position_unit(position, position_unit, lines)
     origin = int(ns[0])
     return MocapPoses((ns - origin) / 1e9, quat_wxyz, position, origin, lines.source,
-                      dropped_rows=int(len(keep) - len(rows)))
+                      dropped_rows=int(len(keep) - len(rows)),
+                      position_unit_m=POSITION_UNITS.get(position_unit, 1.0))
 
 
 def check_overlap(imu: ImuSamples, mocap: MocapPoses, allow_offset: bool,

@@ -19,7 +19,9 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
-from mocap_calib.io.generic import Layout, name_key, read_indexed, sniff_layout, write_table
+from mocap_calib.io.generic import read_indexed
+from mocap_calib.io.layout import Layout, name_key, sniff_layout
+from mocap_calib.io.tables import write_table
 
 IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
               "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
@@ -112,7 +114,7 @@ def read_euroc_poses(path: Path | str, *, time_unit: str = "ns", position_unit: 
     Args:
         path: The CSV file.
         time_unit: Unit of the stamps (EuRoC: ns).
-        position_unit: m (EuRoC) or mm.
+        position_unit: m (EuRoC), cm or mm.
         quat_order: wxyz (EuRoC) or xyzw.
 
     Returns:
@@ -238,7 +240,7 @@ def read_mav0(path: Path | str, pose_source: str = "auto", *, time_unit: str = "
         gyro_unit: rad/s (EuRoC) or deg/s.
         accel_unit: m/s^2 (EuRoC) or g.
         quat_order: wxyz (EuRoC) or xyzw.
-        position_unit: m (EuRoC) or mm.
+        position_unit: m (EuRoC), cm or mm.
 
     Returns:
         The session.

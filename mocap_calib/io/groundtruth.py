@@ -16,7 +16,7 @@ import numpy as np
 from mocap_calib.core.calib.groundtruth import GroundTruth
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
-from mocap_calib.io.generic import write_table
+from mocap_calib.io.tables import write_table
 from mocap_calib.io.tum import TUM_HEADER, format_seconds
 from mocap_calib.io.yaml_io import save_yaml
 

@@ -25,7 +25,9 @@ from mocap_calib.io.checks import (
     check_unit,
     validate_imu,
 )
-from mocap_calib.io.generic import G0, numeric_column, parse_stamps, read_frame, sniff_layout
+from mocap_calib.io.generic import G0
+from mocap_calib.io.layout import numeric_column, read_frame, sniff_layout
+from mocap_calib.io.stamps import parse_stamps
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]

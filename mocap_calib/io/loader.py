@@ -35,8 +35,9 @@ from mocap_calib.io.euroc import (
     read_euroc_poses,
     read_mav0,
 )
-from mocap_calib.io.generic import WHITESPACE, read_generic, sniff_layout
+from mocap_calib.io.generic import read_generic
 from mocap_calib.io.imu_tk import read_imu_tk_pair
+from mocap_calib.io.layout import WHITESPACE, sniff_layout
 from mocap_calib.io.mocap_exports import ExportOptions, read_export, sniff_export
 from mocap_calib.io.tum import read_tum
 from mocap_calib.io.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
@@ -116,7 +117,7 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
         gyro_unit: rad/s or deg/s; None for the format's own.
         accel_unit: m/s^2 or g; None for the format's own.
         quat_order: wxyz or xyzw; None for the format's own.
-        position_unit: m or mm; None for the format's own.
+        position_unit: m, cm or mm; None for the format's own.
         recording: topics, TF child frame and stamp source for bags and ULogs.
         export: format, rigid body, rotation form and rate for Motive/Vicon exports.
 

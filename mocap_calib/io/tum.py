@@ -13,7 +13,9 @@ import numpy as np
 
 from mocap_calib.core.model.types import MocapPoses
 from mocap_calib.errors import input_error
-from mocap_calib.io.generic import read_indexed, sniff_layout, write_table
+from mocap_calib.io.generic import read_indexed
+from mocap_calib.io.layout import sniff_layout
+from mocap_calib.io.tables import write_table
 
 TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
 

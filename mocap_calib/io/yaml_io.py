@@ -94,7 +94,21 @@ def load_yaml(path: str | Path, what: str = "YAML file") -> dict[str, Any]:
     if not path.is_file():
         raise InputError(f"{path}: {what} not found; check the path")
     try:
-        data = yaml.safe_load(path.read_text())
+        raw = path.read_bytes()
+    except OSError as err:
+        raise InputError(f"{path}: cannot read the {what} ({err.strerror or err}); check the "
+                         "file's permissions") from None
+    if not raw.strip():
+        raise InputError(f"{path}: the {what} is empty; pass the YAML file meant here")
+    try:
+        if b"\0" in raw[:65536]:
+            raise UnicodeDecodeError("utf-8", raw, 0, 1, "NUL byte")
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: a binary file, not a YAML {what}; pass the YAML file meant "
+                         "here") from None
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f", line {mark.line + 1}" if mark is not None else ""

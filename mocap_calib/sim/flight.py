@@ -20,6 +20,7 @@ from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
+from mocap_calib.sim.motions import MOTIONS, motion_trajectory
 from mocap_calib.sim.trajectory import Trajectory, periodic_trajectory, random_trajectory
 
 Array = NDArray[np.float64]
@@ -119,8 +120,12 @@ class SimConfig:
     rig_seed: int | None = None  # draw T_MI and the room's tilt from this seed (a fixed rig)
     mocap_noise_corr: float = 0.0  # s: AR(1) mocap noise with this time constant (0: white)
     periodic_motion_s: float = 0.0  # > 0: a flight repeating with this period (clock tests)
+    motion: str = "flight"  # a key of sim.motions.MOTIONS (turntable, planar, slow, ...)
 
     def validate(self) -> None:
+        if self.motion not in MOTIONS:
+            raise InputError(f"unknown --motion '{self.motion}'; choose one of: "
+                             f"{', '.join(MOTIONS)}")
         if not self.duration > 1.0:
             raise InputError(f"--duration {self.duration}: must be more than 1 s")
         if self.duration > 4 * 3600:
@@ -223,6 +228,10 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
     effects = dict(cfg.effects)
     # Everything is drawn in a fixed order so the seed fixes everything.
     traj = random_trajectory(rng, aggressiveness=cfg.aggressiveness)
+    if cfg.motion != "flight":
+        # Another motion kind: its own generator, so the draws below stay the seed's.
+        traj = motion_trajectory(cfg.motion, np.random.default_rng([cfg.seed, 17]),
+                                 cfg.aggressiveness)
     if cfg.periodic_motion_s > 0:
         traj = periodic_trajectory(np.random.default_rng([cfg.seed, 1]), cfg.periodic_motion_s)
     rig = _draw_rig(rng, cfg)
@@ -420,6 +429,7 @@ def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Ri
             "imu_rate": float(cfg.imu_rate),
             "mocap_rate": float(cfg.mocap_rate),
             "mocap_noise_corr_s": float(cfg.mocap_noise_corr),
+            **({"motion": cfg.motion} if cfg.motion != "flight" else {}),
             "bias_definition": "mean of the true bias over the IMU samples",
             "gyro_bias_initial": b_g[0].tolist(),
             "accel_bias_initial": b_a[0].tolist(),

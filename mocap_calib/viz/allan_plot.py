@@ -22,6 +22,7 @@ One view per sensor and axis (``/gyroscope/x``, ... ``/accelerometer/z``) holds:
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -129,22 +130,32 @@ def write_allan_recording(path: Path | str, result: AllanResult) -> Path:
                                                                  name="legend"),
                        column_shares=[4, 1]),
         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
-    log = Logger(str(path), blueprint, name="Allan deviation")
+    # Written under a temporary name and renamed at the end: no half-written recording.
+    tmp = Path(path).with_name(f".{Path(path).name}.partial")
+    log = Logger(str(tmp), blueprint, name="Allan deviation")
     rr = log.rr
-    log.text("/README", _readme(result), markdown=True)
-    for s in sensors:
-        x = np.round(1000.0 * np.log10(s.tau)).astype(np.int64)
-        for ax in range(3):
-            for name, y in _series(s, ax).items():
-                entity = f"/{s.sensor}/{'xyz'[ax]}/{name}"
-                color, width = _STYLE[name]
-                if name == "adev":  # measured points as markers, model curves as lines
-                    log.rec.log(entity, rr.SeriesPoints(colors=[color], names=[name],
-                                                        marker_sizes=[width]), static=True)
-                else:
-                    log.style(entity, name, color, width)
-                ok = np.isfinite(y)
-                if ok.any():
-                    log.scalars(entity, x[ok], y[ok], timeline=TIMELINE, sequence=True)
-    log.close()
+    done = False
+    try:
+        log.text("/README", _readme(result), markdown=True)
+        for s in sensors:
+            x = np.round(1000.0 * np.log10(s.tau)).astype(np.int64)
+            for ax in range(3):
+                for name, y in _series(s, ax).items():
+                    entity = f"/{s.sensor}/{'xyz'[ax]}/{name}"
+                    color, width = _STYLE[name]
+                    if name == "adev":  # measured points as markers, model curves as lines
+                        log.rec.log(entity, rr.SeriesPoints(colors=[color], names=[name],
+                                                            marker_sizes=[width]), static=True)
+                    else:
+                        log.style(entity, name, color, width)
+                    ok = np.isfinite(y)
+                    if ok.any():
+                        log.scalars(entity, x[ok], y[ok], timeline=TIMELINE, sequence=True)
+        done = True
+    finally:
+        log.close()
+        if done:
+            os.replace(tmp, path)
+        else:
+            tmp.unlink(missing_ok=True)
     return path

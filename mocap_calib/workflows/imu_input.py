@@ -7,7 +7,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from mocap_calib.core.model.faults import dead_channels, describe_dead, frozen
+from mocap_calib.core.model.rest import runs
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.errors import InputError
 from mocap_calib.io.loader import load_imu_file
 
 ProgressFn = Callable[[str], None]
@@ -47,11 +52,18 @@ class ImuSpec:
     gyro: Path | None = None
 
     def load(self) -> tuple[ImuSamples, list[str]]:
-        """Read the log (:func:`mocap_calib.io.loader.load_imu_file`): samples and notes."""
-        return load_imu_file(self.imu, columns=self.columns, time_unit=self.time_unit,
-                             gyro_unit=self.gyro_unit, accel_unit=self.accel_unit,
-                             raw=self.raw, accel_file=self.accel, gyro_file=self.gyro,
-                             topic=self.imu_topic, stamp=self.stamp)
+        """Read the log (:func:`mocap_calib.io.loader.load_imu_file`): samples and notes.
+
+        Raises:
+            InputError: also for a dead sensor or a frozen stretch (the same sample repeated),
+                which the IMU-only tools cannot leave out (they need an unbroken log).
+        """
+        imu, notes = load_imu_file(self.imu, columns=self.columns, time_unit=self.time_unit,
+                                   gyro_unit=self.gyro_unit, accel_unit=self.accel_unit,
+                                   raw=self.raw, accel_file=self.accel, gyro_file=self.gyro,
+                                   topic=self.imu_topic, stamp=self.stamp)
+        refuse_faulty_log(imu)
+        return imu, notes
 
     @property
     def name(self) -> str:
@@ -59,3 +71,21 @@ class ImuSpec:
         if self.imu is None and (self.accel is not None or self.gyro is not None):
             return f"{self.accel} and {self.gyro}"
         return str(self.imu)
+
+
+def refuse_faulty_log(imu: ImuSamples) -> None:
+    """Raise for a dead channel or a frozen stretch of an IMU-only log (saturation is not
+    judged here: at rest a quantised channel's extreme value repeats legitimately)."""
+    dead = dead_channels(imu.gyro, imu.accel)
+    if dead:
+        raise InputError(f"{imu.source}: {describe_dead(imu.gyro, imu.accel, dead)}; check the "
+                         "sensor and the column map")
+    fz = frozen(np.hstack([imu.gyro, imu.accel]), imu.rate_hz or 1.0)
+    if fz.any():
+        spans = runs(fz, 1)
+        first = float(imu.t[spans[0, 0]] - imu.t[0])
+        raise InputError(
+            f"{imu.source}: the IMU is frozen (the same sample repeated) for "
+            f"{fz.sum() / imu.rate_hz:.3g} s in {len(spans)} stretch(es), the first at "
+            f"{first:.1f} s; this tool needs an unbroken log: re-record, or cut the log to a "
+            "stretch without them")

@@ -43,9 +43,14 @@ def simulate(
         "--counts", help="With --protocol multipos: write raw counts of a 16-bit MEMS part "
         "(+-8 g, +-2000 deg/s; truth.yaml gives the nominal scales) for 'multipos --raw'.")]
     = False,
+    motion: Annotated[str, typer.Option(
+        help="With --protocol flight: flight (rotates about all axes), turntable (one "
+        "vertical axis), planar (a ground robot: yaw and planar translation) or slow "
+        "(low excitation). The last three cannot determine everything.")] = "flight",
 ) -> None:
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
                                  imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [],
-                                 mocap_noise_corr=mocap_noise_corr, counts=counts)
+                                 mocap_noise_corr=mocap_noise_corr, counts=counts,
+                                 motion=motion)
     for path, what in written:
         typer.echo(f"wrote {path}  ({what})")

@@ -20,7 +20,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.errors import ConvergenceError
+from mocap_calib.errors import ConvergenceError, ObservabilityError
 
 Array = NDArray[np.float64]
 
@@ -139,22 +139,30 @@ class SolveReport:
     last_decrease: float = 0.0
 
 
+#: Cost decrease per LM iteration below which a stage's solve has converged (the cost is half
+#: a chi2, so this is statistically nothing): along a direction the data do not determine,
+#: held only by a weak prior, LM would otherwise creep on for ever (a turntable's R_MI).
+ABS_TOL = 5e-3
+
+
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
            on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
-           relative_tol: float = 1e-7, retry: bool = True) -> tuple[gtsam.Values, SolveReport]:
+           relative_tol: float = 1e-7, retry: bool = True, absolute_tol: float = 0.0
+           ) -> tuple[gtsam.Values, SolveReport]:
     """Levenberg-Marquardt with an optional per-iteration hook (values and error).
 
     A run cut off by the iteration limit while the cost still falls is retried once from where
     it stopped (with LM's damping reset, which is what usually stalls it); the report says
-    whether the cost finally stopped falling (``converged``).
+    whether the cost finally stopped falling (``converged``). With ``absolute_tol`` (see
+    :data:`ABS_TOL`) it has also converged when an iteration lowers the cost by less.
     """
     t0 = time.perf_counter()
     initial_error = float(graph.error(initial))
     values, it, err, rel, reason = _lm_pass(graph, initial, max_iterations, on_iteration,
-                                            relative_tol, 0)
+                                            relative_tol, 0, absolute_tol)
     if reason == "iteration limit" and retry:
         values, it2, err, rel, reason = _lm_pass(graph, values, max_iterations, on_iteration,
-                                                 relative_tol, it)
+                                                 relative_tol, it, absolute_tol)
         it += it2
     report = SolveReport(it, initial_error, float(err), time.perf_counter() - t0,
                          converged=reason != "iteration limit", reason=reason,
@@ -164,7 +172,8 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
 
 def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int,
              on_iteration: Callable[[int, gtsam.Values, float], None] | None,
-             relative_tol: float, it0: int) -> tuple[gtsam.Values, int, float, float, str]:
+             relative_tol: float, it0: int, absolute_tol: float = 0.0
+             ) -> tuple[gtsam.Values, int, float, float, str]:
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(relative_tol)
@@ -190,7 +199,7 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
         if on_iteration is not None:
             on_iteration(it0 + it, opt.values(), err)
         rel = (prev - err) / max(prev, 1e-300)
-        if rel < relative_tol or err < 1e-12:
+        if rel < relative_tol or err < 1e-12 or prev - err < absolute_tol:
             reason = "converged"
             break
         if opt.lambda_() > 1e10:
@@ -207,6 +216,27 @@ def require_converged(stage: str, report: SolveReport, max_iterations: int) -> N
         f"the {stage} stage did not converge in {report.iterations} iterations (cost still "
         f"falling by {100 * report.last_decrease:.2g} % per iteration); raise "
         f"--max-iterations (now {max_iterations}) or check the inputs' units and conventions")
+
+
+def marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Marginals:
+    """GTSAM's marginals, with its indeterminate-system exception turned into a one-line
+    :class:`~mocap_calib.errors.ObservabilityError`."""
+    try:
+        return gtsam.Marginals(graph, values)
+    except RuntimeError as err:
+        raise gtsam_error(err) from None
+
+
+def gtsam_error(err: RuntimeError) -> Exception:
+    """A GTSAM exception as one line: an indeterminate linear system means the data (with the
+    weak range priors) do not determine every parameter; anything else stays as it is."""
+    text = " ".join(str(err).split())
+    if "ndeterminant" not in text and "ndeterminate" not in text:
+        return err
+    return ObservabilityError(
+        "the data do not determine every parameter (GTSAM: indeterminate linear system); the "
+        "motion does not excite the model's parameters, or an input's unit or convention is "
+        "wrong: check them, record motion about all axes, or use a smaller --model")
 
 
 def information_matrix(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,

@@ -20,6 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.clock import MIN_MARGIN_Z, ClockSearch, search_clock
+from mocap_calib.core.calib.conventions import explain_failure, screen_conventions
+from mocap_calib.core.calib.degenerate import mark_single_axis, mark_undetermined
+from mocap_calib.core.calib.faults import leave_out_imu_faults
 from mocap_calib.core.calib.result import CalibrationResult, Diagnostics, StageStats
 from mocap_calib.core.calib.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.calib.stage_attitude import AttitudeResult, run_attitude_stage
@@ -180,9 +183,21 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         if pr.block in effects0:
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
     t_mid = 0.5 * (s.u[0] + s.u[-1])
-    t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
+    try:  # a failure here is often a convention mistake: name it if one explains the data
+        s, t_d0, clock, left_out, att, vel = _first_fits(s, opts, effects0, t_mid,
+                                                         on_iteration, say)
+    except CalibrationError:
+        found = explain_failure(s, opts, mocap.position_unit_m, say)
+        if found is None:
+            raise
+        notes.append(f"clock offset started at {found:.4f} s, where a closed-form fit of the "
+                     "data is unambiguous (the clock search could not tell)")
+        s, t_d0, clock, left_out, att, vel = _first_fits(
+            s, replace(opts, time_offset=found), effects0, t_mid, on_iteration, say)
+    notes += left_out
+    t_d0, clock, att, vel = _screen(s, opts, t_d0, clock, att, vel, effects0, t_mid,
+                                    mocap.position_unit_m, on_iteration, say)
     delta0 = s.clock_shift + t_d0
-    att, vel = _initial_stages(s, opts, delta0, effects0, t_mid, on_iteration, say)
 
     say("stage 3/3: position factors (all parameters jointly)")
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
@@ -205,8 +220,37 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                                clock=clock, position=pos))
     result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
                       time.perf_counter() - t0)
+    mark_single_axis(result, s, pos.delta)
     judge(result, s, pos, opts, clock, say)
+    mark_undetermined(result)
     return result
+
+
+def _first_fits(s: PreparedSession, opts: CalibrationOptions, effects0: dict[str, Array],
+                t_mid: float, on_iteration: IterationFn | None, say: ProgressFn):
+    """Clock alignment, the IMU's faulty spans left out, stages 1-2."""
+    t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
+    s, left_out = leave_out_imu_faults(s, s.clock_shift + t_d0)
+    att, vel = _initial_stages(s, opts, s.clock_shift + t_d0, effects0, t_mid, on_iteration,
+                               say)
+    return s, t_d0, clock, left_out, att, vel
+
+
+def _screen(s: PreparedSession, opts: CalibrationOptions, t_d0: float,
+            clock: ClockSearch | None, att: AttitudeResult, vel: VelocityResult,
+            effects0: dict[str, Array], t_mid: float, position_unit_m: float,
+            on_iteration: IterationFn | None, say: ProgressFn):
+    """The convention check when stages 1-2 fit poorly; restarts them at the clock offset a
+    closed-form fit finds when the search picked a wrong lag."""
+    better = screen_conventions(s, opts, t_d0, [] if clock is None else [
+        c for c, _ in clock.candidates], att.stats.rms_after, vel.stats.rms_after,
+        position_unit_m, say)
+    if better is None:
+        return t_d0, clock, att, vel
+    clock = None if clock is None else replace(clock, time_offset=better, verified_by_fit=True)
+    att, vel = _initial_stages(s, opts, s.clock_shift + better, effects0, t_mid, on_iteration,
+                               say)
+    return better, clock, att, vel
 
 
 def _stage_hook(on_iteration: IterationFn | None, stage: str):
@@ -216,7 +260,7 @@ def _stage_hook(on_iteration: IterationFn | None, stage: str):
 
 
 def _session_notes(s: PreparedSession) -> list[str]:
-    notes: list[str] = []
+    notes: list[str] = list(s.notes)
     if s.dropped_mocap_rows:
         notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
     if s.spikes_removed:

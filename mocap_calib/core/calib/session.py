@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, refuse_dead
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel, gap_threshold
 from mocap_calib.errors import InputError, ObservabilityError
 
@@ -46,6 +47,8 @@ class PreparedSession:
     dropped_mocap_rows: int = 0
     spikes_removed: int = 0
     removed_tau: Array = field(default_factory=lambda: np.zeros(0))  # times of removed spikes
+    imu_faults: ImuFaults | None = None  # saturated / frozen IMU samples (left out later)
+    notes: tuple[str, ...] = ()  # what the sensor-fault screen removed
 
     @property
     def imu_rate(self) -> float:
@@ -90,6 +93,14 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
     dt_i = np.diff(imu.t)
     if np.any(dt_m <= 0) or np.any(dt_i <= 0):
         raise InputError("timestamps must increase strictly; sort the files and remove duplicates")
+    if not _both_static(imu, mocap):  # both static: the static session is the message
+        refuse_dead(imu, mocap)
+    notes: list[str] = []
+    frozen = frozen_mocap(mocap)
+    if frozen.any():
+        notes.append(f"{int(frozen.sum())} mocap samples ({frozen.sum() / mocap.rate_hz:.2f} s) "
+                     "were frozen (the same pose repeated) and were left out")
+        mocap = mocap.select(~frozen)
     duration = min(imu.duration, mocap.duration)
     if duration < min_duration:
         raise ObservabilityError(
@@ -117,7 +128,17 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
         dropped_mocap_rows=mocap.dropped_rows,
         spikes_removed=int(bad.sum()),
         removed_tau=mocap.t[bad],
+        imu_faults=imu_faults(imu.gyro, imu.accel, imu.rate_hz),
+        notes=tuple(notes),
     )
+
+
+def _both_static(imu: ImuSamples, mocap: MocapPoses) -> bool:
+    speed = np.linalg.norm(imu.gyro - np.median(imu.gyro, axis=0), axis=1)
+    R = mocap.rotation
+    angles = np.linalg.norm(so3.log(np.einsum("ji,njk->nik", R[0], R)), axis=1)
+    return bool(np.percentile(speed, 90) < 0.1 and np.max(angles) < np.radians(10)
+                and np.max(np.ptp(mocap.position, axis=0)) < 0.05)
 
 
 def screen_mocap_spikes(tau: Array, R: Array, p: Array, sigma_p: float, sigma_r: float,

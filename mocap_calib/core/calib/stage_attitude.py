@@ -20,9 +20,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.graph import (
+    ABS_TOL,
     BatchFactors,
     BatchOutput,
     huber_isotropic,
+    marginals,
     require_converged,
     robust_weights_and_chi2,
     run_lm,
@@ -160,7 +162,8 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         init = gtsam.Values()
         init.insert(KEY_R, gtsam.Rot3(R_est))
         init.insert(KEY_BG, b_est)
-        sol, rep = run_lm(graph, init, max_iterations, on_iteration)
+        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
+                          absolute_tol=ABS_TOL)
         require_converged("attitude", rep, max_iterations)
         iterations += rep.iterations
         evaluations += batch.evaluations
@@ -172,7 +175,7 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         b_lin = b_est.copy()
         dRI, J = preint(b_lin)
 
-    marg = gtsam.Marginals(graph, sol)
+    marg = marginals(graph, sol)
     e_after, _, _ = attitude_errors(R_est, b_est, dRM, dRI, J, b_lin, jacobians=False)
     w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     t_mid = 0.5 * (s.tau[i0] + s.tau[i1])

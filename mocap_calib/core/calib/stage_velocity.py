@@ -21,9 +21,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.graph import (
+    ABS_TOL,
     BatchFactors,
     BatchOutput,
     huber_isotropic,
+    marginals,
     require_converged,
     robust_weights_and_chi2,
     run_lm,
@@ -159,7 +161,8 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         init.insert(KEY_BA, b_est)
         init.insert(KEY_P, gtsam.Point3(*p_est))
         init.insert(KEY_G, gtsam.Unit3(g_dir))
-        sol, rep = run_lm(graph, init, max_iterations, on_iteration)
+        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
+                          absolute_tol=ABS_TOL)
         require_converged("velocity", rep, max_iterations)
         iterations += rep.iterations
         evaluations += batch.evaluations
@@ -172,7 +175,7 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         dv, A = preint(b_lin)
         data = _Data(data.dvM, data.LM, R_i, dv, A, dt)
 
-    marg = gtsam.Marginals(graph, sol)
+    marg = marginals(graph, sol)
     e_after = velocity_errors(data, b_est, p_est, gravity * g_dir, b_lin)
     w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     stats = StageStats(

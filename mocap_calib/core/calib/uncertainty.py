@@ -19,7 +19,11 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.graph import information_matrix, linear_combination_covariance
+from mocap_calib.core.calib.graph import (
+    information_matrix,
+    linear_combination_covariance,
+    marginals,
+)
 from mocap_calib.core.calib.windows import Windows
 from mocap_calib.core.model.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
 from mocap_calib.core.model.types import NoiseModel
@@ -86,7 +90,7 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
         n_window_factors: the window factors are the graph's first this many factors.
     """
     W = windows.count
-    marg = gtsam.Marginals(graph, sol)
+    marg = marginals(graph, sol)
     cov = {name: np.asarray(marg.marginalCovariance(key)) for name, key in block_keys.items()}
     knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(w))))
                            for w in range(W)])

@@ -90,6 +90,8 @@ class MocapPoses:
         time_origin_ns: integer stamp (ns) of ``t == 0`` on the mocap clock.
         source: where the poses came from, for messages.
         dropped_rows: rows removed while reading (occlusions reported as NaN).
+        position_unit_m: metres per unit of the numbers the positions were read from (1 for
+            metres), so that a check can say which unit the data fit.
     """
 
     t: Array
@@ -98,6 +100,7 @@ class MocapPoses:
     time_origin_ns: int = 0
     source: str = "mocap"
     dropped_rows: int = 0
+    position_unit_m: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "t", _as_float(self.t, ()))
@@ -127,7 +130,8 @@ class MocapPoses:
 
     def select(self, mask: NDArray[np.bool_]) -> MocapPoses:
         return MocapPoses(self.t[mask], self.quat_wxyz[mask], self.position[mask],
-                          self.time_origin_ns, self.source, self.dropped_rows)
+                          self.time_origin_ns, self.source, self.dropped_rows,
+                          self.position_unit_m)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,103 @@
+"""Run the refusal corpus (tests/refusal_corpus.py) and write docs/refusals.md: every case, the
+command, the verdict (exit code and the line the user sees, or what the result reports), and
+whether the verdict is right.
+
+    .venv/bin/python scripts/refusal_table.py            # writes docs/refusals.md
+    .venv/bin/python scripts/refusal_table.py --print    # only prints the table
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from refusal_corpus import CASES, run_case  # noqa: E402
+
+#: What the same inputs gave before issue 17 (commit 151d384), run the same way.
+BEFORE = {
+    "clean": "exit 0, right",
+    "clean_offset": "exit 0, right",
+    "accel_sign": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'",
+    "imu_y_flipped": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'",
+    "inverse_pose": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'",
+    "jpl_quaternions": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'",
+    "xyzw_quaternions": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'",
+    "position_cm": "exit 2, 'the positions look like millimetres; pass --position-unit mm' "
+                   "(wrong unit)",
+    "position_cm_as_mm": "exit 3, 'cannot resolve the clock offset ...'",
+    "position_mm_as_cm": "exit 2, \"unknown --position-unit 'cm'\"",
+    "gyro_deg_slow": "exit 2, names deg/s",
+    "two_recordings": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'",
+    "disjoint_halves": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'",
+    "turntable": "exit 3, 'cannot resolve the clock offset ... (periodic motion?)'; with the "
+                 "clock resolved: exit 0, R_MI 26 deg and p_MI 470 mm off (sigma 1 deg, 10 mm)",
+    "planar": "exit 3, 'cannot resolve the clock offset'; with the clock resolved: exit 0, "
+              "p_MI 295 mm off along the yaw axis (sigma 7 mm)",
+    "slow": "exit 4, 'implausible: the fit moved the clock offset 166 ms'",
+    "saturated": "exit 0, no note of the clipping",
+    "accel_dead": "exit 3, 'cannot resolve the clock offset ...'",
+    "gyro_z_dead": "exit 4 after 45 s, 'implausible calibration: gyro bias 0.58 rad/s ...'",
+    "mocap_frozen": "exit 0, R_MI 2.9 deg off",
+    "imu_frozen": "exit 4, 'implausible calibration: accel bias of 1.72 m/s^2 ...'",
+    "mocap_dead": "exit 3, 'the session is (nearly) static'",
+    "noise_binary": "exit 70, internal error: UnicodeDecodeError",
+    "noise_empty": "exit 2, 'expected a YAML mapping'",
+    "noise_list": "exit 2, 'expected a YAML mapping'",
+    "prior_binary": "exit 70, internal error: UnicodeDecodeError",
+    "prior_malformed": "exit 2, \"missing key 'accel_bias'\"",
+    "calibration_binary": "exit 70, internal error: UnicodeDecodeError",
+    "columns_twice": "exit 2, 'the accelerometer looks like it is in g' (wrong cause)",
+    "columns_reversed": "exit 2, 'empty column'",
+    "imu_stamps_s": "exit 2, 'IMU timestamp repeats the previous row's'",
+    "mocap_stamps_us": "exit 3, 'the session is only 0.0 s long'",
+    "stamps_5000_digits": "exit 2, 'timestamps overflow 64-bit nanoseconds'",
+    "stamps_ms_as_s": "exit 2, names ms",
+    "stamps_ns_as_s": "exit 2, 'timestamps overflow 64-bit nanoseconds' (no unit named)",
+    "diagnose_two_recordings": "exit 4, 'the attitude stage did not converge'",
+    "diagnose_gyro_deg_slow": "exit 2, names deg/s",
+    "diagnose_accel_dead": "exit 4 after 47 s, 'the position stage did not converge'",
+    "allan_dead_accel": "exit 3, 'accelerometer x axis is constant'",
+    "allan_frozen": "exit 3, 'gyroscope random walk not resolved' (frozen span not named)",
+    "multipos_dead_gyro": "exit 70, internal error: ValueError",
+}
+
+
+def _cell(text: str, width: int = 260) -> str:
+    text = text.replace("|", "\\|").replace("\n", " ")
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--print", action="store_true", help="print the table, write nothing")
+    args = ap.parse_args()
+    rows = []
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in CASES:
+            v = run_case(case, Path(tmp) / case.name)
+            verdict = "right" if v.ok else "WRONG: " + "; ".join(v.problems)
+            shown = v.line.removeprefix("error: ").replace(tmp + "/", "")
+            rows.append(f"| {case.kind} | {case.what} | `{v.command}` | exit {v.code}: "
+                        f"{_cell(shown)} | {verdict} | {_cell(BEFORE.get(case.name, '-'))} |")
+            print(f"{case.name}: exit {v.code} {verdict}", file=sys.stderr)
+    seconds = time.perf_counter() - t0
+    table = "\n".join(["| kind | what the user did | command | what happens now | verdict | "
+                       "before (151d384) |", "|---|---|---|---|---|---|", *rows])
+    if args.print:
+        print(table)
+        return
+    head = (ROOT / "docs" / "refusals.md").read_text().split("<!-- table -->")[0]
+    (ROOT / "docs" / "refusals.md").write_text(
+        f"{head}<!-- table -->\n\n{table}\n\n{len(rows)} cases, {seconds:.0f} s on this "
+        "machine (scripts/refusal_table.py).\n")
+
+
+if __name__ == "__main__":
+    main()
