@@ -9,6 +9,7 @@ Usage: python scripts/bench_calibrate.py [minutes ...]      (default: 1 10 60)
 
 from __future__ import annotations
 
+import argparse
 import json
 import resource
 import subprocess
@@ -46,13 +47,18 @@ def run_one(minutes: float, seed: int = 1) -> dict:
 
 
 def main() -> None:
-    if len(sys.argv) > 2 and sys.argv[1] == "--one":
-        print(json.dumps(run_one(float(sys.argv[2]))))
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("minutes", nargs="*", type=float, default=[1.0, 10.0, 60.0],
+                        help="session lengths in minutes")
+    parser.add_argument("--one", type=float, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one is not None:
+        print(json.dumps(run_one(args.one)))
         return
-    minutes = [float(m) for m in sys.argv[1:]] or [1.0, 10.0, 60.0]
+    minutes = args.minutes
     results = []
     for m in minutes:
-        out = subprocess.run([sys.executable, __file__, "--one", str(m)], capture_output=True,
+        out = subprocess.run([sys.executable, __file__, f"--one={m}"], capture_output=True,
                              text=True, check=True)
         r = json.loads(out.stdout.strip().splitlines()[-1])
         results.append(r)

@@ -11,6 +11,7 @@ Usage: python scripts/bench_report.py [minutes ...]      (default: 10)
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -54,12 +55,16 @@ def run_one(minutes: float, seed: int = 3) -> dict:
 
 
 def main() -> None:
-    if len(sys.argv) > 2 and sys.argv[1] == "--one":
-        print(json.dumps(run_one(float(sys.argv[2]))))
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("minutes", nargs="*", type=float, default=[10.0],
+                        help="session lengths in minutes")
+    parser.add_argument("--one", type=float, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one is not None:
+        print(json.dumps(run_one(args.one)))
         return
-    minutes = [float(a) for a in sys.argv[1:]] or [10.0]
-    for m in minutes:
-        proc = subprocess.run([sys.executable, __file__, "--one", str(m)], capture_output=True,
+    for m in args.minutes:
+        proc = subprocess.run([sys.executable, __file__, f"--one={m}"], capture_output=True,
                               text=True, check=True)
         print(proc.stdout.strip().splitlines()[-1], flush=True)
 

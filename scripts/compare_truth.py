@@ -3,15 +3,19 @@
 Usage: python scripts/compare_truth.py calib.yaml truth.yaml
 """
 
-import sys
+import argparse
 
 from mocap_calib.io.yaml_io import load_result
 from mocap_calib.workflows.compare import compare, format_rows
 
 
 def main() -> None:
-    result, truth = load_result(sys.argv[1]), load_result(sys.argv[2])
-    print(f"\nestimate vs truth ({sys.argv[2]}); |err|/sigma is the largest per-axis ratio")
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("result", help="calibration YAML (calibrate --out)")
+    parser.add_argument("truth", help="reference YAML, e.g. the simulator's truth.yaml")
+    args = parser.parse_args()
+    result, truth = load_result(args.result), load_result(args.truth)
+    print(f"\nestimate vs truth ({args.truth}); |err|/sigma is the largest per-axis ratio")
     print(format_rows(compare(result, truth)))
 
 

@@ -13,7 +13,7 @@ Usage: python scripts/euroc_reference.py [path/to/mav0]   (default: ../shared/da
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -86,7 +86,10 @@ def _mean_rotation(R: np.ndarray) -> np.ndarray:
 
 
 def main() -> None:
-    root = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("mav0", nargs="?", type=Path, default=DEFAULT,
+                        help=f"EuRoC mav0 folder (default {DEFAULT})")
+    root = parser.parse_args().mav0
     res, _ = run_calibration(InputSpec(path=root), CalibrationOptions())
     T_IM = read_t_bs(root / "vicon0" / "sensor.yaml")
     T_MI_pub = np.linalg.inv(T_IM)
