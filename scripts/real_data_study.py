@@ -165,6 +165,27 @@ def study(key: str, thirds: bool, sensitivity: bool) -> dict:
     return rep
 
 
+def summary(reports: list[dict]) -> str:
+    """One line per recording: the figures the README's real-data table shows."""
+    lines = ["recording    exit  R_MI vs ref  t_d (ms)            thirds max z (R, p, t_d)"
+             "   moved sigmas x3 / x1/3 (R, p, t_d)"]
+    for rep in reports:
+        f = rep["full"]
+        z = rep.get("thirds_max_z", {})
+        zs = ", ".join(f"{z.get(k, float('nan')):.2f}" for k in ("R_MI", "p_MI", "t_d"))
+        sens = rep.get("noise_sensitivity_sigmas", {})
+        mv = " / ".join(", ".join(f"{s.get(k, float('nan')):.2f}" for k in ("R_MI", "p_MI", "t_d"))
+                        if "exit" not in s else f"exit {s['exit']}" for s in sens.values())
+        if f["exit"] != 0:
+            lines.append(f"{rep['recording']:<12} {f['exit']:>4}  {f['error'][:90]}")
+            continue
+        lines.append(f"{rep['recording']:<12} {f['exit']:>4}"
+                     f"  {f.get('R_MI_vs_ref_deg', float('nan')):8.2f} deg"
+                     f"  {f.get('t_d_ms', 0):9.2f} +- {f.get('sigma_t_d_ms', 0):.2f}"
+                     f"   {zs:<24}   {mv}")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", type=Path)
@@ -177,6 +198,7 @@ def main() -> None:
         rep = study(key, not a.no_thirds, not a.no_sensitivity)
         print(json.dumps(rep, indent=1), flush=True)
         reports.append(rep)
+    print(summary(reports))
     if a.json:
         a.json.write_text(json.dumps(reports, indent=1))
 
