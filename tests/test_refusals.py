@@ -79,7 +79,7 @@ def test_real_sessions_pass_the_checks(name: str) -> None:
 
     if name == "euroc":
         spec = InputSpec(path=shared_data("euroc_V2_03_difficult", "mav0").parent)
-        t_d = -0.197  # this session's offset (tests/test_shared_data.py)
+        t_d = -0.197  # this session's coarse offset (-200.3 ms fine, README's real-data section)
     else:
         p = shared_data("broad_21_undisturbed_fast_combined", "data.csv")
         spec = InputSpec(imu=p, mocap=p, columns="broad")
