@@ -8,13 +8,15 @@ says how many did; with ``CI=true`` a missing folder fails them instead, because
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
-_SKIPPED: list[str] = []
+#: How a missing recording's skip reason reads; the summary finds those skips by it.
+_MISSING = re.compile(r"real recording (.+?) is missing \(expected ../shared/data")
 
 
 def shared_data(*parts: str) -> Path:
@@ -24,16 +26,24 @@ def shared_data(*parts: str) -> Path:
         msg = f"real recording {path} is missing (expected ../shared/data next to the repo)"
         if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
             pytest.fail(msg)
-        _SKIPPED.append(str(path))
         pytest.skip(msg)
     return path
 
 
+def _skip_reason(report: pytest.TestReport) -> str:
+    # A skip's longrepr is (path, line, reason); xdist sends it to the controller as a list.
+    lr = report.longrepr
+    return str(lr[2]) if isinstance(lr, (tuple, list)) and len(lr) == 3 else str(lr)
+
+
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
-    if _SKIPPED:
-        missing = ", ".join(sorted(set(_SKIPPED)))
-        terminalreporter.write_sep("!", f"{len(_SKIPPED)} real-data tests SKIPPED, missing: "
-                                        f"{missing}", red=True, bold=True)
+    # From the reports the terminal collected, not from a list filled while tests run: under
+    # pytest-xdist the tests run in worker processes and only their reports reach this one.
+    missing = [m.group(1) for rep in terminalreporter.stats.get("skipped", [])
+               if (m := _MISSING.search(_skip_reason(rep)))]
+    if missing:
+        terminalreporter.write_sep("!", f"{len(missing)} real-data tests SKIPPED, missing: "
+                                        f"{', '.join(sorted(set(missing)))}", red=True, bold=True)
 
 
 @pytest.fixture

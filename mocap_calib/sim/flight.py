@@ -21,7 +21,12 @@ from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
 from mocap_calib.sim.motions import MOTIONS, motion_trajectory
-from mocap_calib.sim.trajectory import Trajectory, periodic_trajectory, random_trajectory
+from mocap_calib.sim.trajectory import (
+    Trajectory,
+    periodic_trajectory,
+    random_trajectory,
+    with_fast_motion,
+)
 
 Array = NDArray[np.float64]
 
@@ -121,6 +126,7 @@ class SimConfig:
     mocap_noise_corr: float = 0.0  # s: AR(1) mocap noise with this time constant (0: white)
     periodic_motion_s: float = 0.0  # > 0: a flight repeating with this period (clock tests)
     motion: str = "flight"  # a key of sim.motions.MOTIONS (turntable, planar, slow, ...)
+    max_motion_hz: float = 0.0  # > 0: the flight also moves at 1 Hz up to this (vibration-like)
 
     def validate(self) -> None:
         if self.motion not in MOTIONS:
@@ -139,6 +145,14 @@ class SimConfig:
         if not 0.0 <= self.mocap_noise_corr <= 10.0:
             raise InputError(f"--mocap-noise-corr {self.mocap_noise_corr}: give a time constant "
                              "in s between 0 (white) and 10, e.g. 0.3")
+        if self.max_motion_hz and not 1.0 <= self.max_motion_hz <= min(20.0,
+                                                                        self.mocap_rate / 5):
+            raise InputError(f"max_motion_hz {self.max_motion_hz}: give 0 (off) or 1 to "
+                             f"{min(20.0, self.mocap_rate / 5):g} Hz (a fifth of the mocap "
+                             "rate, at most 20)")
+        if self.max_motion_hz and (self.motion != "flight" or self.periodic_motion_s > 0):
+            raise InputError("max_motion_hz: only for the random flight (motion 'flight', no "
+                             "periodic_motion_s)")
         for name, values in self.effects.items():
             spec = name if values is None else f"{name}={','.join(repr(v) for v in values)}"
             parse_effect(spec)
@@ -234,6 +248,9 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
                                  cfg.aggressiveness)
     if cfg.periodic_motion_s > 0:
         traj = periodic_trajectory(np.random.default_rng([cfg.seed, 1]), cfg.periodic_motion_s)
+    if cfg.max_motion_hz > 0:
+        # Its own generator, so every other draw stays the seed's.
+        traj = with_fast_motion(traj, np.random.default_rng([cfg.seed, 29]), cfg.max_motion_hz)
     rig = _draw_rig(rng, cfg)
     tr = _draw_effects(rng, effects, cfg.gravity)
     t_imu, gyro, accel, b_g, b_a = _imu_samples(rng, cfg, traj, rig, tr)
@@ -430,6 +447,7 @@ def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Ri
             "mocap_rate": float(cfg.mocap_rate),
             "mocap_noise_corr_s": float(cfg.mocap_noise_corr),
             **({"motion": cfg.motion} if cfg.motion != "flight" else {}),
+            **({"max_motion_hz": float(cfg.max_motion_hz)} if cfg.max_motion_hz > 0 else {}),
             "bias_definition": "mean of the true bias over the IMU samples",
             "gyro_bias_initial": b_g[0].tolist(),
             "accel_bias_initial": b_a[0].tolist(),

@@ -38,6 +38,11 @@ class _SineSum:
         arg = 2 * np.pi * self.freq * t[:, None] + self.phase
         return -np.sin(arg) @ (self.amp * w * w)
 
+    def plus(self, more: _SineSum) -> _SineSum:
+        """This function plus ``more``'s sinusoids (its offset and rate are ignored)."""
+        return _SineSum(self.offset, self.rate, np.r_[self.amp, more.amp],
+                        np.r_[self.freq, more.freq], np.r_[self.phase, more.phase])
+
 
 def _random_sines(rng: np.random.Generator, n: int, total_amp: float, fmin: float, fmax: float,
                   offset: float = 0.0, rate: float = 0.0) -> _SineSum:
@@ -118,6 +123,33 @@ def random_trajectory(rng: np.random.Generator, room_half_extent: float = 2.0,
     pitch = _random_sines(rng, 4, np.radians(40.0), 0.1 * a, 0.9 * a)
     roll = _random_sines(rng, 4, np.radians(40.0), 0.1 * a, 0.9 * a)
     return Trajectory((px, py, pz), (yaw, pitch, roll))
+
+
+#: Peak contributions of the fast components of :func:`with_fast_motion`, per axis: the sum of
+#: their amplitudes times (2 pi f) for the attitude angles (rad/s), times (2 pi f)^2 for the
+#: position (m/s^2). With the flight's own peaks (near 3 rad/s and 1 g) the body stays below
+#: about 5 rad/s and 3 g.
+FAST_RATE_RADPS = 0.8
+FAST_ACCEL_MPS2 = 3.0
+
+
+def _fast_sines(rng: np.random.Generator, n: int, budget: float, power: int, fmin: float,
+                fmax: float) -> _SineSum:
+    freq = rng.uniform(fmin, fmax, n)
+    weights = rng.uniform(0.5, 1.0, n)
+    amp = budget * weights / weights.sum() / (2 * np.pi * freq) ** power
+    return _SineSum(0.0, 0.0, amp, freq, rng.uniform(0, 2 * np.pi, n))
+
+
+def with_fast_motion(traj: Trajectory, rng: np.random.Generator, max_hz: float) -> Trajectory:
+    """``traj`` plus small vibration-like components between 1 Hz and ``max_hz`` on every
+    position axis and attitude angle (4 each), sized by their rate and acceleration (see
+    :data:`FAST_RATE_RADPS`) so that the fast ones matter as much as the slow ones."""
+    fmin = min(1.0, max_hz)
+    pos = tuple(f.plus(_fast_sines(rng, 4, FAST_ACCEL_MPS2, 2, fmin, max_hz)) for f in traj.pos)
+    euler = tuple(f.plus(_fast_sines(rng, 4, FAST_RATE_RADPS, 1, fmin, max_hz))
+                  for f in traj.euler)
+    return Trajectory(pos, euler)  # type: ignore[arg-type]
 
 
 def periodic_trajectory(rng: np.random.Generator, period: float, room_half_extent: float = 2.0,
