@@ -150,6 +150,25 @@ def test_effect_values_reach_the_truth(tmp_path: Path,
     assert truth["time_offset"] == 0.0
 
 
+def test_max_motion_hz_reaches_the_session(tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """--max-motion-hz 5 puts motion up to 5 Hz into the written IMU file (the default
+    flight has next to none above 1.5 Hz) and records it in the truth."""
+    spectra = []
+    for name, extra in (("slow", []), ("fast", ["--max-motion-hz", "5"])):
+        code, _, err = run_cli(["simulate", str(tmp_path / name), "--duration", "30", "--seed",
+                                "4", *extra], capsys)
+        assert code == 0, err
+        _, _, cols = read_table(tmp_path / name / "mav0" / "imu0" / "data.csv")
+        gyro = cols[:, 0:3] - cols[:, 0:3].mean(axis=0)
+        power = np.abs(np.fft.rfft(gyro, axis=0)) ** 2
+        f = np.fft.rfftfreq(len(gyro), 1 / 200.0)
+        spectra.append(power[(f > 2.0) & (f < 5.0)].sum())
+    assert spectra[1] > 20 * spectra[0], spectra
+    truth = yaml.safe_load((tmp_path / "fast" / "truth.yaml").read_text())
+    assert truth["simulation"]["max_motion_hz"] == 5.0
+
+
 def test_protocol_multipos_writes_imu_and_truth(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "mp"
@@ -207,6 +226,8 @@ def _assert_one_line_error(code: int, out: str, err: str, *fragments: str) -> No
     (["--protocol", "wobble"], ["wobble", "flight"]),
     (["--protocol", "static", "--effect", "time_offset=0.01"], ["flight"]),
     (["--effect", "gravity_magnitude=98.1"], ["gravity_magnitude"]),
+    (["--max-motion-hz", "50"], ["--max-motion-hz", "20"]),
+    (["--protocol", "static", "--max-motion-hz", "5"], ["--max-motion-hz", "flight"]),
 ])
 def test_bad_options_give_one_line_error_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                 args: list[str], fragments: list[str]) -> None:

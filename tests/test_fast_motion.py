@@ -62,7 +62,7 @@ def test_fast_motion_reaches_5_hz_and_leaves_the_other_draws_alone() -> None:
     assert np.max(np.linalg.norm(fast.imu.accel, axis=1)) < 3 * 9.81
     for bad in (dict(max_motion_hz=0.5), dict(max_motion_hz=25.0),
                 dict(max_motion_hz=5.0, motion="turntable")):
-        with pytest.raises(InputError, match="max_motion_hz"):
+        with pytest.raises(InputError, match="max-motion-hz"):
             simulate_flight(SimConfig(**cfg, **bad))  # type: ignore[arg-type]
 
 

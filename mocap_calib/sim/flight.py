@@ -147,11 +147,11 @@ class SimConfig:
                              "in s between 0 (white) and 10, e.g. 0.3")
         if self.max_motion_hz and not 1.0 <= self.max_motion_hz <= min(20.0,
                                                                         self.mocap_rate / 5):
-            raise InputError(f"max_motion_hz {self.max_motion_hz}: give 0 (off) or 1 to "
+            raise InputError(f"--max-motion-hz {self.max_motion_hz:g}: give 0 (off) or 1 to "
                              f"{min(20.0, self.mocap_rate / 5):g} Hz (a fifth of the mocap "
                              "rate, at most 20)")
         if self.max_motion_hz and (self.motion != "flight" or self.periodic_motion_s > 0):
-            raise InputError("max_motion_hz: only for the random flight (motion 'flight', no "
+            raise InputError("--max-motion-hz: only for the random flight (motion 'flight', no "
                              "periodic_motion_s)")
         for name, values in self.effects.items():
             spec = name if values is None else f"{name}={','.join(repr(v) for v in values)}"

@@ -19,7 +19,7 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
                        duration: float = 90.0, imu_rate: float = 200.0, mocap_rate: float = 100.0,
                        effects: list[str] | None = None,
                        mocap_noise_corr: float = 0.0, counts: bool = False,
-                       motion: str = "flight"
+                       motion: str = "flight", max_motion_hz: float = 0.0
                        ) -> list[tuple[Path, str]]:
     """Simulate a session and write it in the EuRoC layout plus ``truth.yaml``.
 
@@ -42,12 +42,14 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
     if counts:
         raise InputError("--counts applies to --protocol multipos only")
     header = "mocap-calib simulation truth (SI units). See docs/conventions.md."
-    if motion != "flight" and protocol != "flight":
-        raise InputError(f"--motion applies to --protocol flight only, not '{protocol}'")
+    if (motion != "flight" or max_motion_hz) and protocol != "flight":
+        raise InputError(f"--motion and --max-motion-hz apply to --protocol flight only, not "
+                         f"'{protocol}'")
     if protocol == "flight":
         sim = simulate_flight(SimConfig(seed=seed, duration=duration, imu_rate=imu_rate,
                                         mocap_rate=mocap_rate, effects=parsed,
-                                        mocap_noise_corr=mocap_noise_corr, motion=motion))
+                                        mocap_noise_corr=mocap_noise_corr, motion=motion,
+                                        max_motion_hz=max_motion_hz))
         mav0 = write_mav0(out_dir, sim.imu, sim.mocap)
         truth = save_yaml(out_dir / "truth.yaml", sim.truth, header)
         return [(mav0 / "imu0" / "data.csv", f"{len(sim.imu)} IMU samples at {imu_rate:g} Hz"),

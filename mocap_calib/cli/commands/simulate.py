@@ -47,10 +47,13 @@ def simulate(
         help="With --protocol flight: flight (rotates about all axes), turntable (one "
         "vertical axis), planar (a ground robot: yaw and planar translation) or slow "
         "(low excitation). The last three cannot determine everything.")] = "flight",
+    max_motion_hz: Annotated[float, typer.Option(
+        help="With --motion flight: add motion from 1 Hz up to this (1-20 Hz, at most a fifth "
+        "of the mocap rate), as a vibrating or aggressive flight has; 0: off.")] = 0.0,
 ) -> None:
     written = simulate_to_folder(out_dir, protocol=protocol, seed=seed, duration=duration,
                                  imu_rate=imu_rate, mocap_rate=mocap_rate, effects=effect or [],
                                  mocap_noise_corr=mocap_noise_corr, counts=counts,
-                                 motion=motion)
+                                 motion=motion, max_motion_hz=max_motion_hz)
     for path, what in written:
         typer.echo(f"wrote {path}  ({what})")
