@@ -94,47 +94,55 @@ def likelihood_pass(r: Array, Phi: Array, noise: Noise, wts: Array,
 
 
 class Accumulator:
-    """What a filter pass collects per sample and window (Gram matrix, innovations, scores)."""
+    """What a filter pass collects per sample and window (Gram matrix, innovations, scores).
+
+    The pass only stores each sample's whitened rows; the sums come in :meth:`result`, as a
+    few large products instead of a handful of small ones per sample (the pass's loop is the
+    engine's cost)."""
 
     def __init__(self, W: int, m: int, p: int, store: bool,
                  blocks: NDArray[np.int64] | None) -> None:
         self.p = p
-        self.gram = np.zeros((W, p + 1, p + 1))
+        self.store = store
+        self.Nw = np.zeros((W, m + 1, 6, p + 1))
         self.innov = np.zeros((W, m + 1, 6))
-        self.d_raw = np.zeros((W, m + 1))
-        self.q_rot = np.zeros((W, m + 1))
-        self.q_pos = np.zeros((W, m + 1))
-        self.chi2 = np.zeros(W)
-        self.logdet = np.zeros(W)
+        # The robust test's own innovation norm where a sample is down-weighted (NaN: the
+        # whitened innovation's norm, filled in at the end).
+        self.d_raw = np.full((W, m + 1), np.nan)
+        self.logdet_k = np.zeros((W, m + 1))
         self.raw_J = np.zeros((W, m + 1, 6, p)) if store else None
-        self.whitened = np.zeros((W, m + 1, 6, p + 1)) if store else None
         self.blocks = blocks
-        self.scores = None if blocks is None else np.zeros((W, int(blocks[-1]) + 1, p))
 
     def add(self, k: int, N: Array, Nw: Array, Li: Array, ok: NDArray[np.bool_]) -> None:
-        p = self.p
-        self.gram += np.swapaxes(Nw, 1, 2) @ Nw
-        e = Nw[:, :, p]
-        self.chi2 += np.sum(e**2, axis=1)
-        self.logdet -= np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)),
-                                                 axis=1), 0.0)
-        self.innov[:, k] = N[:, :, p]
-        self.d_raw[:, k] = np.linalg.norm(e, axis=1)
-        # Li is lower-triangular: the first three whitened components involve only the
-        # attitude innovation and its own covariance block.
-        self.q_rot[:, k] = np.sum(e[:, 0:3] ** 2, axis=1)
-        self.q_pos[:, k] = np.sum(e[:, 3:6] ** 2, axis=1)
-        if self.whitened is not None:
-            self.whitened[:, k] = Nw
-        if self.scores is not None:
-            self.scores[:, self.blocks[k]] += np.einsum("wrp,wr->wp", Nw[:, :, :p], e)
+        self.Nw[:, k] = Nw
+        self.innov[:, k] = N[:, :, self.p]
+        self.logdet_k[:, k] = np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)),
+                                                        axis=1), 0.0)
 
     def result(self, mask: NDArray[np.bool_], raw_r: Array | None,
                extras: dict[str, Array]) -> EvalOut:
-        self.d_raw[~mask] = 0.0
+        p = self.p
+        W, m1 = self.Nw.shape[:2]
+        flat = self.Nw.reshape(W, m1 * 6, p + 1)
+        gram = np.swapaxes(flat, 1, 2) @ flat
+        e = self.Nw[..., p]  # (W, m+1, 6) whitened innovations
+        e2 = e**2
+        chi2 = e2.sum(axis=(1, 2))
+        # Li is lower-triangular: the first three whitened components involve only the
+        # attitude innovation and its own covariance block.
+        q_rot = e2[..., 0:3].sum(axis=2)
+        q_pos = e2[..., 3:6].sum(axis=2)
+        d_raw = np.where(np.isnan(self.d_raw), np.sqrt(q_rot + q_pos), self.d_raw)
+        d_raw[~mask] = 0.0
         self.innov[~mask] = 0.0
-        return EvalOut(self.gram, self.innov, self.d_raw, self.chi2, self.q_rot, self.q_pos,
-                       self.logdet, self.scores, raw_r, self.raw_J, self.whitened, extras)
+        scores = None
+        if self.blocks is not None:
+            per_sample = np.einsum("wkrp,wkr->wkp", self.Nw[..., :p], e)
+            starts = np.flatnonzero(np.r_[True, np.diff(self.blocks) != 0])
+            scores = np.add.reduceat(per_sample, starts, axis=1)
+        return EvalOut(gram, self.innov, d_raw, chi2, q_rot, q_pos,
+                       -self.logdet_k.sum(axis=1), scores, raw_r, self.raw_J,
+                       self.Nw if self.store else None, extras)
 
 
 @dataclass(frozen=True)

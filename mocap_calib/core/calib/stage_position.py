@@ -116,7 +116,9 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
                        adapt_noise: bool = True, weights: Array | None = None,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
-                       covariance: bool = True, one_step: bool = False) -> PositionResult:
+                       covariance: bool = True, one_step: bool | int = False,
+                       reweight: bool = False,
+                       settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
     """Refine all parameters on the window factors.
 
     Args:
@@ -131,9 +133,14 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
         progress: called with a short message at every IRLS round.
         covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
-        one_step: a single Gauss-Newton step from ``init`` instead of LM rounds: for refits
-            from a nearby solution (segments, other noise densities), where the cost is nearly
-            quadratic over the step and one linearisation is enough.
+        one_step: Gauss-Newton steps from ``init`` instead of LM rounds (``True``: one; an
+            int: that many): for refits from a nearby solution (segments, other noise
+            densities), where the cost is nearly quadratic over the step. Between steps the
+            mocap levels (with ``adapt_noise``) and the weights (with ``reweight``) follow the
+            innovations, as between the rounds of a full run.
+        reweight: with ``one_step`` and given ``weights``, update the weights between steps.
+        settled: with ``one_step``, ``settled(before, after)`` true ends the steps early
+            (never before the second, the first with the levels re-estimated).
     """
     t_start = time.perf_counter()
     pg = build_position_graph(s, model, noise, windows, init, priors)
@@ -143,16 +150,16 @@ def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, wind
         robust = False
     history = _History(pg, on_iteration)
     if one_step:
-        fit = _gauss_newton_step(pg, adapt_noise)
+        fit = _gauss_newton_step(pg, adapt_noise, int(one_step), reweight, settled)
     else:
         fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
                             robust, adapt_noise, history, progress)
     sol, out = fit.values, pg.evals[-1]
     th = pg.theta(sol)
     blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
-    # A one-step refit keeps the linearisation it stepped from: its covariance is that of the
-    # nearby start (one evaluation fewer).
-    at = pg.values if one_step else sol
+    # A Gauss-Newton refit keeps the linearisation it last stepped from: its covariance is
+    # that of the nearby point (no further evaluation).
+    at = fit.linearized_at if one_step else sol
 
     def covariances() -> PositionUncertainty:
         return position_covariances(pg.graph, at, pg.block_keys, windows, th.knots,
@@ -209,22 +216,48 @@ class _Fit:
     noise_scale: Array
     out0: Any  # the evaluation at the start values (unit weights): the "before" figures
     correlation: CorrelationFit | None = None
+    linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
 
 
-def _gauss_newton_step(pg: PositionGraph, adapt_noise: bool = False) -> _Fit:
-    """One Gauss-Newton step from the start values (weights as given); the evaluation stays
-    the one at the start. With ``adapt_noise`` the mocap noise (correlation and level) is
-    first chosen again at the start values, as a full run given this noise model would."""
-    pp = pg.problem
+def _gauss_newton_step(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
+                       robust: bool = False,
+                       settled: Callable[[Theta, Theta], bool] | None = None) -> _Fit:
+    """Gauss-Newton steps from the start values; the evaluation stays the one at the start.
+
+    With ``adapt_noise`` the mocap noise (correlation and level) is first chosen again at the
+    start values, as a full run given this noise model would; between steps the mocap levels
+    (attitude and position apart) and with ``robust`` the weights follow the innovations of
+    the last linearisation, as between a full run's rounds. One evaluation per step; after
+    the second, ``settled(before, after)`` may end the steps early."""
+    pp, batch = pg.problem, pg.batch
     pp.freeze_whitening(False)
     noise_scale = np.ones(2)
     if adapt_noise:
         old = pp.noise
         pp.noise = fit_mocap_correlation(pp, pg.theta(pg.values)).noise
         noise_scale = _variance_ratio(pp.noise, old)
-        pg.batch.invalidate()
-    delta = pg.graph.linearize(pg.values).optimize()
-    return _Fit(pg.values.retract(delta), 1, noise_scale, pg.evals[-1])
+        batch.invalidate()
+    values = pg.values
+    out0 = None
+    for k in range(steps):
+        at = values
+        lin = pg.graph.linearize(at)
+        out = pg.evals[-1]
+        out0 = out if out0 is None else out0
+        values = values.retract(lin.optimize())
+        if k == steps - 1 or (k >= 1 and settled is not None
+                              and settled(pg.theta(at), pg.theta(values))):
+            break
+        d_scale = 1.0
+        if adapt_noise:
+            s_rot, s_pos = np.clip(pp.mocap_noise_scale(out), 0.05, 400.0)
+            pp.scale_mocap_noise(s_rot, s_pos)
+            noise_scale *= (s_rot, s_pos)
+            d_scale = float((s_rot * s_pos) ** -0.25)
+        if robust:
+            pp.update_weights(out.d_raw * d_scale)
+        batch.invalidate()
+    return _Fit(values, k + 1, noise_scale, out0, linearized_at=at)
 
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
@@ -238,9 +271,15 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     out0 = None
     noise_scale = np.ones(2)
     correlation = None
-    # The mocap noise's correlation is chosen once, after the first solve (unless given).
+    # The mocap noise's correlation is chosen after the first solve (unless given), and checked
+    # once more where the rest has settled: chosen at a white-noise solution, it depends on
+    # where that landed; a choice that holds at its own solution does not.
     fit_corr = adapt_noise and not pp.noise.mocap_correlated
-    for rnd in range(rounds):
+    recheck = fit_corr
+    budget = rounds
+    rnd = -1
+    while True:
+        rnd += 1
         if progress is not None:
             progress(f"position factors: solve {rnd + 1} ({pp.win.count} windows)")
         pp.freeze_whitening(True)
@@ -254,34 +293,43 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         pp.freeze_whitening(False)
         batch.invalidate()
         batch.output(sol, 0)
-        if rnd == rounds - 1:
-            break
         last_out = evals[-1]
         changed = False
         d_scale = 1.0  # how the whitened innovations shrink with the noise change below
-        if fit_corr and correlation is None:
-            correlation = fit_mocap_correlation(pp, pg.theta(sol))
-            old, pp.noise = pp.noise, correlation.noise
-            ratio = _variance_ratio(pp.noise, old)
-            noise_scale *= ratio
-            d_scale = float(np.sqrt(np.prod(ratio)) ** -0.5)
-            changed = True
-        elif adapt_noise:
-            s_rot, s_pos = pp.mocap_noise_scale(last_out)
-            if max(abs(np.log(s_rot)), abs(np.log(s_pos))) > np.log(1.05):
-                s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
-                pp.scale_mocap_noise(s_rot, s_pos)
-                noise_scale *= (s_rot, s_pos)
-                d_scale = float((s_rot * s_pos) ** -0.25)
+        if rnd < budget - 1:
+            if fit_corr and correlation is None:
+                correlation = fit_mocap_correlation(pp, pg.theta(sol))
+                old, pp.noise = pp.noise, correlation.noise
+                ratio = _variance_ratio(pp.noise, old)
+                noise_scale *= ratio
+                d_scale = float(np.sqrt(np.prod(ratio)) ** -0.5)
                 changed = True
-        if robust:
-            # The weights follow the innovations under the new noise level (mocap noise
-            # dominates them), so both updates share one round.
-            w_before = pp.weights.copy()
-            if pp.update_weights(last_out.d_raw * d_scale) < 0.25:
-                pp.weights = w_before  # keep the weights the solution was computed with
-            else:
+            elif adapt_noise:
+                s_rot, s_pos = pp.mocap_noise_scale(last_out)
+                if max(abs(np.log(s_rot)), abs(np.log(s_pos))) > np.log(1.05):
+                    s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
+                    pp.scale_mocap_noise(s_rot, s_pos)
+                    noise_scale *= (s_rot, s_pos)
+                    d_scale = float((s_rot * s_pos) ** -0.25)
+                    changed = True
+            if robust:
+                # The weights follow the innovations under the new noise level (mocap noise
+                # dominates them), so both updates share one round.
+                w_before = pp.weights.copy()
+                if pp.update_weights(last_out.d_raw * d_scale) < 0.25:
+                    pp.weights = w_before  # keep the weights the solution was computed with
+                else:
+                    changed = True
+        if not changed and recheck and correlation is not None:
+            recheck = False
+            again = fit_mocap_correlation(pp, pg.theta(sol))
+            keep = (pp.noise.mocap_noise_corr_time, pp.noise.mocap_noise_corr_fraction)
+            if (again.noise.mocap_noise_corr_time, again.noise.mocap_noise_corr_fraction) != keep:
+                old, pp.noise = pp.noise, again.noise
+                noise_scale *= _variance_ratio(pp.noise, old)
+                correlation = again
                 changed = True
+                budget = max(budget, rnd + 4)  # room for the levels to settle again
         if not changed:
             break
         batch.invalidate()

@@ -20,6 +20,10 @@ over the steps of one window, not over the session.
 
 from __future__ import annotations
 
+import os
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -68,6 +72,20 @@ Array = NDArray[np.float64]
 
 #: Robust kernel threshold on a sample's whitened 6-D innovation norm (chi, 6 dof, 99.9%).
 ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
+#: Fewest windows per chunk when a problem is split in two for the threads.
+MIN_CHUNK_WINDOWS = 4
+_POOL: list[ThreadPoolExecutor | None] = []
+
+
+def _pool() -> ThreadPoolExecutor | None:
+    """The threads that evaluate chunks (None on one core)."""
+    if not _POOL:
+        n = min(2, os.cpu_count() or 1)
+        _POOL.append(ThreadPoolExecutor(n, thread_name_prefix="window-chunks") if n > 1
+                     else None)
+    return _POOL[0]
+
+
 #: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
 #: longer than the correlation of real mocap noise, short enough for many blocks per session.
 SCORE_BLOCK_S = 1.0
@@ -90,27 +108,39 @@ class PositionProblem:
         noise: noise densities.
         windows: from :func:`make_windows`.
         chunk_steps: windows are processed in chunks of about this many samples (memory).
+        split: split into two chunks at least (for the threads); off for small problems
+            evaluated many times, where one batch costs less than two.
     """
 
     def __init__(self, s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
-                 chunk_steps: int = 40_000) -> None:
+                 chunk_steps: int = 40_000, split: bool = True) -> None:
         self.s = s
         self.model = model
         self.noise = noise
         self.win = windows
         self.layout = layout_for(model)
-        per = max(1, chunk_steps // max(1, windows.steps))
-        self.chunks = [np.arange(i, min(i + per, windows.count))
-                       for i in range(0, windows.count, per)]
+        # Chunks run on threads (their batched numpy work releases the GIL), so there are an
+        # even number of them when there are windows enough. The split depends on the windows
+        # only, not on the machine: the same session gives the same numbers everywhere.
+        W = windows.count
+        n = -(-W // max(1, chunk_steps // max(1, windows.steps)))
+        if split and W >= 2 * MIN_CHUNK_WINDOWS:
+            n = max(2, n + n % 2)
+        per = -(-W // n)
+        self.chunks = [np.arange(i, min(i + per, W)) for i in range(0, W, per)]
         self.weights = np.ones(windows.idx.shape)
-        self._buffers: dict[str, Array] = {}
+        self._local = threading.local()  # per-thread work buffers
         self.freeze = False
         self.collect_scores = False  # per-block scores in unfrozen evaluations (sandwich)
         self._ops: dict[int, dict[str, Array]] = {}
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
-        outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
+        if len(self.chunks) > 1 and _pool() is not None:
+            outs = list(_pool().map(lambda ic: self._evaluate_chunk(th, ic[1], store, ic[0]),
+                                    enumerate(self.chunks)))
+        else:
+            outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
         cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
                    else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
                                         "logdet", "scores", "raw_r", "raw_J", "whitened")}
@@ -147,28 +177,60 @@ class PositionProblem:
         """Per noise model, every window's chi2 and log det of its innovations (-2 log L is
         their sum) at the same parameters: the trajectory is integrated once, only the filter
         runs per model (without the Jacobian columns)."""
+        return self.likelihood_at(th)(noises)
+
+    def likelihood_at(self, th: Theta) -> Callable[[list[NoiseModel]], list[tuple[Array, Array]]]:
+        """:meth:`likelihoods` at ``th`` as a function of the noise models: the trajectory is
+        integrated now, once, for any number of later calls (a search over noise models)."""
         win = self.win
-        out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
-        keep = self.noise
-        try:
-            for c in self.chunks:
-                tau, R_WM = win.tau[c], win.R_WM[c]
-                h = np.diff(tau, axis=1)
-                inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
-                Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
-                                        win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
-                                        th.g_mag * th.g_dir)
-                res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
-                F = self._transition(inc, Rbar, h).copy()
-                for i, nz in enumerate(noises):
-                    self.noise = nz
-                    noise = self._noise(th, h, R_WM)
-                    out[i][0][c], out[i][1][c] = likelihood_pass(
-                        res.r, self._transition_full(F, noise), noise, self.weights[c],
-                        win.mask[c])
-        finally:
-            self.noise = keep
-        return out
+        parts = []
+        for c in self.chunks:
+            tau, R_WM = win.tau[c], win.R_WM[c]
+            h = np.diff(tau, axis=1)
+            inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
+            Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
+                                    win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+                                    th.g_mag * th.g_dir)
+            res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
+            parts.append((c, h, R_WM, res.r.copy(), self._transition(inc, Rbar, h).copy()))
+
+        def evaluate(noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
+            # Models of one kind (white or correlated mocap noise) run as one batch: the
+            # filter's cost is its loop over the samples, nearly the same for a larger batch.
+            out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
+            keep = self.noise
+            try:
+                for c, h, R_WM, r, F in parts:
+                    n = len(c)
+                    for corr in (False, True):
+                        group = [i for i, nz in enumerate(noises) if nz.mocap_correlated == corr]
+                        if not group:
+                            continue
+                        stacked = []
+                        for i in group:
+                            self.noise = noises[i]
+                            stacked.append(self._noise(th, h, R_WM))
+                        noise = Noise(*(None if getattr(stacked[0], f) is None else
+                                        np.concatenate([getattr(x, f) for x in stacked])
+                                        for f in Noise.__dataclass_fields__))
+                        K = len(group)
+                        Phi = np.concatenate([F] * K)
+                        if corr:
+                            Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (15, 6))], -1)
+                            Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (6, 21))], -2)
+                            Phi[..., 15:21, 15:21] = noise.Fm
+                        chi2, logdet = likelihood_pass(
+                            np.concatenate([r] * K), Phi, noise,
+                            np.concatenate([self.weights[c]] * K),
+                            np.concatenate([win.mask[c]] * K))
+                        for j, i in enumerate(group):
+                            out[i][0][c] = chi2[j * n:(j + 1) * n]
+                            out[i][1][c] = logdet[j * n:(j + 1) * n]
+            finally:
+                self.noise = keep
+            return out
+
+        return evaluate
 
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
                    h: Array, sensitivities: bool = True
@@ -433,16 +495,19 @@ class PositionProblem:
         return np.arange(m + 1) // per
 
     def _buffer(self, name: str, shape: tuple[int, ...], identity_blocks: bool = False) -> Array:
-        """A reusable array: blocks not written by the caller keep their initial values."""
-        buf = self._buffers.get(name)
-        if buf is None or buf.shape != shape:
+        """A reusable array: blocks not written by the caller keep their initial values. Chunks
+        of fewer windows get a leading slice, so that alternating chunk sizes do not allocate
+        (and fill) a new array at every call."""
+        buffers = self._local.__dict__.setdefault("buffers", {})
+        buf = buffers.get(name)
+        if buf is None or buf.shape[1:] != shape[1:] or buf.shape[0] < shape[0]:
             buf = np.zeros(shape)
             if identity_blocks:
                 for a, b in ((3, 3), (6, 6)):
                     buf[..., a:a + 3, b:b + 3] = np.eye(3)
                 buf[..., 9:15, 9:15] = np.eye(6)
-            self._buffers[name] = buf
-        return buf
+            buffers[name] = buf
+        return buf[:shape[0]]
 
     # ------------------------------------------------------------------ noise and weights
     def mocap_noise_scale(self, out: EvalOut, skip: int = 5) -> tuple[float, float]:
