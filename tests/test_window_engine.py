@@ -3,6 +3,8 @@ against a dense Gaussian likelihood, and the noise model against simulated truth
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 import pytest
@@ -187,6 +189,11 @@ def test_likelihood_pass_equals_the_full_evaluation(short_session, noise):
     knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1)) + 1e-3
     th = _theta(sim, s, win.count, None, eff={}, knots=knots)
     full = pp.evaluate(th)
-    ((chi2, logdet),) = pp.likelihoods(th, [noise])
-    np.testing.assert_allclose(chi2, full.chi2, rtol=1e-8)
-    np.testing.assert_allclose(logdet, full.logdet, rtol=1e-8, atol=1e-6)
+    # Batched with models of both kinds (white and correlated run as separate batches).
+    other = replace(noise, mocap_noise_corr_time=0.2 if not noise.mocap_correlated else 0.0,
+                    mocap_noise_corr_fraction=0.5 if not noise.mocap_correlated else 0.0)
+    (chi2, logdet), _, (chi2_b, logdet_b) = pp.likelihoods(
+        th, [noise, other, replace(noise, mocap_position_sigma=noise.mocap_position_sigma)])
+    for c2, ld in ((chi2, logdet), (chi2_b, logdet_b)):
+        np.testing.assert_allclose(c2, full.chi2, rtol=1e-8)
+        np.testing.assert_allclose(ld, full.logdet, rtol=1e-8, atol=1e-6)
