@@ -73,7 +73,7 @@ Array = NDArray[np.float64]
 #: Robust kernel threshold on a sample's whitened 6-D innovation norm (chi, 6 dof, 99.9%).
 ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
 #: Fewest windows per chunk when a problem is split in two for the threads.
-MIN_CHUNK_WINDOWS = 4
+MIN_CHUNK_WINDOWS = 16
 _POOL: list[ThreadPoolExecutor | None] = []
 
 
