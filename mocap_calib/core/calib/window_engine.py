@@ -86,6 +86,10 @@ def _pool() -> ThreadPoolExecutor | None:
     return _POOL[0]
 
 
+# A forked child has none of the parent's threads: it starts its own pool.
+os.register_at_fork(after_in_child=_POOL.clear)
+
+
 #: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
 #: longer than the correlation of real mocap noise, short enough for many blocks per session.
 SCORE_BLOCK_S = 1.0
