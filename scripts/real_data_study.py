@@ -155,10 +155,7 @@ def study(key: str, thirds: bool, sensitivity: bool) -> dict:
     if sensitivity and full["exit"] == 0:
         sens = {}
         for f in (3.0, 1.0 / 3.0):
-            nz = replace(noise, **{k: getattr(noise, k) * f for k in (
-                "gyroscope_noise_density", "gyroscope_random_walk",
-                "accelerometer_noise_density", "accelerometer_random_walk")})
-            o = run(session, replace(opts, noise=nz))
+            o = run(session, replace(opts, noise=noise.imu_scaled(f)))
             sens[f"x{f:.3g}"] = ({k: round(v, 2) for k, v in moved(full, o).items()}
                                  if o["exit"] == 0 else {"exit": o["exit"], "error": o["error"]})
         rep["noise_sensitivity_sigmas"] = sens

@@ -28,11 +28,7 @@ def _calibrate(spec: InputSpec, factor: float = 1.0, verdict: bool = True):
     ``verdict`` the segments and sensitivity refits are skipped: the values do not depend on
     them)."""
     session = load_session(spec)
-    nz = resolve_noise(session, None, {})
-    nz = replace(nz, **{k: getattr(nz, k) * factor for k in (
-        "gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_noise_density",
-        "accelerometer_random_walk")})
-    opts = CalibrationOptions(noise=nz)
+    opts = CalibrationOptions(noise=resolve_noise(session, None, {}).imu_scaled(factor))
     if not verdict:
         opts = replace(opts, consistency_segments=0, sensitivity=False)
     return calibrate(session.imu, session.mocap, opts)

@@ -85,7 +85,7 @@ class Consistency:
                 **({"note": self.note} if self.note else {})}
 
 
-def _z(a: SegmentEstimate | PositionResult, b: SegmentEstimate | PositionResult,
+def _z(a: SegmentEstimate | PositionResult | Theta, b: SegmentEstimate | PositionResult | Theta,
        sa: dict[str, Array], sb: dict[str, Array] | None) -> dict[str, float]:
     """Largest per-axis |a - b| / sigma (combined when ``sb`` is given)."""
     def comb(k: str) -> Array:
@@ -259,16 +259,10 @@ def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
 
     def settled(a: Theta, b: Theta) -> bool:
         # A step below a tenth of a sigma: the rest of the way is smaller still.
-        d = {"R_MI": so3.log(a.R_MI.T @ b.R_MI), "p_MI": b.p_MI - a.p_MI,
-             "t_d": np.array([b.delta - a.delta])}
-        return all(float(np.max(np.abs(d[k]) / sig[k])) < SETTLED_SIGMA for k in sig)
+        return max(_z(a, b, sig, None).values()) < SETTLED_SIGMA
 
     def refit(f: float) -> PositionResult:
-        nz = pos.noise
-        scaled = replace(nz, gyroscope_noise_density=nz.gyroscope_noise_density * f,
-                         gyroscope_random_walk=nz.gyroscope_random_walk * f,
-                         accelerometer_noise_density=nz.accelerometer_noise_density * f,
-                         accelerometer_random_walk=nz.accelerometer_random_walk * f)
+        scaled = pos.noise.imu_scaled(f)
         # As a run given these densities would: the mocap noise chosen again too.
         scaled_priors = [replace(p, sigma=np.asarray(p.sigma) * f) for p in priors or []]
         return run_position_stage(s, model, scaled, pos.windows, _init(pos, everything),

@@ -6,7 +6,7 @@ own clock), so nanosecond stamps survive a read/write round trip and float times
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -154,6 +154,14 @@ class NoiseModel:
 
     def to_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in self.__dict__.items()}
+
+    def imu_scaled(self, f: float) -> NoiseModel:
+        """This model with the IMU noise densities and random walks times ``f`` (the noise
+        sensitivity's x3 and x1/3)."""
+        return replace(self, gyroscope_noise_density=self.gyroscope_noise_density * f,
+                       gyroscope_random_walk=self.gyroscope_random_walk * f,
+                       accelerometer_noise_density=self.accelerometer_noise_density * f,
+                       accelerometer_random_walk=self.accelerometer_random_walk * f)
 
     @property
     def mocap_correlated(self) -> bool:
