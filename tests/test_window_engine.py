@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 
 from mocap_calib.core.calib.session import local_derivative, prepare
-from mocap_calib.core.calib.window_engine import PositionProblem, Theta, compress, make_windows
+from mocap_calib.core.calib.window_engine import (
+    MIN_CHUNK_WINDOWS,
+    PositionProblem,
+    Theta,
+    compress,
+    make_windows,
+    set_chunk_threads,
+)
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import NoiseModel
@@ -197,3 +204,29 @@ def test_likelihood_pass_equals_the_full_evaluation(short_session, noise):
     for c2, ld in ((chi2, logdet), (chi2_b, logdet_b)):
         np.testing.assert_allclose(c2, full.chi2, rtol=1e-8)
         np.testing.assert_allclose(ld, full.logdet, rtol=1e-8, atol=1e-6)
+
+
+def test_chunk_threads_do_not_change_the_numbers(short_session):
+    """Windows are evaluated in two chunks on threads: the numbers must not depend on the
+    thread count (bit for bit) nor on the split (to rounding)."""
+    sim, s, v = short_session
+    win = make_windows(s, s.clock_shift + 0.003, 0.3, 200.0, v, min_samples=10)
+    assert win.count >= 2 * MIN_CHUNK_WINDOWS
+    noise = NoiseModel(mocap_noise_corr_time=0.1, mocap_noise_corr_fraction=0.5)
+    split = PositionProblem(s, Model.parse("base+time_offset"), noise, win)
+    whole = PositionProblem(s, Model.parse("base+time_offset"), noise, win, split=False)
+    assert (len(split.chunks), len(whole.chunks)) == (2, 1)
+    tr = sim.truth
+    knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1))
+    th = _theta(sim, s, win.count, None, eff={}, knots=knots)
+    previous = set_chunk_threads(2)
+    try:
+        two = split.evaluate(th)
+        set_chunk_threads(1)
+        one = split.evaluate(th)
+    finally:
+        set_chunk_threads(previous)
+    ref = whole.evaluate(th)
+    for f in ("gram", "chi2", "logdet", "d_raw", "innovation"):
+        np.testing.assert_array_equal(getattr(two, f), getattr(one, f))
+        np.testing.assert_allclose(getattr(two, f), getattr(ref, f), rtol=1e-10, atol=1e-12)

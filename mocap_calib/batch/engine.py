@@ -81,9 +81,14 @@ class Engine:
 _started: Any = None  # in a local worker: where it reports the job it starts
 
 
-def _init_worker(started: Any) -> None:
+def _init_worker(started: Any, chunk_threads: int = 1) -> None:
     global _started
     _started = started
+    # The pool already runs one session per core: the window engine's own threads would only
+    # contend with the other workers.
+    from mocap_calib.core.calib.window_engine import set_chunk_threads
+
+    set_chunk_threads(chunk_threads)
     # Ctrl-C is handled by the parent, which stops the workers itself; a worker interrupted
     # mid-job would only add tracebacks.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -113,7 +118,10 @@ class LocalEngine(Engine):
 
     def _new_pool(self, workers: int | None = None) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(workers or self.workers, mp_context=self._ctx,
-                                   initializer=_init_worker, initargs=(self._started,))
+                                   initializer=_init_worker,
+                                   initargs=(self._started,
+                                             max(1, (os.cpu_count() or 1)
+                                                 // (workers or self.workers))))
 
     def __enter__(self) -> LocalEngine:
         self._started = self._ctx.SimpleQueue()

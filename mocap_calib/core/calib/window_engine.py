@@ -75,12 +75,22 @@ ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
 #: Fewest windows per chunk when a problem is split in two for the threads.
 MIN_CHUNK_WINDOWS = 16
 _POOL: list[ThreadPoolExecutor | None] = []
+_THREADS = [min(2, os.cpu_count() or 1)]
+
+
+def set_chunk_threads(n: int) -> int:
+    """Evaluate chunks on ``n`` threads (1: in the calling thread); returns the previous count.
+    A batch that already runs one session per core sets 1 in its workers: nested threads would
+    only contend."""
+    previous, _THREADS[0] = _THREADS[0], max(1, int(n))
+    _POOL.clear()
+    return previous
 
 
 def _pool() -> ThreadPoolExecutor | None:
-    """The threads that evaluate chunks (None on one core)."""
+    """The threads that evaluate chunks (None with one)."""
     if not _POOL:
-        n = min(2, os.cpu_count() or 1)
+        n = _THREADS[0]
         _POOL.append(ThreadPoolExecutor(n, thread_name_prefix="window-chunks") if n > 1
                      else None)
     return _POOL[0]
