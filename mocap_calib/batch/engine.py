@@ -94,6 +94,13 @@ def _init_worker(started: Any, chunk_threads: int = 1) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _one_thread_call(fn: Callable[[Any], Any], job: Any) -> tuple[bool, Any, str, float]:
+    from mocap_calib.core.calib.window_engine import set_chunk_threads
+
+    set_chunk_threads(1)
+    return guarded_call(fn, job)
+
+
 def _tracked_call(fn: Callable[[Any], Any], job: Any, index: int) -> tuple[bool, Any, str, float]:
     _started.put(index)  # a SimpleQueue: written before the job runs, even if it then crashes
     return guarded_call(fn, job)
@@ -242,7 +249,9 @@ class DaskEngine(Engine):
 
         if self._client is None:
             raise RuntimeError("use the engine in a 'with' block")
-        futures = [self._client.submit(guarded_call, fn, job, pure=False) for job in jobs]
+        # A LocalCluster runs a worker per core: each evaluates its windows on one thread.
+        call = _one_thread_call if self._cluster is not None else guarded_call
+        futures = [self._client.submit(call, fn, job, pure=False) for job in jobs]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for fut in as_completed(futures):
