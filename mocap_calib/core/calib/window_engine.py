@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -190,61 +189,49 @@ class PositionProblem:
     def likelihoods(self, th: Theta, noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
         """Per noise model, every window's chi2 and log det of its innovations (-2 log L is
         their sum) at the same parameters: the trajectory is integrated once, only the filter
-        runs per model (without the Jacobian columns)."""
-        return self.likelihood_at(th)(noises)
-
-    def likelihood_at(self, th: Theta) -> Callable[[list[NoiseModel]], list[tuple[Array, Array]]]:
-        """:meth:`likelihoods` at ``th`` as a function of the noise models: the trajectory is
-        integrated now, once, for any number of later calls (a search over noise models)."""
+        runs per model (without the Jacobian columns). Models of one kind (white or
+        correlated mocap noise) run as one batch: the filter's cost is its loop over the
+        samples, nearly the same for a larger batch."""
         win = self.win
-        parts = []
-        for c in self.chunks:
-            tau, R_WM = win.tau[c], win.R_WM[c]
-            h = np.diff(tau, axis=1)
-            inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
-            Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
-                                    win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
-                                    th.g_mag * th.g_dir)
-            res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
-            parts.append((c, h, R_WM, res.r.copy(), self._transition(inc, Rbar, h).copy()))
-
-        def evaluate(noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
-            # Models of one kind (white or correlated mocap noise) run as one batch: the
-            # filter's cost is its loop over the samples, nearly the same for a larger batch.
-            out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
-            keep = self.noise
-            try:
-                for c, h, R_WM, r, F in parts:
-                    n = len(c)
-                    for corr in (False, True):
-                        group = [i for i, nz in enumerate(noises) if nz.mocap_correlated == corr]
-                        if not group:
-                            continue
-                        stacked = []
-                        for i in group:
-                            self.noise = noises[i]
-                            stacked.append(self._noise(th, h, R_WM))
-                        noise = Noise(*(None if getattr(stacked[0], f) is None else
-                                        np.concatenate([getattr(x, f) for x in stacked])
-                                        for f in Noise.__dataclass_fields__))
-                        K = len(group)
-                        Phi = np.concatenate([F] * K)
-                        if corr:
-                            Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (15, 6))], -1)
-                            Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (6, 21))], -2)
-                            Phi[..., 15:21, 15:21] = noise.Fm
-                        chi2, logdet = likelihood_pass(
-                            np.concatenate([r] * K), Phi, noise,
-                            np.concatenate([self.weights[c]] * K),
-                            np.concatenate([win.mask[c]] * K))
-                        for j, i in enumerate(group):
-                            out[i][0][c] = chi2[j * n:(j + 1) * n]
-                            out[i][1][c] = logdet[j * n:(j + 1) * n]
-            finally:
-                self.noise = keep
-            return out
-
-        return evaluate
+        out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
+        keep = self.noise
+        try:
+            for c in self.chunks:
+                tau, R_WM = win.tau[c], win.R_WM[c]
+                h = np.diff(tau, axis=1)
+                inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
+                Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
+                                        win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+                                        th.g_mag * th.g_dir)
+                r = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar).r
+                F = self._transition(inc, Rbar, h)
+                for corr in (False, True):
+                    group = [i for i, nz in enumerate(noises) if nz.mocap_correlated == corr]
+                    if not group:
+                        continue
+                    stacked = []
+                    for i in group:
+                        self.noise = noises[i]
+                        stacked.append(self._noise(th, h, R_WM))
+                    noise = Noise(*(None if getattr(stacked[0], f) is None else
+                                    np.concatenate([getattr(x, f) for x in stacked])
+                                    for f in Noise.__dataclass_fields__))
+                    K, n = len(group), len(c)
+                    Phi = np.concatenate([F] * K)
+                    if corr:
+                        Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (15, 6))], -1)
+                        Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (6, 21))], -2)
+                        Phi[..., 15:21, 15:21] = noise.Fm
+                    chi2, logdet = likelihood_pass(
+                        np.concatenate([r] * K), Phi, noise,
+                        np.concatenate([self.weights[c]] * K),
+                        np.concatenate([win.mask[c]] * K))
+                    for j, i in enumerate(group):
+                        out[i][0][c] = chi2[j * n:(j + 1) * n]
+                        out[i][1][c] = logdet[j * n:(j + 1) * n]
+        finally:
+            self.noise = keep
+        return out
 
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
                    h: Array, sensitivities: bool = True
