@@ -9,15 +9,9 @@ import gtsam
 import numpy as np
 import pytest
 
+from mocap_calib.core.calib.chunk_threads import MIN_CHUNK_WINDOWS, set_chunk_threads
 from mocap_calib.core.calib.session import local_derivative, prepare
-from mocap_calib.core.calib.window_engine import (
-    MIN_CHUNK_WINDOWS,
-    PositionProblem,
-    Theta,
-    compress,
-    make_windows,
-    set_chunk_threads,
-)
+from mocap_calib.core.calib.window_engine import PositionProblem, Theta, compress, make_windows
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import NoiseModel

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.calib.windows import EvalOut
+from mocap_calib.core.model.types import NoiseModel
 
 Array = NDArray[np.float64]
 
@@ -154,3 +155,38 @@ class Noise:
     Fm: Array | None = None  # (W, m, 6, 6) its transition per step
     Qm: Array | None = None  # (W, m, 6, 6) its process noise per step
     Pm0: Array | None = None  # (W, 6, 6) its stationary covariance at the first sample
+
+
+def filter_noise(nz: NoiseModel, L: Array, h: Array) -> Noise:
+    """Process noise of every step and mocap noise of every sample, for windows with steps
+    ``h`` (W, m) and lever-arm Jacobians ``L`` (W, m+1, 3, 3): d p_meas / d attitude noise.
+
+    Mocap noise: per-sample attitude noise (marker frame) and position noise; the attitude
+    noise also moves ``p_meas`` through the lever arm. A fraction of its variance is white,
+    the rest an AR(1) process with time constant ``mocap_noise_corr_time``, carried as six
+    filter states in residual coordinates (``m = H_k n``, so the measurement is simply
+    state + state; ``H_k`` changes with the marker attitude, hence ``Fm``).
+    """
+    W, m = h.shape
+    # Process noise per step (isotropic densities, so frame rotations drop out).
+    sg2 = nz.gyroscope_noise_density**2
+    sa2 = nz.accelerometer_noise_density**2
+    q_diag = np.empty((W, m, 15))
+    q_diag[..., 0:3] = (sg2 * h)[..., None]
+    q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
+    q_diag[..., 6:9] = (sa2 * h)[..., None]
+    q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
+    q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
+    q_pv = sa2 * h**2 / 2.0
+    full = mocap_cov(L, nz.mocap_rotation_sigma**2, nz.mocap_position_sigma**2)
+    if not nz.mocap_correlated:
+        return Noise(q_diag, q_pv, full)
+    rho = nz.mocap_noise_corr_fraction
+    a = np.exp(-h / nz.mocap_noise_corr_time)[..., None, None]  # (W, m, 1, 1)
+    Fm = np.zeros((W, m, 6, 6))
+    Fm[..., 0:3, 0:3] = np.eye(3)
+    Fm[..., 3:6, 3:6] = np.eye(3)
+    Fm[..., 3:6, 0:3] = L[:, :-1] - L[:, 1:]  # H_{k+1} H_k^-1
+    Fm *= a
+    Qm = rho * (1.0 - a * a) * full[:, 1:]
+    return Noise(q_diag, q_pv, (1.0 - rho) * full, Fm, Qm, rho * full[:, 0])

@@ -20,21 +20,20 @@ over the steps of one window, not over the session.
 
 from __future__ import annotations
 
-import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
+from mocap_calib.core.calib.chunk_threads import chunk_pool, split_windows
 from mocap_calib.core.calib.kalman import (
     DIFFUSE,
     Accumulator,
     Noise,
+    filter_noise,
     likelihood_pass,
-    mocap_cov,
     predict_covariance,
     signals_at,
     step_mean,
@@ -71,34 +70,6 @@ Array = NDArray[np.float64]
 
 #: Robust kernel threshold on a sample's whitened 6-D innovation norm (chi, 6 dof, 99.9%).
 ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
-#: Fewest windows per chunk when a problem is split in two for the threads.
-MIN_CHUNK_WINDOWS = 16
-_POOL: list[ThreadPoolExecutor | None] = []
-_THREADS = [min(2, os.cpu_count() or 1)]
-
-
-def set_chunk_threads(n: int) -> int:
-    """Evaluate chunks on ``n`` threads (1: in the calling thread); returns the previous count.
-    A batch that already runs one session per core sets 1 in its workers: nested threads would
-    only contend."""
-    previous, _THREADS[0] = _THREADS[0], max(1, int(n))
-    _POOL.clear()
-    return previous
-
-
-def _pool() -> ThreadPoolExecutor | None:
-    """The threads that evaluate chunks (None with one)."""
-    if not _POOL:
-        n = _THREADS[0]
-        _POOL.append(ThreadPoolExecutor(n, thread_name_prefix="window-chunks") if n > 1
-                     else None)
-    return _POOL[0]
-
-
-# A forked child has none of the parent's threads: it starts its own pool.
-os.register_at_fork(after_in_child=_POOL.clear)
-
-
 #: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
 #: longer than the correlation of real mocap noise, short enough for many blocks per session.
 SCORE_BLOCK_S = 1.0
@@ -132,15 +103,7 @@ class PositionProblem:
         self.noise = noise
         self.win = windows
         self.layout = layout_for(model)
-        # Chunks run on threads (their batched numpy work releases the GIL), so there are an
-        # even number of them when there are windows enough. The split depends on the windows
-        # only, not on the machine: the same session gives the same numbers everywhere.
-        W = windows.count
-        n = -(-W // max(1, chunk_steps // max(1, windows.steps)))
-        if split and W >= 2 * MIN_CHUNK_WINDOWS:
-            n = max(2, n + n % 2)
-        per = -(-W // n)
-        self.chunks = [np.arange(i, min(i + per, W)) for i in range(0, W, per)]
+        self.chunks = split_windows(windows.count, windows.steps, chunk_steps, split)
         self.weights = np.ones(windows.idx.shape)
         self._local = threading.local()  # per-thread work buffers
         self.freeze = False
@@ -149,8 +112,9 @@ class PositionProblem:
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
-        if len(self.chunks) > 1 and _pool() is not None:
-            outs = list(_pool().map(lambda ic: self._evaluate_chunk(th, ic[1], store, ic[0]),
+        pool = chunk_pool()
+        if len(self.chunks) > 1 and pool is not None:
+            outs = list(pool.map(lambda ic: self._evaluate_chunk(th, ic[1], store, ic[0]),
                                     enumerate(self.chunks)))
         else:
             outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
@@ -354,40 +318,10 @@ class PositionProblem:
         return gcols, g_in
 
     def _noise(self, th: Theta, h: Array, R_WM: Array) -> Noise:
-        """Process noise of every step and mocap noise of every sample.
-
-        Mocap noise: per-sample attitude noise (marker frame) and position noise; the attitude
-        noise also moves ``p_meas`` through the lever arm. A fraction of its variance is white,
-        the rest an AR(1) process with time constant ``mocap_noise_corr_time``, carried as six
-        filter states in residual coordinates (``m = H_k n``, so the measurement is simply
-        state + state; ``H_k`` changes with the marker attitude, hence ``Fm``).
-        """
-        nz = self.noise
-        W, m = h.shape
-        # Process noise per step (isotropic densities, so frame rotations drop out).
-        sg2 = nz.gyroscope_noise_density**2
-        sa2 = nz.accelerometer_noise_density**2
-        q_diag = np.empty((W, m, 15))
-        q_diag[..., 0:3] = (sg2 * h)[..., None]
-        q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
-        q_diag[..., 6:9] = (sa2 * h)[..., None]
-        q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
-        q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
-        q_pv = sa2 * h**2 / 2.0
-
-        L = R_WM @ so3.hat(th.p_MI) @ th.R_MI  # d p_meas / d (attitude noise in the I frame)
-        full = mocap_cov(L, nz.mocap_rotation_sigma**2, nz.mocap_position_sigma**2)
-        if not nz.mocap_correlated:
-            return Noise(q_diag, q_pv, full)
-        rho = nz.mocap_noise_corr_fraction
-        a = np.exp(-h / nz.mocap_noise_corr_time)[..., None, None]  # (W, m, 1, 1)
-        Fm = np.zeros((W, m, 6, 6))
-        Fm[..., 0:3, 0:3] = np.eye(3)
-        Fm[..., 3:6, 3:6] = np.eye(3)
-        Fm[..., 3:6, 0:3] = L[:, :-1] - L[:, 1:]  # H_{k+1} H_k^-1
-        Fm *= a
-        Qm = rho * (1.0 - a * a) * full[:, 1:]
-        return Noise(q_diag, q_pv, (1.0 - rho) * full, Fm, Qm, rho * full[:, 0])
+        """Process noise of every step and mocap noise of every sample (see
+        :func:`~mocap_calib.core.calib.kalman.filter_noise`)."""
+        # d p_meas / d (attitude noise in the I frame): the lever arm moves the position.
+        return filter_noise(self.noise, R_WM @ so3.hat(th.p_MI) @ th.R_MI, h)
 
     def _filter(self, th: Theta, c: NDArray[np.int64], ci: int, res: _Residuals, F: Array,
                 dwf: Array, gcols: list[int], g_in: Array, noise: Noise | None,

@@ -1,0 +1,53 @@
+"""The threads that evaluate a position problem's window chunks.
+
+The window filter's batched numpy work releases the GIL, so two chunks of windows evaluate
+nearly twice as fast on two cores. The split depends on the windows only, never on the
+machine, so that the same session gives the same numbers everywhere; only the number of threads
+that run the chunks does.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Fewest windows per chunk when a problem is split in two for the threads: on fewer, two
+#: half-batches cost more than one.
+MIN_CHUNK_WINDOWS = 16
+_POOL: list[ThreadPoolExecutor | None] = []
+_THREADS = [min(2, os.cpu_count() or 1)]
+
+
+def set_chunk_threads(n: int) -> int:
+    """Evaluate chunks on ``n`` threads (1: in the calling thread); returns the previous count.
+    A batch that already runs one session per core sets 1 in its workers: nested threads would
+    only contend."""
+    previous, _THREADS[0] = _THREADS[0], max(1, int(n))
+    _POOL.clear()
+    return previous
+
+
+def chunk_pool() -> ThreadPoolExecutor | None:
+    """The threads that evaluate chunks (None with one)."""
+    if not _POOL:
+        n = _THREADS[0]
+        _POOL.append(ThreadPoolExecutor(n, thread_name_prefix="window-chunks") if n > 1
+                     else None)
+    return _POOL[0]
+
+
+# A forked child has none of the parent's threads: it starts its own pool.
+os.register_at_fork(after_in_child=_POOL.clear)
+
+
+def split_windows(W: int, steps: int, chunk_steps: int, split: bool) -> list[NDArray[np.int64]]:
+    """Window indices per chunk: chunks of about ``chunk_steps`` samples (memory), and with
+    ``split`` an even number of them (the two threads) once there are windows enough."""
+    n = -(-W // max(1, chunk_steps // max(1, steps)))
+    if split and W >= 2 * MIN_CHUNK_WINDOWS:
+        n = max(2, n + n % 2)
+    per = -(-W // n)
+    return [np.arange(i, min(i + per, W)) for i in range(0, W, per)]
