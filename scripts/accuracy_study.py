@@ -22,8 +22,9 @@ from mocap_calib.batch.engine import map_jobs
 def run_case(job: tuple[int, float, tuple[str, ...]]) -> dict[str, list[float]]:
     """Per parameter, the error / sigma of every component (tangent spaces as the sigmas)."""
     seed, duration, effects = job
-    from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
-    from mocap_calib.core.calib.result import CalibrationResult
+    from mocap_calib.core.options import CalibrationOptions
+    from mocap_calib.core.pipeline.calibrate import calibrate
+    from mocap_calib.core.result.calibration import CalibrationResult
     from mocap_calib.sim.flight import SimConfig, parse_effect, simulate_flight
     from mocap_calib.workflows.compare import compare
 

@@ -20,8 +20,9 @@ import time
 def run_one(minutes: float, seed: int = 1) -> dict:
     import numpy as np
 
-    from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
-    from mocap_calib.core.calib.result import CalibrationResult
+    from mocap_calib.core.options import CalibrationOptions
+    from mocap_calib.core.pipeline.calibrate import calibrate
+    from mocap_calib.core.result.calibration import CalibrationResult
     from mocap_calib.sim.flight import SimConfig, simulate_flight
     from mocap_calib.workflows.compare import compare
 

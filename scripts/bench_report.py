@@ -26,7 +26,7 @@ TARGET_MB = 5.0
 def run_one(minutes: float, seed: int = 3) -> dict:
     from mocap_calib.workflows import html_report
     from mocap_calib.workflows.calibrate import InputSpec, calibration_options, run_calibration
-    from mocap_calib.workflows.provenance import RunClock
+    from mocap_calib.workflows.html.provenance import RunClock
     from mocap_calib.workflows.simulate import simulate_to_folder
 
     with tempfile.TemporaryDirectory() as tmp:

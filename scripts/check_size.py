@@ -18,11 +18,11 @@ MAX_FUNCTION = 80
 ALLOWED: dict[str, str] = {
     "mocap_calib/cli/commands/calibrate.py:calibrate":
         "typer declares every option as a parameter: the body is four calls",
-    "mocap_calib/core/calib/stage_attitude.py:run_attitude_stage":
+    "mocap_calib/core/stages/attitude.py:run_attitude_stage":
         "one solve with its relinearisation loop over a closure's state",
-    "mocap_calib/core/calib/stage_velocity.py:run_velocity_stage":
+    "mocap_calib/core/stages/velocity.py:run_velocity_stage":
         "one solve with its relinearisation loop over a closure's state",
-    "mocap_calib/core/calib/window_engine.py:_filter":
+    "mocap_calib/core/position/engine.py:_filter":
         "the filter's sequential pass: one loop over the steps, split it and the state "
         "passes through a dozen arguments",
 }

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions
 from mocap_calib.core.model import so3
-from mocap_calib.io.euroc import read_euroc_poses, read_t_bs
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.io.formats.euroc import read_euroc_poses, read_t_bs
 from mocap_calib.workflows.calibrate import InputSpec, run_calibration
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "euroc_V2_03_difficult" / "mav0"

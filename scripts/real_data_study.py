@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions
 from mocap_calib.core.model import so3
+from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.errors import CalibrationError
 from mocap_calib.workflows.calibrate import InputSpec, load_session, resolve_noise
 
@@ -46,7 +46,7 @@ RECORDINGS = {
 
 def run(session, opts: CalibrationOptions) -> dict:
     """One calibration; a refusal is recorded with its exit code and message."""
-    from mocap_calib.core.calib.pipeline import calibrate
+    from mocap_calib.core.pipeline.calibrate import calibrate
 
     t0 = time.perf_counter()
     try:

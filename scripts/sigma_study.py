@@ -28,8 +28,9 @@ import gtsam
 import numpy as np
 
 from mocap_calib.batch.engine import map_jobs
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.model import so3
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 PARAMS = ("R_MI", "p_MI", "gyro_bias", "accel_bias", "gravity", "time_offset")

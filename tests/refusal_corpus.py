@@ -24,7 +24,7 @@ import yaml
 from mocap_calib.cli.main import main
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.io.euroc import IMU_HEADER, POSE_HEADER, write_euroc_imu, write_mav0
+from mocap_calib.io.formats.euroc import IMU_HEADER, POSE_HEADER, write_euroc_imu, write_mav0
 from mocap_calib.io.tables import write_table
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight
 

@@ -240,8 +240,8 @@ def _motive_take(path: Path, bodies: dict) -> Path:
 def test_swarm_one_mocap_take_several_imus(tmp_path) -> None:
     """Three drones flown together: one Motive take holds their three rigid bodies, each IMU
     log picks its own with rigid_body; every calibration matches its drone's truth."""
-    from mocap_calib.core.calib.result import CalibrationResult
-    from mocap_calib.io.euroc import write_euroc_imu
+    from mocap_calib.core.result.calibration import CalibrationResult
+    from mocap_calib.io.formats.euroc import write_euroc_imu
     from mocap_calib.sim.flight import SimConfig, simulate_flight
 
     sims = {f"cf{k + 1}": simulate_flight(SimConfig(seed=70 + k, duration=25.0,

@@ -6,10 +6,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.errors import InputError, ObservabilityError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 

@@ -20,7 +20,7 @@ import yaml
 import mocap_calib.cli.commands.drift  # noqa: F401
 from mocap_calib.cli.main import main
 from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.io.euroc import write_euroc_imu
+from mocap_calib.io.formats.euroc import write_euroc_imu
 from mocap_calib.io.yaml_io import load_noise
 from mocap_calib.sim.multipos import simulate_multipos
 from mocap_calib.sim.static import simulate_static
@@ -247,7 +247,7 @@ def test_multipos_reads_a_generic_csv_with_units(work: Path, multipos_run: tuple
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     """The same session as a generic CSV (s, deg/s, g, other column order) gives the same
     intrinsics as the EuRoC file."""
-    from mocap_calib.io.euroc import read_euroc_imu
+    from mocap_calib.io.formats.euroc import read_euroc_imu
 
     imu = read_euroc_imu(multipos_session[0])
     csv = work / "generic.csv"

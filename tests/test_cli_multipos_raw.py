@@ -13,7 +13,7 @@ import yaml
 from mocap_calib.core.intrinsics.multipos.result import MultiposResult
 from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.export.imu_tk import read_calib
-from mocap_calib.io.euroc import read_euroc_imu
+from mocap_calib.io.formats.euroc import read_euroc_imu
 from tests.test_cli_imu_tools import assert_error, cli, ok, run
 from tests.test_multipos_raw import assert_targets, errors
 
@@ -180,7 +180,7 @@ def test_raw_prior_and_drift(work: Path, raw_run: tuple[Path, str],
                              capsys: pytest.CaptureFixture[str]) -> None:
     """Another session of the same part: the raw intrinsics as a prior (with a nominal, so the
     two files are in different units), and the drift check on its raw counts."""
-    from mocap_calib.io.euroc import write_euroc_imu
+    from mocap_calib.io.formats.euroc import write_euroc_imu
     from mocap_calib.sim.multipos import CountsSpec, simulate_multipos
 
     truth = counts_session[1]

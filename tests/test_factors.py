@@ -5,9 +5,9 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from mocap_calib.core.calib.stage_attitude import attitude_errors
-from mocap_calib.core.calib.stage_velocity import _Data, velocity_factor
 from mocap_calib.core.model import so3
+from mocap_calib.core.stages.attitude import attitude_errors
+from mocap_calib.core.stages.velocity import _Data, velocity_factor
 
 
 def test_attitude_factor_jacobians():
@@ -64,7 +64,10 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
     the mocap noise) fixed at the linearisation point, so the gradient differs from the full
     cost's by the noise model's own dependence on the parameters: well under 1 %. A wrong key
     order, sign or tangent space would be off by far more."""
-    from mocap_calib.core.calib.position_graph import (
+    from mocap_calib.core.model.effects import Model
+    from mocap_calib.core.model.types import NoiseModel
+    from mocap_calib.core.position.engine import make_windows
+    from mocap_calib.core.position.graph import (
         KEY_G,
         KEY_P,
         KEY_R,
@@ -74,10 +77,7 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
         key_effect,
         key_knot,
     )
-    from mocap_calib.core.calib.session import local_derivative, prepare
-    from mocap_calib.core.calib.window_engine import make_windows
-    from mocap_calib.core.model.effects import Model
-    from mocap_calib.core.model.types import NoiseModel
+    from mocap_calib.core.prepare.session import local_derivative, prepare
     from mocap_calib.sim.flight import SimConfig, simulate_flight
 
     sim = simulate_flight(SimConfig(seed=3, duration=12.0, effects={"time_offset": [0.003]}))

@@ -16,10 +16,11 @@ import pytest
 from scipy.signal import welch
 from test_calibrate import errors_vs_truth
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.errors import InputError
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight
 

@@ -15,14 +15,14 @@ import pytest
 import yaml
 
 from mocap_calib.cli.main import main
-from mocap_calib.core.calib.groundtruth import (
+from mocap_calib.core.groundtruth.smoother import (
     GroundTruthCalibration,
     GroundTruthOptions,
     ground_truth,
 )
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.io.euroc import write_mav0
+from mocap_calib.io.formats.euroc import write_mav0
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -276,7 +276,7 @@ def test_no_matplotlib_without_html() -> None:
     code = ("import sys\n"
             "import mocap_calib.cli.main as m\n"
             "m._register_commands()\n"
-            "import mocap_calib.workflows.html_report, mocap_calib.workflows.html_intrinsics\n"
+            "import mocap_calib.workflows.html.report, mocap_calib.workflows.html.intrinsics\n"
             "import mocap_calib.report.html\n"
             "print('matplotlib' in sys.modules)\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -413,7 +413,7 @@ def test_allan_page_with_the_fitted_lines(tmp_path: Path) -> None:
 
 def test_batch_page_lists_every_session_with_its_result(
         calibrated: tuple[dict[str, Any], str, Path], session: Path, tmp_path: Path) -> None:
-    from mocap_calib.workflows.html_report import write_batch_report
+    from mocap_calib.workflows.html.report import write_batch_report
 
     d, _, _ = calibrated
     calib = session.parent / "calib.yaml"

@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 
 from mocap_calib.cli.main import main
-from mocap_calib.core.calib.pipeline import CalibrationOptions
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.io.euroc import write_mav0
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.io.formats.euroc import write_mav0
 from mocap_calib.io.loader import load_inputs, sniff_format
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.workflows.calibrate import InputSpec, run_calibration
-from mocap_calib.workflows.imu_input import ImuSpec
+from mocap_calib.workflows.imu.imu_input import ImuSpec
 
 sys.path.insert(0, str(Path(__file__).parent))
 from recordings import write_bag, write_ulog  # noqa: E402
@@ -89,7 +89,7 @@ def _two(root: Path, mocap: Path) -> tuple[Path, Path, None]:
 
 
 def test_tf_topic_with_child_frame_and_receive_stamps(csv_session, tmp_path) -> None:
-    from mocap_calib.io.bags import RecordingOptions
+    from mocap_calib.io.formats.bags import RecordingOptions
 
     _, imu, mocap = csv_session
     bag = write_bag(tmp_path / "tf_db3", "db3", imu, mocap, pose_type="tf2_msgs/msg/TFMessage",
@@ -154,7 +154,7 @@ def test_calibrate_on_a_ulog_gives_the_csv_numbers(px4_session) -> None:
 
 
 def test_ulog_accel_logged_apart_from_the_gyro_is_interpolated(px4_session, tmp_path) -> None:
-    from mocap_calib.io.ulog import read_ulog_imu
+    from mocap_calib.io.formats.ulog import read_ulog_imu
 
     ulg, root = px4_session
     imu, _, _ = load_inputs(root / "imu0/data.csv", root / "vicon0/data.csv", None)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from mocap_calib.cli.main import main
-from mocap_calib.core.calib.pipeline import CalibrationOptions
 from mocap_calib.core.model import so3
-from mocap_calib.io.euroc import write_euroc_imu
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.io.formats.euroc import write_euroc_imu
 from mocap_calib.io.loader import sniff_format
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.workflows.calibrate import InputSpec, run_calibration
@@ -182,7 +182,7 @@ def test_bad_exports(sim, tmp_path, capsys) -> None:
 
 
 def test_vicon_without_rate_reads_with_mocap_rate(sim, tmp_path, capsys) -> None:
-    from mocap_calib.io.mocap_exports import ExportOptions, read_export
+    from mocap_calib.io.formats.mocap_exports import ExportOptions, read_export
 
     norate = write_vicon(tmp_path / "norate.csv", sim, section="Objects", rate="",
                          names=("decoy", "drone"))

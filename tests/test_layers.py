@@ -123,8 +123,8 @@ def test_every_package_has_a_layer() -> None:
 
 def violations(path: Path) -> list[str]:
     layer = layer_of(path)
-    if layer is None:  # errors.py, __init__.py: standard library only
-        allowed_pkg: tuple[str, ...] = ()
+    if layer is None:  # errors.py, __init__.py: standard library only; __main__.py: the CLI
+        allowed_pkg: tuple[str, ...] = ("cli",) if path.name == "__main__.py" else ()
         allowed_ext: tuple[str, ...] = ()
         own = "mocap_calib.errors"
     else:
@@ -169,7 +169,7 @@ CORE_FILES = sorted(CORE_DIR.rglob("*.py"))
 
 def test_core_files_found() -> None:
     names = {p.name for p in CORE_FILES}
-    assert {"pipeline.py", "so3.py", "imu_model.py", "effects.py", "types.py"} <= names
+    assert {"calibrate.py", "so3.py", "imu_model.py", "effects.py", "types.py"} <= names
 
 
 def test_importing_the_core_loads_no_outer_layer() -> None:
@@ -189,5 +189,5 @@ def test_importing_the_core_loads_no_outer_layer() -> None:
                           timeout=120, cwd=PACKAGE_DIR.parent)
     assert proc.returncode == 0, proc.stderr
     loaded = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert "mocap_calib.core.calib.pipeline" in modules
+    assert "mocap_calib.core.pipeline.calibrate" in modules
     assert loaded == [], f"importing the core loaded {loaded}"

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
-from mocap_calib.core.calib.priors import priors_from_results
 from mocap_calib.core.model import so3
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.result.priors import priors_from_results
 from mocap_calib.errors import InputError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from conftest import shared_data
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.model import so3
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
 
 BROAD = ("broad_15_undisturbed_fast_translation_A", "broad_21_undisturbed_fast_combined",

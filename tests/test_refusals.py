@@ -18,12 +18,13 @@ from conftest import shared_data
 from refusal_corpus import CASES, Case, clean, run_case, session
 
 from mocap_calib.cli.main import _is_indeterminate
-from mocap_calib.core.calib.conventions import check_conventions
-from mocap_calib.core.calib.graph import marginals
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
-from mocap_calib.core.calib.session import prepare
+from mocap_calib.core.checks.conventions import check_conventions
+from mocap_calib.core.graph import marginals
 from mocap_calib.core.model.faults import frozen, imu_faults
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.prepare.session import prepare
 from mocap_calib.errors import InputError, ObservabilityError
 
 

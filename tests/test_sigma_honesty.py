@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from simtruth import z_scores
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 SEEDS = range(500, 506)

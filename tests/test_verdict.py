@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocap_calib.core.calib.consistency import noise_sensitivity, segment_consistency
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.uncertainty.consistency import noise_sensitivity, segment_consistency
 from mocap_calib.errors import ObservabilityError, PlausibilityError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
@@ -100,8 +101,8 @@ def test_translation_only_session_aligns_by_specific_force() -> None:
     """Almost no rotation (BROAD 15's kind of session): angular speed alone cannot align the
     clocks, specific force can."""
     sim = simulate_flight(SimConfig(seed=43, duration=60.0, effects={"time_offset": [-0.004]}))
-    from mocap_calib.core.calib.clock import search_clock
-    from mocap_calib.core.calib.session import prepare
+    from mocap_calib.core.clock.search import search_clock
+    from mocap_calib.core.prepare.session import prepare
 
     s = prepare(sim.imu, sim.mocap)
     # Keep the accelerometer, flatten the rotation signal: the gyro then tells nothing.

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from mocap_calib.cli.main import main
-from mocap_calib.core.calib.pipeline import calibrate
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.diagnosis.dead_reckoning import dead_reckoning
+from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.report.text import summary_table
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight

@@ -9,12 +9,12 @@ import gtsam
 import numpy as np
 import pytest
 
-from mocap_calib.core.calib.chunk_threads import MIN_CHUNK_WINDOWS, set_chunk_threads
-from mocap_calib.core.calib.session import local_derivative, prepare
-from mocap_calib.core.calib.window_engine import PositionProblem, Theta, compress, make_windows
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.position.engine import PositionProblem, Theta, compress, make_windows
+from mocap_calib.core.position.threads import MIN_CHUNK_WINDOWS, set_chunk_threads
+from mocap_calib.core.prepare.session import local_derivative, prepare
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 ALL_IMU_EFFECTS = ("base+time_offset+gravity_magnitude+gyro_scale_misalignment+"

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
-from mocap_calib.core.calib.result import RESULT_VERSION, CalibrationResult, StageStats
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.result.calibration import RESULT_VERSION, CalibrationResult
+from mocap_calib.core.stages.figures import StageStats
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import load_noise, load_result, save_result
 

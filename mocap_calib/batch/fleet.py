@@ -23,10 +23,10 @@ import numpy as np
 
 from mocap_calib.batch.manifest import SessionEntry
 from mocap_calib.batch.store import write_atomic
-from mocap_calib.core.calib.priors import _to_chart, priors_from_results
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.versioned import header
+from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.priors import priors_from_results, to_chart
 from mocap_calib.io.yaml_io import save_yaml
 
 FLEET_KIND, FLEET_VERSION = "fleet", 1
@@ -72,8 +72,8 @@ def trends(rs: list[CalibrationResult]) -> dict[str, dict[str, Any]]:
         if block not in ref or block not in ahead or block not in back:
             continue
         r0 = ref[block].value
-        xp = _to_chart(block, ahead[block].value, r0)
-        xm = _to_chart(block, back[block].value, r0)
+        xp = to_chart(block, ahead[block].value, r0)
+        xm = to_chart(block, back[block].value, r0)
         # sigma^2(t) = var_a + 2 cov_ab t + var_b t^2: its second difference gives var_b.
         var_b = (ahead[block].sigma ** 2 + back[block].sigma ** 2 - 2 * p0.sigma ** 2) / 2.0
         out[block] = {
@@ -104,7 +104,7 @@ def outlier_z(rs: list[CalibrationResult], k: int) -> dict[str, float]:
             continue
         # In the tangent space at the expected value (for plain vectors the chart is the
         # identity, so subtract its own image).
-        d = _to_chart(block, own.value, e.value) - _to_chart(block, e.value, e.value)
+        d = to_chart(block, own.value, e.value) - to_chart(block, e.value, e.value)
         s = np.sqrt(np.asarray(own.sigma) ** 2 + np.asarray(e.sigma) ** 2)
         z[block] = float(np.max(np.abs(d) / np.maximum(s, 1e-300)))
     return z

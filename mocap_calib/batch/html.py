@@ -10,11 +10,11 @@ import yaml
 
 def check_html_available() -> None:
     """The report needs matplotlib; importing the writer fails early when it is missing."""
-    from mocap_calib.workflows.html_report import write_batch_report  # noqa: F401
+    from mocap_calib.workflows.html.report import write_batch_report  # noqa: F401
 
 
 def write_html(out_dir: Path, sessions: list[dict[str, Any]], fleet_dir: Path) -> Path:
-    from mocap_calib.workflows.html_report import write_batch_report
+    from mocap_calib.workflows.html.report import write_batch_report
 
     fleet_file = fleet_dir / "fleet.yaml"
     fleet = yaml.safe_load(fleet_file.read_text()) if fleet_file.is_file() else None

@@ -25,8 +25,8 @@ from mocap_calib.batch.store import (
     remove_leftovers,
     write_atomic,
 )
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model.versioned import header
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import load_result, save_result, save_yaml
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.result.calibration import CalibrationResult
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,7 @@ def calibrate_args(args: CalibrateArgs, extra_priors: list | None = None) -> Cal
 def history_priors(history: tuple[dict[str, Any], ...], at_ns: int | None) -> list:
     """Priors from the earlier results of the same IMU (a trend from two dates or more), as
     ``--prior`` gives them."""
-    from mocap_calib.core.calib.priors import priors_from_results
+    from mocap_calib.core.result.priors import priors_from_results
 
     if not history:
         return []

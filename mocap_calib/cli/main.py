@@ -74,7 +74,7 @@ def _is_indeterminate(err: BaseException) -> bool:
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return (and exit with) its exit code."""
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
-    from mocap_calib.workflows.provenance import record_command_line
+    from mocap_calib.workflows.html.provenance import record_command_line
 
     record_command_line(list(sys.argv[1:] if argv is None else argv))  # for the HTML reports
     try:

@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.export.intrinsics import ImuIntrinsics, intrinsics_of, kalibr_gyro
 

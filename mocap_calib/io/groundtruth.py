@@ -13,11 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from mocap_calib.core.calib.groundtruth import GroundTruth
+from mocap_calib.core.groundtruth.smoother import GroundTruth
 from mocap_calib.core.model.versioned import header
 from mocap_calib.errors import InputError
+from mocap_calib.io.formats.tum import TUM_HEADER, format_seconds
 from mocap_calib.io.tables import write_table
-from mocap_calib.io.tum import TUM_HEADER, format_seconds
 from mocap_calib.io.yaml_io import save_yaml
 
 GT_HEADER = ("#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], "

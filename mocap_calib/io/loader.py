@@ -3,15 +3,15 @@
 Format sniffing, per path:
 
 - a ROS 1 bag, a ROS 2 bag folder (db3 or MCAP storage), a bare ``.mcap`` -> bag
-  (:mod:`mocap_calib.io.bags`); a PX4 ``.ulg`` -> ULog (:mod:`mocap_calib.io.ulog`);
+  (:mod:`mocap_calib.io.formats.bags`); a PX4 ``.ulg`` -> ULog (:mod:`mocap_calib.io.formats.ulog`);
 - a CSV whose first line is Motive's metadata or a Vicon section name -> mocap export
-  (:mod:`mocap_calib.io.mocap_exports`), or any file given with ``--mocap-format``;
+  (:mod:`mocap_calib.io.formats.mocap_exports`), or any file given with ``--mocap-format``;
 - a folder -> EuRoC ``mav0`` (the folder itself or its parent);
 - a file whose header is EuRoC's ``imu0`` header -> EuRoC IMU;
 - a file whose header is EuRoC's pose header (vicon0 or ground truth) -> EuRoC poses;
 - a whitespace-separated file with 8 numeric columns -> TUM trajectory (unless ``columns``
   is given: then it is read as a generic CSV);
-- anything else -> generic CSV, which needs ``columns`` (see :mod:`mocap_calib.io.generic`).
+- anything else -> generic CSV, which needs ``columns`` (see :mod:`mocap_calib.io.formats.generic`).
 
 The same file given as IMU and mocap (BROAD) is read once, with both streams. Unit options
 left as None take the format's own units (EuRoC: ns, rad/s, m/s^2, m; TUM: s, m, xyzw;
@@ -25,8 +25,14 @@ from typing import Any
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
-from mocap_calib.io.bags import RecordingOptions, bag_kind, open_bag, read_bag_imu, read_bag_mocap
-from mocap_calib.io.euroc import (
+from mocap_calib.io.formats.bags import (
+    RecordingOptions,
+    bag_kind,
+    open_bag,
+    read_bag_imu,
+    read_bag_mocap,
+)
+from mocap_calib.io.formats.euroc import (
     POSE_FOLDERS,
     find_mav0,
     header_kind,
@@ -35,12 +41,12 @@ from mocap_calib.io.euroc import (
     read_euroc_poses,
     read_mav0,
 )
-from mocap_calib.io.generic import read_generic
-from mocap_calib.io.imu_tk import read_imu_tk_pair
-from mocap_calib.io.layout import WHITESPACE, sniff_layout
-from mocap_calib.io.mocap_exports import ExportOptions, read_export, sniff_export
-from mocap_calib.io.tum import read_tum
-from mocap_calib.io.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
+from mocap_calib.io.formats.generic import read_generic
+from mocap_calib.io.formats.imu_tk import read_imu_tk_pair
+from mocap_calib.io.formats.layout import WHITESPACE, sniff_layout
+from mocap_calib.io.formats.mocap_exports import ExportOptions, read_export, sniff_export
+from mocap_calib.io.formats.tum import read_tum
+from mocap_calib.io.formats.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
 
 #: Human-readable names of the formats :func:`sniff_format` returns.
 FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
@@ -112,7 +118,7 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
         mocap: ``--mocap`` file (or a mav0 folder), or None; may be the same file as ``imu``.
         mav0: ``--mav0`` folder (the mav0 folder or its parent), or None.
         pose_source: For mav0 folders: ``auto``, ``vicon0`` or ``groundtruth``.
-        columns: ``--columns`` string for generic CSVs (see :mod:`mocap_calib.io.generic`).
+        columns: ``--columns`` string for generic CSVs (see :mod:`mocap_calib.io.formats.generic`).
         time_unit: s, ms, us or ns; None for the format's own.
         gyro_unit: rad/s or deg/s; None for the format's own.
         accel_unit: m/s^2 or g; None for the format's own.
@@ -350,8 +356,8 @@ def load_imu_file(path: Path | str | None, *, columns: str | None = None,
     Format as for :func:`load_inputs`: a ROS bag, MCAP or PX4 ULog (``topic``, ``stamp``); a
     folder is an EuRoC ``mav0``; a file with the EuRoC ``imu0`` header is EuRoC; anything else
     is a generic CSV that needs ``columns``. Or imu_tk's two files (``accel_file``,
-    ``gyro_file``; :mod:`mocap_calib.io.imu_tk`). New formats (and options) are added here, as
-    keywords, so every IMU-only command gets them.
+    ``gyro_file``; :mod:`mocap_calib.io.formats.imu_tk`). New formats (and options) are added
+    here, as keywords, so every IMU-only command gets them.
 
     Args:
         path: ``--imu`` file or folder (None with ``accel_file`` and ``gyro_file``).

@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.model.versioned import KindError
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 
 

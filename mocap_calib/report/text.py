@@ -6,8 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model import so3
+from mocap_calib.core.result.calibration import CalibrationResult
 
 
 def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:

@@ -1,7 +1,7 @@
 """A rerun recording (``.rrd``) of a calibration, for judging it by eye.
 
 Everything is on the timeline ``t``: mocap time in seconds since the mocap origin (``tau`` in
-:mod:`mocap_calib.core.calib.session`; an IMU sample at IMU time ``u`` is shown at ``u + delta``).
+:mod:`mocap_calib.core.prepare.session`; an IMU sample at IMU time ``u`` is shown at ``u + delta``).
 Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 
 - ``world/mocap/trajectory``: marker path ``p_WM`` (static strips, split at mocap gaps).
@@ -36,9 +36,6 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
-from mocap_calib.core.calib.session import PreparedSession, prepare
-from mocap_calib.core.calib.state import ModelState, state_from_result
 from mocap_calib.core.diagnosis.dead_reckoning import (
     DR_LENGTH_S,
     DeadReckoning,
@@ -47,6 +44,10 @@ from mocap_calib.core.diagnosis.dead_reckoning import (
 from mocap_calib.core.diagnosis.predict import predict_imu
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
+from mocap_calib.core.prepare.session import PreparedSession, prepare
+from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.state import ModelState
+from mocap_calib.core.stages.figures import ResidualSeries
 from mocap_calib.errors import InputError
 from mocap_calib.report.text import checks_lines, summary_table
 from mocap_calib.viz._rerun import AXIS_RGB, GRAY, ITERATION, TIMELINE, Logger, default_blueprint
@@ -175,7 +176,7 @@ def _session_and_state(result: CalibrationResult, imu: ImuSamples,
     if diag is not None and diag.trace is not None:
         return diag.trace.session, diag.trace.model_state
     s = prepare(imu, mocap, noise=result.noise)
-    return s, state_from_result(result, s)
+    return s, result.model_state(s)
 
 
 def _named_steps(steps: DiagnoseSteps) -> list[tuple[str, Mapping[str, ResidualSeries]]]:

@@ -7,14 +7,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions, IterationFn, ProgressFn, calibrate
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import IterationFn, ProgressFn, calibrate
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
-from mocap_calib.workflows.provenance import RunClock
+from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.session import (
     InputSpec,
     LoadedSession,
@@ -129,7 +130,7 @@ def calibrate_to_files(spec: InputSpec, options: CalibrationOptions, outputs: Ca
         save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")
         run.written.append(f"wrote {outputs.report}")
     if outputs.html is not None:
-        from mocap_calib.workflows.html_report import write_calibration_html
+        from mocap_calib.workflows.html.report import write_calibration_html
 
         if progress is not None:
             progress("writing HTML report")

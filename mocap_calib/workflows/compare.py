@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model import so3
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.report.text import table
 
 

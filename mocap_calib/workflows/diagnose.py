@@ -5,14 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from mocap_calib.core.calib.pipeline import CalibrationOptions, ProgressFn
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, DiagnoseReport
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import ProgressFn
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
-from mocap_calib.workflows.provenance import RunClock
+from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
 
 
@@ -53,7 +54,7 @@ def run_diagnosis(spec: InputSpec, options, noise_file: Path | None = None,
 def diagnose_series(report) -> list[tuple[str, dict]]:
     """Residual series of every diagnosis step, for the rerun recording: the low-band
     measured-minus-predicted gyro and accel, and the position-factor innovations."""
-    from mocap_calib.core.calib.result import ResidualSeries
+    from mocap_calib.core.stages.figures import ResidualSeries
 
     out = []
     for i, step in enumerate(report.steps):
@@ -86,7 +87,7 @@ def diagnose_to_files(spec: InputSpec, options: DiagnoseOptions, out: Path, rrd:
     check_writable(out, rrd, html)
     report, session = run_diagnosis(spec, options, noise_file, None, progress)
     if html is not None:
-        from mocap_calib.workflows.html_report import write_diagnosis_html
+        from mocap_calib.workflows.html.report import write_diagnosis_html
 
         if progress is not None:
             progress("writing HTML report")

@@ -13,7 +13,7 @@ from mocap_calib.export.targets import (
     export_calibration,
 )
 from mocap_calib.io.yaml_io import check_writable, load_noise, load_result, save_text
-from mocap_calib.workflows.intrinsics_export import INTRINSICS_FORMATS, export_intrinsics
+from mocap_calib.workflows.imu.intrinsics_export import INTRINSICS_FORMATS, export_intrinsics
 
 __all__ = ["TARGETS", "FILE_NAMES", "export_to_file", "export_result", "ALL_TARGETS"]
 

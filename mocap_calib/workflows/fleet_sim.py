@@ -50,7 +50,7 @@ def simulate_fleet(out_dir: Path, cfg: FleetSimConfig = FleetSimConfig()
         The manifest's path and the truth: per airframe the bias at the first date and the
         rates per day (``gyro_bias_rate``, ``accel_bias_rate``), per session its true biases.
     """
-    from mocap_calib.io.euroc import write_mav0
+    from mocap_calib.io.formats.euroc import write_mav0
     from mocap_calib.io.yaml_io import save_yaml
     from mocap_calib.sim.flight import SimConfig, simulate_flight
 

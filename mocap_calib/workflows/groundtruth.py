@@ -9,15 +9,15 @@ from typing import Any
 
 import numpy as np
 
-from mocap_calib.core.calib.groundtruth import (
+from mocap_calib.core.groundtruth.smoother import (
     GroundTruth,
     GroundTruthCalibration,
     GroundTruthOptions,
     ground_truth,
 )
-from mocap_calib.core.calib.pipeline import ProgressFn
-from mocap_calib.core.calib.result import CalibrationResult
 from mocap_calib.core.model import so3
+from mocap_calib.core.pipeline.calibrate import ProgressFn
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.export.intrinsics import intrinsics_of
 from mocap_calib.io.groundtruth import GT_FORMATS, sidecar_path, write_groundtruth

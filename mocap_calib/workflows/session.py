@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap_calib.core.calib.priors import priors_from_results
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.result.priors import priors_from_results
 from mocap_calib.errors import InputError
-from mocap_calib.io.bags import RecordingOptions
+from mocap_calib.io.formats.bags import RecordingOptions
+from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
-from mocap_calib.io.mocap_exports import ExportOptions
 from mocap_calib.io.yaml_io import load_noise, load_result
 
 
@@ -69,7 +69,7 @@ def load_session(spec: InputSpec) -> LoadedSession:
         recording=spec.recording(), export=spec.export())
     sensor_noise = None
     if spec.path is not None:
-        from mocap_calib.io.euroc import find_mav0
+        from mocap_calib.io.formats.euroc import find_mav0
 
         root = find_mav0(spec.path)
         sensor = root / "imu0" / "sensor.yaml"

@@ -26,7 +26,7 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
     Returns:
         ``(path, description)`` of every file written.
     """
-    from mocap_calib.io.euroc import write_euroc_imu, write_mav0
+    from mocap_calib.io.formats.euroc import write_euroc_imu, write_mav0
     from mocap_calib.io.yaml_io import save_yaml
     from mocap_calib.sim.flight import SimConfig, parse_effect, simulate_flight
 
@@ -35,7 +35,7 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
         raise InputError(f"{out_dir}: exists and is not a folder; choose another OUT_DIR")
     parsed = dict(parse_effect(e) for e in (effects or []))
     if protocol == "multipos":
-        from mocap_calib.workflows.multipos import simulate_multipos_to_folder
+        from mocap_calib.workflows.imu.multipos import simulate_multipos_to_folder
 
         return simulate_multipos_to_folder(out_dir, seed=seed, rate_hz=imu_rate,
                                            effects=parsed, counts=counts)

@@ -56,8 +56,8 @@ def allan(
     stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.workflows.allan import run_allan
-    from mocap_calib.workflows.imu_input import ImuSpec
+    from mocap_calib.workflows.imu.allan import run_allan
+    from mocap_calib.workflows.imu.imu_input import ImuSpec
 
     spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp)
     run = run_allan(spec, out=out, rrd=rrd,

@@ -60,8 +60,8 @@ def drift(
     stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.workflows.drift import run_drift
-    from mocap_calib.workflows.imu_input import ImuSpec
+    from mocap_calib.workflows.imu.drift import run_drift
+    from mocap_calib.workflows.imu.imu_input import ImuSpec
 
     spec = ImuSpec(imu, columns, time_unit, gyro_unit, accel_unit, imu_topic, stamp)
     run = run_drift(spec, calibration, start, end, mocap=mocap, quat_order=quat_order,

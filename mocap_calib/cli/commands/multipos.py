@@ -93,8 +93,8 @@ def multipos(
     stamp: STAMP = "header",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress lines.")] = False,
 ) -> None:
-    from mocap_calib.workflows.imu_input import ImuSpec
-    from mocap_calib.workflows.multipos import MultiposOptions, run_multipos
+    from mocap_calib.workflows.imu.imu_input import ImuSpec
+    from mocap_calib.workflows.imu.multipos import MultiposOptions, run_multipos
 
     options = MultiposOptions(
         init_static_s=init_static, window_s=window, min_interval_s=min_interval,

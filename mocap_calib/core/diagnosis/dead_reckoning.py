@@ -12,11 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.session import PreparedSession, local_derivative
-from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.imu_model import Intrinsics, correct, imu_times
 from mocap_calib.core.model.preint import compose, integrate_pieces, pieces
+from mocap_calib.core.prepare.session import PreparedSession, local_derivative
+from mocap_calib.core.result.state import ModelState
 
 Array = NDArray[np.float64]
 

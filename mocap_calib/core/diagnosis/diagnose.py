@@ -31,17 +31,7 @@ from numpy.typing import NDArray
 from scipy import special
 from scipy import stats as sps
 
-from mocap_calib.core.calib.clock import search_clock
-from mocap_calib.core.calib.pipeline import CalibrationOptions, calibrate
-from mocap_calib.core.calib.session import PreparedSession
-from mocap_calib.core.calib.stage_position import (
-    PositionInit,
-    PositionResult,
-    block_value,
-    effect_estimate,
-    run_position_stage,
-)
-from mocap_calib.core.calib.state import ModelState
+from mocap_calib.core.clock.search import search_clock
 from mocap_calib.core.diagnosis.predict import analyse_residuals
 from mocap_calib.core.diagnosis.report import (
     REPORT_KIND,
@@ -55,6 +45,17 @@ from mocap_calib.core.diagnosis.signature import unexplained_signature
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.position.stage import (
+    PositionInit,
+    PositionResult,
+    block_value,
+    effect_estimate,
+    run_position_stage,
+)
+from mocap_calib.core.prepare.session import PreparedSession
+from mocap_calib.core.result.state import ModelState
 from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]

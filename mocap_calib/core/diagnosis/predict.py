@@ -21,11 +21,11 @@ from numpy.typing import NDArray
 from scipy import signal
 from scipy.interpolate import CubicSpline
 
-from mocap_calib.core.calib.session import PreparedSession
-from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.imu_model import Intrinsics, accel_lag, forward, imu_times
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.prepare.session import PreparedSession
+from mocap_calib.core.result.state import ModelState
 
 Array = NDArray[np.float64]
 

@@ -9,10 +9,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.result import CalibrationResult, ResidualSeries
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis
 from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.versioned import check_kind, header
+from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.stages.figures import ResidualSeries
 
 Array = NDArray[np.float64]
 

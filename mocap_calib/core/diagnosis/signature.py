@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.consistency import segment_consistency
-from mocap_calib.core.calib.session import PreparedSession
-from mocap_calib.core.calib.stage_position import PositionResult
-from mocap_calib.core.calib.state import ModelState
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis, lowpass, predict_imu
+from mocap_calib.core.position.stage import PositionResult
+from mocap_calib.core.prepare.session import PreparedSession
+from mocap_calib.core.result.state import ModelState
+from mocap_calib.core.uncertainty.consistency import segment_consistency
 
 Array = NDArray[np.float64]
 

@@ -7,8 +7,8 @@ on EuRoC V2_03 and the BROAD trials no sample is (longest repeat of the full IMU
 samples, 17 ms; most samples at a channel's extreme: 2).
 
 Users: the readers refuse dead sensors (:func:`dead_channels`); the calibration leaves the
-saturated and frozen spans out (:mod:`mocap_calib.core.calib.faults`); the IMU-only tools refuse
-logs with frozen spans.
+saturated and frozen spans out (:mod:`mocap_calib.core.prepare.imu_faults`); the IMU-only
+tools refuse logs with frozen spans.
 """
 
 from __future__ import annotations

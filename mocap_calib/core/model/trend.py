@@ -2,7 +2,7 @@
 
 Every column (one parameter component) gets a weighted straight line through its earlier values
 against time; the line's value and standard error at the new session's time are the prediction.
-Used by the calibration priors (:mod:`mocap_calib.core.calib.priors`) and the multi-position
+Used by the calibration priors (:mod:`mocap_calib.core.result.priors`) and the multi-position
 priors (:mod:`mocap_calib.core.intrinsics.multipos.prior`).
 """
 

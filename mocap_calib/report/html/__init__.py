@@ -5,7 +5,7 @@ notes) and a :class:`Provenance`; :func:`prefixed` makes the ids of sections uni
 results share one page. Per result kind: :func:`calibration_sections`,
 :func:`diagnosis_sections`, :func:`multipos_sections`, :func:`allan_sections`,
 :func:`batch_sections`. The files are read and the figures computed in the workflow layer
-(``mocap_calib.workflows.html_report``, e.g. ``write_batch_report``).
+(``mocap_calib.workflows.html.report``, e.g. ``write_batch_report``).
 matplotlib is imported only when a figure is drawn.
 """
 
@@ -20,6 +20,7 @@ from mocap_calib.report.html.page import (
     Row,
     Section,
     Table,
+    prefixed,
     render_html,
     write_html,
 )
@@ -29,7 +30,6 @@ from mocap_calib.report.html.sections import (
     calibration_sections,
     diagnosis_sections,
     multipos_sections,
-    prefixed,
 )
 
 __all__ = ["Cell", "Figure", "InputFile", "Notes", "Provenance", "Row", "Section", "Table",

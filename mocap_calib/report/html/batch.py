@@ -12,7 +12,7 @@ from mocap_calib.report.html.mpl import AXIS_COLORS, new_figure, styled, to_png
 from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
 
 if TYPE_CHECKING:
-    from mocap_calib.core.calib.result import CalibrationResult
+    from mocap_calib.core.result.calibration import CalibrationResult
 
 
 def _fmt(v: float | None, k: float = 1.0, digits: int = 5) -> str:
@@ -83,7 +83,7 @@ def batch_report_sections(sessions: Sequence[Mapping[str, Any]],
                           fleet: Mapping[str, Any] | None) -> list[Section]:
     """Sections of a batch page (see :func:`mocap_calib.report.html.batch_sections`)."""
     from mocap_calib.report.html.calibration import checks_section, result_section
-    from mocap_calib.report.html.sections import prefixed
+    from mocap_calib.report.html.page import prefixed
 
     n_ok = sum(1 for s in sessions if str(s.get("id")) in results)
     blocks: list[Any] = [

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.result import ResidualSeries
+from mocap_calib.core.stages.figures import ResidualSeries
 from mocap_calib.report.html.mpl import (
     AXIS_COLORS,
     every,

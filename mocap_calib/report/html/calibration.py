@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.clock import MIN_PEAK_Z
-from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.clock.search import MIN_PEAK_Z
 from mocap_calib.core.diagnosis.dead_reckoning import DeadReckoning
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.report.html import calib_plots as plots
 from mocap_calib.report.html.page import Cell, Figure, Notes, Row, Section, Table
 from mocap_calib.report.html.tables import flat, get, kv_rows, num

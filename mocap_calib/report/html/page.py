@@ -12,8 +12,9 @@ import base64
 import html
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 __all__ = ["Cell", "Table", "Figure", "Notes", "Row", "Section", "InputFile", "Provenance",
            "render_html", "write_html"]
@@ -268,3 +269,17 @@ def write_html(path: str | Path, title: str, sections: Sequence[Section],
     finally:
         tmp.unlink(missing_ok=True)
     return path
+
+
+def _prefix_block(b: Any, prefix: str) -> Any:
+    if isinstance(b, (Figure, Table, Notes)):
+        return replace(b, id=prefix + b.id)
+    if isinstance(b, Row):
+        return Row([_prefix_block(x, prefix) for x in b.blocks])
+    return b
+
+
+def prefixed(sections: Sequence[Section], prefix: str) -> list[Section]:
+    """Copies of ``sections`` with every element id prefixed (several results on one page)."""
+    return [replace(s, id=prefix + s.id, blocks=[_prefix_block(b, prefix) for b in s.blocks])
+            for s in sections]

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.calib.result import CalibrationResult
+from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.report.html import calib_plots as plots
 from mocap_calib.report.html.calibration import CalibrationExtras
 from mocap_calib.report.html.mpl import fmt

@@ -6,14 +6,14 @@ from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from mocap_calib.report.html.page import Cell, Figure, Notes, Row, Section, Table
+from mocap_calib.report.html.page import Cell, Row, Section, Table
 
 if TYPE_CHECKING:
-    from mocap_calib.core.calib.result import CalibrationResult
     from mocap_calib.core.diagnosis.diagnose import DiagnoseReport
     from mocap_calib.core.intrinsics.multipos import MultiposResult
     from mocap_calib.core.intrinsics.noise_result import AllanResult
     from mocap_calib.core.model.types import ImuSamples
+    from mocap_calib.core.result.calibration import CalibrationResult
     from mocap_calib.report.html.calibration import CalibrationExtras
     from mocap_calib.report.html.intrinsics import PoseResiduals
 
@@ -77,20 +77,6 @@ def batch_sections(sessions: Sequence[Mapping[str, Any]],
     from mocap_calib.report.html.batch import batch_report_sections
 
     return batch_report_sections(sessions, results, fleet)
-
-
-def _prefix_block(b: Any, prefix: str) -> Any:
-    if isinstance(b, (Figure, Table, Notes)):
-        return replace(b, id=prefix + b.id)
-    if isinstance(b, Row):
-        return Row([_prefix_block(x, prefix) for x in b.blocks])
-    return b
-
-
-def prefixed(sections: Sequence[Section], prefix: str) -> list[Section]:
-    """Copies of ``sections`` with every element id prefixed (several results on one page)."""
-    return [replace(s, id=prefix + s.id, blocks=[_prefix_block(b, prefix) for b in s.blocks])
-            for s in sections]
 
 
 def rekeyed(sections: Sequence[Section], prefix: str) -> list[Section]:

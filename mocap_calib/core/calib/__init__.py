@@ -1,2 +1,0 @@
-"""The calibration engine:
-session preparation, clock search, the three factor-graph stages, results."""

@@ -1,0 +1,1 @@
+"""IMU ground truth from mocap and a calibration (error-state filter and RTS smoother)."""

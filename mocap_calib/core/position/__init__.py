@@ -1,0 +1,2 @@
+"""The position engine: windows, the window filter, its factor graph, the stage's solve and its
+covariances."""

@@ -1,0 +1,187 @@
+"""Windows of the position stage and the values and layout of its parameters.
+
+A window is a gap-free stretch of mocap samples (a few seconds); all windows are padded to the
+same number of steps so that the engine can advance them in lock-step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.model.effects import Model
+from mocap_calib.core.prepare.session import PreparedSession
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Padded window arrays (W windows, up to m steps each)."""
+
+    idx: NDArray[np.int64]  # (W, m+1) mocap sample index
+    mask: NDArray[np.bool_]  # (W, m+1) real sample
+    tau: Array  # (W, m+1)
+    R_WM: Array  # (W, m+1, 3, 3)
+    p_WM: Array  # (W, m+1, 3)
+    v0: Array  # (W, 3) IMU velocity guess at the window start (diffuse prior's mean)
+
+    @property
+    def count(self) -> int:
+        return self.idx.shape[0]
+
+    def decimate(self, k: int) -> Windows:
+        """Every ``k``-th sample of every window (the last real sample kept)."""
+        if k <= 1:
+            return self
+        W, m1 = self.idx.shape
+        cols = np.arange(0, m1, k)
+        mask = self.mask[:, cols]
+        return Windows(self.idx[:, cols], mask, self.tau[:, cols], self.R_WM[:, cols],
+                       self.p_WM[:, cols], self.v0)
+
+    def subset(self, which: NDArray[np.int64]) -> Windows:
+        """The windows ``which`` (indices), in that order."""
+        return Windows(self.idx[which], self.mask[which], self.tau[which], self.R_WM[which],
+                       self.p_WM[which], self.v0[which])
+
+    @property
+    def steps(self) -> int:
+        return self.idx.shape[1] - 1
+
+    @property
+    def start(self) -> Array:
+        return self.tau[:, 0]
+
+    @property
+    def end(self) -> Array:
+        last = self.mask.sum(axis=1) - 1
+        return self.tau[np.arange(self.count), last]
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.mask.sum())
+
+
+def make_windows(s: PreparedSession, delta: float, length: float, max_rate: float,
+                 v_imu: Array, min_samples: int = 20, margin: float = 0.1) -> Windows:
+    """Cut the mocap stream into gap-free windows of at most ``length`` seconds.
+
+    Args:
+        s: prepared session.
+        delta: current mocap-minus-IMU time (windows stay ``margin`` inside the IMU span).
+        length: window length (s).
+        max_rate: mocap samples above this rate are decimated (consecutive mocap noise is rarely
+            independent beyond ~100-200 Hz, and the cost is linear in the samples).
+        v_imu: (M, 3) IMU velocity guess at every mocap sample (for window starts).
+    """
+    step = max(1, int(round(s.mocap_rate / max_rate)))
+    sel = np.arange(0, len(s.tau), step)
+    tau = s.tau[sel]
+    inside = (tau - delta > s.u[0] + margin) & (tau - delta < s.u[-1] - margin)
+    gap = max(s.gap, 3.0 * step / s.mocap_rate)
+    breaks = np.flatnonzero((np.diff(tau) > gap) | (inside[1:] != inside[:-1])) + 1
+    segments = [seg for seg in np.split(np.arange(len(sel)), breaks) if inside[seg[0]]]
+    windows: list[NDArray[np.int64]] = []
+    for seg in segments:
+        dur = tau[seg[-1]] - tau[seg[0]]
+        n = max(1, int(np.ceil(dur / length)))
+        for part in np.array_split(seg, n):
+            if len(part) >= min_samples:
+                windows.append(sel[part])
+    if not windows:
+        return Windows(np.zeros((0, 2), np.int64), np.zeros((0, 2), bool), np.zeros((0, 2)),
+                       np.zeros((0, 2, 3, 3)), np.zeros((0, 2, 3)), np.zeros((0, 3)))
+    m1 = max(len(w) for w in windows)
+    W = len(windows)
+    idx = np.zeros((W, m1), np.int64)
+    mask = np.zeros((W, m1), bool)
+    for i, w in enumerate(windows):
+        idx[i, : len(w)] = w
+        idx[i, len(w):] = w[-1]
+        mask[i, : len(w)] = True
+    return Windows(idx, mask, s.tau[idx], s.R_WM[idx], s.p_WM[idx], v_imu[idx[:, 0]])
+
+
+@dataclass
+class Theta:
+    """Current values of the position stage's parameters."""
+
+    R_MI: Array
+    p_MI: Array
+    g_dir: Array
+    g_basis: Array  # (3, 2) tangent basis of the gravity direction (GTSAM Unit3's)
+    g_mag: float
+    delta: float
+    effects: dict[str, Array]
+    knots: Array  # (W, 6): gyro bias, accel bias at each window start
+    t_mid: float = 0.0
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Column layout of a window's Jacobian: global blocks, then the window's bias knot."""
+
+    blocks: tuple[tuple[str, int], ...]
+
+    @property
+    def dim(self) -> int:
+        return sum(d for _, d in self.blocks)
+
+    def slice(self, name: str) -> slice:
+        o = 0
+        for n, d in self.blocks:
+            if n == name:
+                return slice(o, o + d)
+            o += d
+        raise KeyError(name)
+
+    def has(self, name: str) -> bool:
+        return any(n == name for n, _ in self.blocks)
+
+
+def layout_for(model: Model) -> Layout:
+    blocks: list[tuple[str, int]] = [("rotation", 3), ("translation", 3), ("gravity", 2)]
+    if model.has("time_offset"):
+        blocks.append(("time_offset", 1))
+    if model.has("gravity_magnitude"):
+        blocks.append(("gravity_magnitude", 1))
+    for eff in model.units:
+        if eff.in_effects:
+            blocks.append((eff.name, eff.dim))
+    blocks.append(("knot", 6))
+    return Layout(tuple(blocks))
+
+
+@dataclass
+class EvalOut:
+    """One evaluation of all windows.
+
+    Attributes:
+        gram: (W, p+1, p+1) Gram matrix of the whitened ``[J | r]`` per window (r last).
+        innovation: (W, m+1, 6) one-step prediction errors (rad, m) at each sample.
+        d_raw: (W, m+1) whitened innovation norm with unit robust weights.
+        chi2: (W,) whitened cost per window (with the robust weights used).
+        q_rot, q_pos: (W, m+1) squared whitened attitude / position innovation (3 dof each):
+            their typical size tells whether the mocap noise is as modelled.
+        logdet: (W,) sum of log det of the innovation covariances (the likelihood's other part).
+        scores: (W, B, p) per window and block of consecutive samples, the whitened score
+            ``sum J_w^T r_w`` (only when the problem collects them, for the sandwich
+            covariance).
+        raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
+    """
+
+    gram: Array
+    innovation: Array
+    d_raw: Array
+    chi2: Array
+    q_rot: Array
+    q_pos: Array
+    logdet: Array
+    scores: Array | None = None
+    raw_r: Array | None = None
+    raw_J: Array | None = None
+    whitened: Array | None = None
+    extras: dict[str, Array] = field(default_factory=dict)

@@ -1,0 +1,2 @@
+"""Preparing a session: checks, relative clocks, mocap spikes, IMU faults, and kinematics on a
+common grid."""

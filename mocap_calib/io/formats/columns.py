@@ -1,0 +1,123 @@
+"""Column maps of generic CSVs: which columns hold time, gyro, accel, quaternion, position.
+
+The ``--columns`` grammar is in :mod:`mocap_calib.io.formats.generic`; :func:`parse_columns`
+reads it.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from mocap_calib.errors import input_error
+
+Col = int | str
+
+
+@dataclass(frozen=True)
+class ColumnMap:
+    """Which columns of a generic CSV hold which quantity (0-based indices or header names).
+
+    Attributes:
+        time: The time column.
+        gyro: Gyro x, y, z, or None.
+        accel: Accel x, y, z, or None.
+        quat: Quaternion, 4 columns in the file's order (see ``quat_order``), or None.
+        position: Position x, y, z, or None.
+    """
+
+    time: Col = 0
+    gyro: tuple[Col, ...] | None = None
+    accel: tuple[Col, ...] | None = None
+    quat: tuple[Col, ...] | None = None
+    position: tuple[Col, ...] | None = None
+
+    @property
+    def has_imu(self) -> bool:
+        return self.gyro is not None and self.accel is not None
+
+    @property
+    def has_mocap(self) -> bool:
+        return self.quat is not None and self.position is not None
+
+    def check(self) -> ColumnMap:
+        """Raise if a group has the wrong number of columns or a stream is half given."""
+        for key, cols, n in (("gyro", self.gyro, 3), ("accel", self.accel, 3),
+                             ("quat", self.quat, 4), ("pos", self.position, 3)):
+            if cols is not None and len(cols) != n:
+                raise input_error(f"{key}= names {len(cols)} columns, not {n}",
+                                  COLUMNS_FIX, "--columns")
+        if (self.gyro is None) != (self.accel is None):
+            raise input_error("the IMU stream needs both gyro= and accel=", COLUMNS_FIX,
+                              "--columns")
+        if (self.quat is None) != (self.position is None):
+            raise input_error("the mocap stream needs both quat= and pos=", COLUMNS_FIX,
+                              "--columns")
+        return self
+
+
+COLUMNS_FIX = ("write --columns like 't=0,gyro=1:4,accel=4:7,quat=7:11,pos=11:14' "
+                "(0-based, A:B is a range, names separated by |)")
+
+#: BROAD (``../shared/data/broad_*/data.csv``): seconds, rad/s, m/s^2, wxyz, metres.
+BROAD = ColumnMap(
+    time="t [s]",
+    gyro=("gyr_x [rad/s]", "gyr_y [rad/s]", "gyr_z [rad/s]"),
+    accel=("acc_x [m/s^2]", "acc_y [m/s^2]", "acc_z [m/s^2]"),
+    quat=("opt_qw", "opt_qx", "opt_qy", "opt_qz"),
+    position=("opt_px [m]", "opt_py [m]", "opt_pz [m]"),
+)
+
+PRESETS: dict[str, ColumnMap] = {"broad": BROAD}
+
+_KEYS = {"t": "time", "time": "time", "gyro": "gyro", "gyr": "gyro", "w": "gyro",
+         "accel": "accel", "acc": "accel", "a": "accel", "quat": "quat", "q": "quat",
+         "pos": "position", "position": "position", "p": "position"}
+
+
+def parse_columns(spec: str) -> ColumnMap:
+    """Build a :class:`ColumnMap` from a ``--columns`` string (grammar in the module doc).
+
+    Args:
+        spec: E.g. ``"t=0,gyro=1:4,accel=4:7"`` or ``"broad"``.
+
+    Returns:
+        The column map.
+
+    Raises:
+        InputError: on a malformed string.
+    """
+    text = spec.strip()
+    if text.lower() in PRESETS:
+        return PRESETS[text.lower()]
+    found: dict[str, tuple[Col, ...]] = {}
+    for item in (i.strip() for i in text.split(",")):
+        if not item:
+            continue
+        key, eq, value = item.partition("=")
+        field = _KEYS.get(key.strip().lower())
+        if not eq or field is None:
+            raise input_error(f"cannot read {item!r} (keys: t, gyro, accel, quat, pos)",
+                              COLUMNS_FIX, "--columns")
+        if field in found:
+            raise input_error(f"{key.strip()}= is given twice", COLUMNS_FIX, "--columns")
+        found[field] = _parse_cols(value.strip())
+    if "time" not in found:
+        raise input_error("no time column (t=)", COLUMNS_FIX, "--columns")
+    if len(found["time"]) != 1:
+        raise input_error(f"t= names {len(found['time'])} columns, not 1", COLUMNS_FIX,
+                          "--columns")
+    return ColumnMap(time=found["time"][0], gyro=found.get("gyro"), accel=found.get("accel"),
+                     quat=found.get("quat"), position=found.get("position")).check()
+
+
+def _parse_cols(value: str) -> tuple[Col, ...]:
+    m = re.fullmatch(r"(\d+)\s*:\s*(\d+)", value)
+    if m:
+        cols: tuple[Col, ...] = tuple(range(int(m.group(1)), int(m.group(2))))
+    else:
+        cols = tuple(int(v) if re.fullmatch(r"\d+", v) else v
+                     for v in (p.strip() for p in value.split("|")))
+    if not cols or any(c == "" for c in cols):
+        raise input_error(f"empty column in {value!r}", COLUMNS_FIX, "--columns")
+    return cols

@@ -1,0 +1,104 @@
+"""imu_tk's input layout: two whitespace-separated text files, one for the accelerometer and one
+for the gyroscope, each ``t x y z`` per line (imu_tk's ``importAsciiData``; its example reads the
+stamps in seconds).
+
+The two streams may share their stamps or not. If not, the accelerometer is interpolated
+linearly onto the gyro's stamps (the gyro is integrated sample by sample, the accelerometer is
+only averaged over static intervals), over the span both cover.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.errors import input_error
+from mocap_calib.io.checks import (
+    ACCEL_UNITS,
+    GYRO_UNITS,
+    TIME_UNITS,
+    Lines,
+    check_increasing,
+    check_unit,
+    validate_imu,
+)
+from mocap_calib.io.formats.generic import G0
+from mocap_calib.io.formats.layout import numeric_column, read_frame, sniff_layout
+from mocap_calib.io.formats.stamps import parse_stamps
+
+Array = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+def read_triad(path: Path | str, time_unit: str = "s") -> tuple[IntArray, Array, Lines]:
+    """One imu_tk file: integer nanosecond stamps, (N, 3) values, and its line map.
+
+    Raises:
+        InputError: missing file, fewer than 4 columns, non-numbers, stamps not increasing.
+    """
+    layout = sniff_layout(path)
+    if layout.n_fields < 4:
+        raise input_error(f"has {layout.n_fields} columns, not imu_tk's 't x y z'",
+                          "pass an imu_tk data file (timestamp and three values per line)",
+                          layout.source, layout.skip + 1)
+    frame = read_frame(layout, [0, 1, 2, 3], 0)
+    lines = layout.lines()
+    ns = parse_stamps(frame[0], time_unit, layout.label(0), lines, layout.decimal)
+    xyz = np.stack([numeric_column(frame, c, layout, lines) for c in (1, 2, 3)], axis=1)
+    bad = ~np.isfinite(xyz).all(axis=1)
+    if bad.any():
+        raise lines.error("row has a NaN, infinite or missing value", "fix or delete that row",
+                          int(np.flatnonzero(bad)[0]))
+    check_increasing(ns, "IMU", lines)
+    return ns, xyz, lines
+
+
+def read_imu_tk_pair(accel_path: Path | str, gyro_path: Path | str, *, time_unit: str = "s",
+                     gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", raw: bool = False
+                     ) -> tuple[ImuSamples, list[str]]:
+    """Read imu_tk's two files as one IMU stream on the gyro's stamps.
+
+    Args:
+        accel_path: accelerometer file (``t ax ay az``).
+        gyro_path: gyroscope file (``t gx gy gz``).
+        time_unit: unit of the stamps (imu_tk's example: s).
+        gyro_unit: rad/s or deg/s (ignored with ``raw``).
+        accel_unit: m/s^2 or g (ignored with ``raw``).
+        raw: the values are raw counts (no conversion or unit check).
+
+    Returns:
+        The samples and one-line notes.
+
+    Raises:
+        InputError: a bad file, or files that do not overlap in time.
+    """
+    check_unit(time_unit, TIME_UNITS, "--time-unit")
+    check_unit(gyro_unit, GYRO_UNITS, "--gyro-unit")
+    check_unit(accel_unit, ACCEL_UNITS, "--accel-unit")
+    ns_a, acc, _ = read_triad(accel_path, time_unit)
+    ns_g, gyr, lines = read_triad(gyro_path, time_unit)
+    notes = []
+    if len(ns_a) == len(ns_g) and np.array_equal(ns_a, ns_g):
+        notes.append("accelerometer and gyro files share their stamps")
+    else:
+        keep = (ns_g >= ns_a[0]) & (ns_g <= ns_a[-1])
+        if keep.sum() < 2:
+            raise input_error("the accelerometer and gyro files do not overlap in time",
+                              "pass the two files of one recording (check --time-unit)",
+                              f"{accel_path}, {gyro_path}")
+        ns_g, gyr = ns_g[keep], gyr[keep]
+        # Interpolate on stamps relative to the first one: int64 ns keep their precision.
+        t_a = (ns_a - ns_g[0]) * 1e-9
+        t_g = (ns_g - ns_g[0]) * 1e-9
+        acc = np.stack([np.interp(t_g, t_a, acc[:, c]) for c in range(3)], axis=1)
+        notes.append(f"accelerometer ({len(ns_a)} samples) interpolated onto the gyro's "
+                     f"{len(ns_g)} stamps")
+    if not raw:
+        gyr = gyr * (np.pi / 180.0 if gyro_unit == "deg/s" else 1.0)
+        acc = acc * (G0 if accel_unit == "g" else 1.0)
+    imu = validate_imu(ns_g, gyr, acc, lines, time_unit=time_unit, gyro_unit=gyro_unit,
+                       accel_unit=accel_unit, raw=raw)
+    return imu, notes

@@ -1,0 +1,2 @@
+"""HTML reports of the commands: the figures computed for them, and how a result was made
+(provenance)."""
