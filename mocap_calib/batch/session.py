@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.result.calibration import CalibrationResult
 
 
@@ -25,7 +26,7 @@ class CalibrateArgs:
     imu: Path | None = None
     mocap: Path | None = None
     model: str = "base+time_offset"
-    gravity: float = 9.81
+    gravity: float = GRAVITY
     noise: Path | None = None
     gyro_noise: float | None = None
     gyro_walk: float | None = None

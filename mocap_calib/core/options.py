@@ -9,6 +9,7 @@ import numpy as np
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.position.graph import Prior
 from mocap_calib.errors import InputError
 
@@ -41,7 +42,7 @@ class CalibrationOptions:
     """
 
     model: Model = field(default_factory=lambda: Model(("time_offset",)))
-    gravity: float = 9.81
+    gravity: float = GRAVITY
     noise: NoiseModel = field(default_factory=NoiseModel)
     attitude_spacing: float = 0.5
     velocity_spacing: float = 0.5
@@ -62,7 +63,7 @@ class CalibrationOptions:
 
     def validate(self) -> None:
         if not 5.0 < self.gravity < 15.0:
-            raise InputError(f"--gravity {self.gravity}: give |g| in m/s^2 (about 9.81)")
+            raise InputError(f"--gravity {self.gravity}: give |g| in m/s^2 (about {GRAVITY})")
         for name, v, lo, hi in (("--attitude-spacing", self.attitude_spacing, 0.02, 10.0),
                                 ("--velocity-spacing", self.velocity_spacing, 0.05, 10.0),
                                 ("--window", self.window, 0.5, 60.0)):

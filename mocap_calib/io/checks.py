@@ -17,17 +17,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
+from mocap_calib.core.policy import POSITION_UNITS, TIME_UNITS_NS
 from mocap_calib.errors import InputError, input_error
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Nanoseconds per unit of a time column.
-TIME_UNITS: dict[str, int] = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
-GYRO_UNITS: tuple[str, ...] = ("rad/s", "deg/s")
-ACCEL_UNITS: tuple[str, ...] = ("m/s^2", "g")
-#: Metres per unit of a position column.
-POSITION_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+TIME_UNITS = TIME_UNITS_NS
 QUAT_ORDERS: tuple[str, ...] = ("wxyz", "xyzw")
 
 MIN_IMU_ROWS = 100

@@ -19,6 +19,7 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
 from mocap_calib.sim.motions import MOTIONS, motion_trajectory
 from mocap_calib.sim.trajectory import (
@@ -56,7 +57,7 @@ EFFECT_HELP: dict[str, str] = {
     "gyro_g_sensitivity": "std of the entries of G in rad/s per m/s^2, or 9 values",
     "gyro_bias_drift": "trend magnitude in rad/s per s, or 3 values",
     "accel_bias_drift": "trend magnitude in m/s^2 per s, or 3 values",
-    "gravity_magnitude": "true |g| in m/s^2 (the calibration assumes 9.81)",
+    "gravity_magnitude": f"true |g| in m/s^2 (the calibration assumes {GRAVITY})",
     "clock_drift": "IMU clock rate error s (1e-4 = 100 ppm); default: 100 ppm, random sign",
     "accel_delay": "how much the accelerometer lags the gyro, in s",
     "accel_size_effect": "distance of the y and z accelerometers from the x one (m, random "
@@ -116,7 +117,7 @@ class SimConfig:
     duration: float = 90.0
     imu_rate: float = 200.0
     mocap_rate: float = 100.0
-    gravity: float = 9.81
+    gravity: float = GRAVITY
     noise: NoiseModel = field(default_factory=NoiseModel)
     effects: dict[str, list[float] | None] = field(default_factory=dict)
     imu_time_origin_ns: int = 1_600_000_000_000_000_000
@@ -220,7 +221,7 @@ class _Truth:
     """The injected effects' true values (neutral when not injected)."""
 
     t_d: float = 0.0
-    g: float = 9.81
+    g: float = GRAVITY
     M_g: Array = field(default_factory=lambda: np.eye(3))
     M_a: Array = field(default_factory=lambda: np.eye(3))
     G: Array = field(default_factory=lambda: np.zeros((3, 3)))

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, NoiseModel
+from mocap_calib.core.policy import GRAVITY, STANDARD_GRAVITY
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]
@@ -111,7 +112,7 @@ class CountsSpec:
     (16.4 LSB per deg/s), signed outputs (offset 0).
     """
 
-    accel_scale: float = 9.80665 / 4096.0
+    accel_scale: float = STANDARD_GRAVITY / 4096.0
     accel_offset: float = 0.0
     gyro_scale: float = float(np.radians(1.0)) / 16.4
     gyro_offset: float = 0.0
@@ -227,7 +228,7 @@ def simulate_multipos(
     accel_bias: ArrayLike | None = None,
     gyro_matrix: ArrayLike | None = None,
     gyro_bias: ArrayLike | None = None,
-    gravity: float = 9.81,
+    gravity: float = GRAVITY,
     bias_random_walk: bool = False,
     time_origin_ns: int = 1_600_000_000_000_000_000,
     g_sensitivity: ArrayLike | float | None = None,

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, NoiseModel
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]
@@ -64,7 +65,7 @@ def simulate_static(
     rate_hz: float = 200.0,
     noise: NoiseModel | None = None,
     bias_instability: tuple[float, float] | None = None,
-    gravity: float = 9.81,
+    gravity: float = GRAVITY,
     tilt_deg: float = 2.0,
     time_origin_ns: int = 1_600_000_000_000_000_000,
 ) -> tuple[ImuSamples, dict[str, Any]]:

@@ -11,6 +11,7 @@ from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import IterationFn, ProgressFn, calibrate
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
@@ -33,7 +34,7 @@ def effects_help() -> str:
     return "; ".join(f"{e.name} ({e.description})" for e in EFFECTS.values())
 
 
-def calibration_options(*, model: str = "base+time_offset", gravity: float = 9.81,
+def calibration_options(*, model: str = "base+time_offset", gravity: float = GRAVITY,
                         keyframe_spacing: float = 0.5, window: float = 5.0,
                         time_offset: float | None = None, robust: bool = True,
                         start: float | None = None, end: float | None = None,

@@ -10,6 +10,7 @@ from mocap_calib.core.model.effects import CANONICAL_EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import ProgressFn
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
@@ -18,7 +19,7 @@ from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
 
 
 def diagnose_options(*, start: str = "base", candidates: str | None = None, alpha: float = 0.01,
-                     max_steps: int = 4, gravity: float = 9.81,
+                     max_steps: int = 4, gravity: float = GRAVITY,
                      window: float = 5.0, plausible: Path | None = None) -> DiagnoseOptions:
     """Diagnosis options from the command line's values (checked; ``plausible``: a file of
     limits overriding the defaults of docs/diagnosis.md)."""

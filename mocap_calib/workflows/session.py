@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.policy import GRAVITY  # noqa: F401  (the CLI's default)
 from mocap_calib.core.result.priors import priors_from_results
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.bags import RecordingOptions

@@ -38,6 +38,7 @@ from mocap_calib.workflows.calibrate import (
     effects_help,
     noise_overrides,
 )
+from mocap_calib.workflows.session import GRAVITY
 
 _EFFECTS_HELP = effects_help()
 
@@ -64,7 +65,7 @@ def calibrate(
         help="Measurement model: base plus effects joined by '+', e.g. "
         "base+time_offset+gyro_scale_misalignment. Effects: " + _EFFECTS_HELP)]
     = "base+time_offset",
-    gravity: Annotated[float, typer.Option(help="Assumed |g| in m/s^2.")] = 9.81,
+    gravity: Annotated[float, typer.Option(help="Assumed |g| in m/s^2.")] = GRAVITY,
     noise: Annotated[Path | None, typer.Option(
         help="Noise model YAML (Kalibr imu.yaml keys, e.g. from 'mocap-calib allan'). Default: "
         "the mav0's imu0/sensor.yaml, else EuRoC ADIS16448 values.", show_default=False)] = None,

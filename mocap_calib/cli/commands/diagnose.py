@@ -31,6 +31,7 @@ from mocap_calib.cli.common import (
 )
 from mocap_calib.cli.main import app
 from mocap_calib.workflows.diagnose import InputSpec, diagnose_options, diagnose_to_files
+from mocap_calib.workflows.session import GRAVITY
 
 
 @app.command(
@@ -57,7 +58,7 @@ def diagnose(
     alpha: Annotated[float, typer.Option(
         help="False-alarm rate per step (Bonferroni-corrected over the candidates).")] = 0.01,
     max_steps: Annotated[int, typer.Option(help="Most effects to add.")] = 4,
-    gravity: Annotated[float, typer.Option(help="Assumed |g| in m/s^2.")] = 9.81,
+    gravity: Annotated[float, typer.Option(help="Assumed |g| in m/s^2.")] = GRAVITY,
     noise: Annotated[Path | None, typer.Option(
         help="Noise model YAML (Kalibr imu.yaml keys).", show_default=False)] = None,
     window: Annotated[float, typer.Option(help="Length of the position-factor windows, s.")] = 5.0,

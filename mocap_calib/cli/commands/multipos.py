@@ -19,6 +19,7 @@ from mocap_calib.cli.common import (
     Progress,
 )
 from mocap_calib.cli.main import app
+from mocap_calib.workflows.session import GRAVITY
 
 
 @app.command(
@@ -83,7 +84,7 @@ def multipos(
         help="Shortest static interval used, s.")] = 0.5,
     min_orientations: Annotated[int, typer.Option(
         help="Fewest distinct static orientations accepted.")] = 9,
-    gravity: Annotated[float, typer.Option(help="Local |g| in m/s^2.")] = 9.81,
+    gravity: Annotated[float, typer.Option(help="Local |g| in m/s^2.")] = GRAVITY,
     html: HTML = None,
     columns: COLUMNS = None,
     time_unit: TIME_UNIT = None,

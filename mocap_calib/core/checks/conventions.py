@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.clock.search import search_clock
 from mocap_calib.core.model import so3
+from mocap_calib.core.policy import GRAVITY, POSITION_UNITS, STANDARD_GRAVITY
 from mocap_calib.core.prepare.kinematics import (
     MocapGrid,
     SmoothedImu,
@@ -71,7 +72,6 @@ READINGS: dict[str, str] = {
     "wxyz": "the mocap quaternions look like wxyz (w first): pass --quat-order wxyz",
 }
 #: Metres per unit, for naming the unit that the positions fit.
-POSITION_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
 def read_as(kind: str, R: Array, p: Array) -> tuple[Array, Array]:
@@ -132,7 +132,7 @@ def _near(x: float, target: float, tol: float = 0.15) -> bool:
 
 def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float,
                 imu: SmoothedImu | None = None, refine: bool = True,
-                gravity: float = 9.81) -> Fit | None:
+                gravity: float = GRAVITY) -> Fit | None:
     """The closed-form fit of the mocap poses ``R``, ``p`` (one reading) near offset ``t_d``
     (refined within +-0.3 s by the rotation fit when ``refine``)."""
     imu = imu or SmoothedImu.of(s)
@@ -243,7 +243,7 @@ def _solve(M: Array, H: Array, Hi: Array, y: Array, var: float, gravity: float) 
 
 
 def _best(s: PreparedSession, R: Array, p: Array, offsets: list[float],
-          imu: SmoothedImu, gravity: float = 9.81) -> Fit | None:
+          imu: SmoothedImu, gravity: float = GRAVITY) -> Fit | None:
     """The best fit over the offsets, with the score of the best one over a second away
     (``runner_up``: a clock offset is unambiguous when that is clearly worse)."""
     fits = [f for f in (fit_reading(s, R, p, t, imu, gravity=gravity) for t in offsets)
@@ -296,7 +296,7 @@ def _parameter_fixes(fit: Fit, gravity: float, position_unit_m: float = 1.0) -> 
     elif _near(fit.gyro_scale, 180 / np.pi, 0.1):
         fixes.append("the gyro looks like it is in rad/s, not deg/s: pass --gyro-unit rad/s")
     k, g = fit.position_scale, fit.gravity
-    if fit.g_known and _near(g, gravity / 9.80665, 0.2):
+    if fit.g_known and _near(g, gravity / STANDARD_GRAVITY, 0.2):
         fixes.append("the accelerometer looks like it is in g: pass --accel-unit g")
         return fixes
     if not fit.k_known or (fit.g_known and not _near(g, gravity, 0.2)):
@@ -313,7 +313,7 @@ def _parameter_fixes(fit: Fit, gravity: float, position_unit_m: float = 1.0) -> 
     return fixes
 
 
-def check_conventions(s: PreparedSession, offsets: list[float], gravity: float = 9.81,
+def check_conventions(s: PreparedSession, offsets: list[float], gravity: float = GRAVITY,
                       max_offset: float | None = None, position_unit_m: float = 1.0
                       ) -> Fit | None:
     """Try the common readings of the data; raise naming the mistake, or the mismatch.

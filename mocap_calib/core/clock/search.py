@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.types import gap_threshold
+from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]

@@ -16,17 +16,6 @@ from mocap_calib.core.model import so3
 Array = NDArray[np.float64]
 
 
-#: The one gap rule for sampled streams: a step longer than this many median steps is a gap
-#: (occlusion, dropped samples). Mocap windows, keyframe intervals, the clock search and the
-#: drift check never span one.
-GAP_FACTOR = 3.0
-
-
-def gap_threshold(t: Array, floor: float = 0.0) -> float:
-    """Longest step (s) of the time series ``t`` that is not a gap (see :data:`GAP_FACTOR`)."""
-    return max(GAP_FACTOR * float(np.median(np.diff(t))), floor)
-
-
 def _as_float(a: object, shape_tail: tuple[int, ...]) -> Array:
     arr = np.ascontiguousarray(np.asarray(a, dtype=np.float64))
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:

@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, refuse_dead
-from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel, gap_threshold
+from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]

@@ -17,6 +17,7 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.model.versioned import check_kind, header
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.result.state import CalibrationTrace, ModelState
 from mocap_calib.core.stages.figures import ResidualSeries, StageStats
 from mocap_calib.errors import InputError
@@ -74,7 +75,7 @@ class CalibrationResult:
     sigma_translation: Array | None = None
     sigma_gravity: Array | None = None
     sigma_time_offset: float | None = None
-    gravity_magnitude: float = 9.81
+    gravity_magnitude: float = GRAVITY
     model: str = "base+time_offset"
     effects: dict[str, dict[str, Any]] = field(default_factory=dict)
     unobservable: dict[str, str] = field(default_factory=dict)
@@ -193,7 +194,7 @@ class CalibrationResult:
             sigma_translation=_arr(sig.get("translation"), 3, "sigma.translation"),
             sigma_gravity=_arr(sig.get("gravity_in_mocap"), 2, "sigma.gravity_in_mocap"),
             sigma_time_offset=None if sto is None else float(sto),
-            gravity_magnitude=float(d.get("gravity_magnitude", 9.81)),
+            gravity_magnitude=float(d.get("gravity_magnitude", GRAVITY)),
             model=(d["model"] if isinstance(d.get("model"), str)
                    else "+".join(d.get("model") or ["base"])),
             effects=dict(d.get("effects") or {}),

@@ -41,17 +41,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
+from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS, POSITION_UNITS
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import (
-    ACCEL_UNITS,
-    GYRO_UNITS,
-    POSITION_UNITS,
-    QUAT_ORDERS,
-    TIME_UNITS,
-    check_unit,
-    validate_imu,
-    validate_mocap,
-)
+from mocap_calib.io.checks import QUAT_ORDERS, TIME_UNITS, check_unit, validate_imu, validate_mocap
 from mocap_calib.io.formats.columns import (
     BROAD,
     COLUMNS_FIX,
@@ -72,14 +64,12 @@ from mocap_calib.io.formats.stamps import parse_stamps
 from mocap_calib.io.tables import format_floats, write_table
 
 # Re-exported: the reader's building blocks used to live here.
-__all__ = ["BROAD", "G0", "PRESETS", "WHITESPACE", "ColumnMap", "Layout", "format_floats",
+__all__ = ["BROAD", "PRESETS", "WHITESPACE", "ColumnMap", "Layout", "format_floats",
            "name_key", "numeric_column", "parse_columns", "parse_stamps", "read_frame",
            "read_generic", "read_indexed", "resolve_column", "sniff_layout", "write_table"]
 
 Array = NDArray[np.float64]
 
-#: Standard gravity, the definition of the unit g (not the local gravity of the session).
-G0 = 9.80665
 
 
 def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None,
@@ -126,8 +116,8 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
 
     imu = mocap = None
     if gyro is not None and accel is not None:
-        g = block(gyro) * (np.pi / 180.0 if gyro_unit == "deg/s" else 1.0)
-        a = block(accel) * (G0 if accel_unit == "g" else 1.0)
+        g = block(gyro) * GYRO_UNITS[gyro_unit]
+        a = block(accel) * ACCEL_UNITS[accel_unit]
         imu = validate_imu(ns, g, a, lines, time_unit=time_unit, gyro_unit=gyro_unit,
                            accel_unit=accel_unit, raw=raw)
     if quat is not None and position is not None:

@@ -15,17 +15,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import (
-    ACCEL_UNITS,
-    GYRO_UNITS,
-    TIME_UNITS,
-    Lines,
-    check_increasing,
-    check_unit,
-    validate_imu,
-)
-from mocap_calib.io.formats.generic import G0
+from mocap_calib.io.checks import TIME_UNITS, Lines, check_increasing, check_unit, validate_imu
 from mocap_calib.io.formats.layout import numeric_column, read_frame, sniff_layout
 from mocap_calib.io.formats.stamps import parse_stamps
 
@@ -97,8 +89,8 @@ def read_imu_tk_pair(accel_path: Path | str, gyro_path: Path | str, *, time_unit
         notes.append(f"accelerometer ({len(ns_a)} samples) interpolated onto the gyro's "
                      f"{len(ns_g)} stamps")
     if not raw:
-        gyr = gyr * (np.pi / 180.0 if gyro_unit == "deg/s" else 1.0)
-        acc = acc * (G0 if accel_unit == "g" else 1.0)
+        gyr = gyr * GYRO_UNITS[gyro_unit]
+        acc = acc * ACCEL_UNITS[accel_unit]
     imu = validate_imu(ns_g, gyr, acc, lines, time_unit=time_unit, gyro_unit=gyro_unit,
                        accel_unit=accel_unit, raw=raw)
     return imu, notes

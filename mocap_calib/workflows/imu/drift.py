@@ -24,6 +24,7 @@ from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.model.versioned import KindError, check_kind
+from mocap_calib.core.policy import GAP_FACTOR
 from mocap_calib.errors import InputError
 from mocap_calib.io.loader import load_inputs
 from mocap_calib.io.result_files import describe_kind, file_kind
@@ -35,9 +36,6 @@ Array = NDArray[np.float64]
 
 _CALIB_FIX = ("pass a result of 'mocap-calib calibrate' or intrinsics of 'mocap-calib "
               "multipos'")
-
-#: A mocap interval longer than this many median intervals is a gap (occlusion).
-_MOCAP_GAP_FACTOR = 2.5
 
 
 @dataclass
@@ -245,7 +243,7 @@ def _mocap_reference(imu: ImuSamples, poses: MocapPoses, cal: DriftCalibration, 
                          f"{t_ref[-1] - imu.t[0]:.3f} s after the IMU start, not the whole "
                          f"segment [{start:g}, {end:g}] s; choose a segment inside both")
     kwargs: dict[str, Any] = {"reference_series": reference_on_imu_times(
-        imu.t, t_ref, poses.rotation @ cal.R_MI, t0, t1, _MOCAP_GAP_FACTOR,
+        imu.t, t_ref, poses.rotation @ cal.R_MI, t0, t1, GAP_FACTOR,
         ("--start", "--end"))}
     if cal.gravity_dir is not None:
         kwargs["gravity_dir"] = cal.gravity_dir

@@ -18,6 +18,7 @@ from mocap_calib.core.intrinsics.multipos import (
 )
 from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
 from mocap_calib.io.result_files import INTRINSICS_FIX, read_intrinsics
 from mocap_calib.io.yaml_io import check_writable, save_yaml
@@ -149,7 +150,7 @@ class MultiposOptions:
     init_static_s: float = 30.0
     window_s: float = 1.0
     min_interval_s: float = 0.5
-    gravity: float = 9.81
+    gravity: float = GRAVITY
     min_orientations: int = 9
     thresholds: Sequence[float] = ()
     g_sensitivity: str = "auto"

@@ -45,6 +45,7 @@ from mocap_calib.core.intrinsics.multipos.scan import (
 from mocap_calib.core.intrinsics.multipos.start import gyro_start_scale
 from mocap_calib.core.intrinsics.multipos.units import RawConversion, ellipsoid_start, imu_tk_form
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]
@@ -229,7 +230,7 @@ def calibrate_multipos(
     window_s: float = 1.0,
     threshold_multiples: Sequence[float] = tuple(range(2, 11)),
     min_interval_s: float = 0.5,
-    gravity: float = 9.81,
+    gravity: float = GRAVITY,
     min_orientations: int = 9,
     prior: MultiposPrior | None = None,
     names: Mapping[str, str] | None = None,

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from mocap_calib.core.intrinsics.multipos.params import PARAMETERS
 from mocap_calib.core.intrinsics.multipos.units import RawConversion, change_units, imu_tk_form
 from mocap_calib.core.model.versioned import check_kind, header
+from mocap_calib.core.policy import GRAVITY
 
 Array = NDArray[np.float64]
 
@@ -221,7 +222,7 @@ class MultiposResult:
             gyro_condition=float(diag.get("gyro_condition_number", np.nan)),
             accel_chi2=float(res.get("accel_chi2", np.nan)),
             gyro_chi2=float(res.get("gyro_chi2", np.nan)),
-            gravity=float(diag.get("gravity_magnitude", 9.81)),
+            gravity=float(diag.get("gravity_magnitude", GRAVITY)),
             session_time_ns=int(diag.get("session_time_ns", 0)),
             prior_source=diag.get("prior"),
             threshold_scan=[dict(e) for e in diag.get("threshold_scan") or []],
