@@ -24,8 +24,8 @@ TARGET_MB = 5.0
 
 
 def run_one(minutes: float, seed: int = 3) -> dict:
-    from mocap_calib.workflows import html_report
-    from mocap_calib.workflows.calibrate import InputSpec, calibration_options, run_calibration
+    from mocap_calib.workflows.calibrate import CalibrateRequest, InputSpec, run_calibration
+    from mocap_calib.workflows.html import report as html_report
     from mocap_calib.workflows.html.provenance import RunClock
     from mocap_calib.workflows.simulate import simulate_to_folder
 
@@ -35,7 +35,7 @@ def run_one(minutes: float, seed: int = 3) -> dict:
                            effects=["time_offset=0.004"])
         clock = RunClock()
         t0 = time.perf_counter()
-        result, _ = run_calibration(InputSpec(folder), calibration_options())
+        result, _ = run_calibration(CalibrateRequest(inputs=InputSpec(mav0=folder)))
         t_cal = time.perf_counter() - t0
         assert "matplotlib" not in sys.modules, "matplotlib was imported by the calibration"
         out = Path(tmp) / "report.html"

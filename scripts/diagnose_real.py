@@ -15,14 +15,14 @@ sys.path.insert(0, str(Path(__file__).parent))
 from real_data_study import RECORDINGS  # noqa: E402
 
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose  # noqa: E402
-from mocap_calib.workflows.session import load_session, resolve_noise  # noqa: E402
+from mocap_calib.workflows.session import NoiseSpec, load_session  # noqa: E402
 
 
 def run(key: str) -> dict:
     label, spec = RECORDINGS[key]
     session = load_session(spec)
     opts = DiagnoseOptions()
-    opts.calibration.noise = resolve_noise(session, None, {})
+    opts.calibration.noise = NoiseSpec().resolve(session.sensor_noise)
     rep = diagnose(session.imu, session.mocap, opts)
     # The last step is the final calibration with the model found (clock search and noise
     # model chosen from the session, as `calibrate` does).

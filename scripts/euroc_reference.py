@@ -22,7 +22,7 @@ from scipy.optimize import minimize_scalar
 from mocap_calib.core.model import so3
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.io.formats.euroc import read_euroc_poses, read_t_bs
-from mocap_calib.workflows.calibrate import InputSpec, run_calibration
+from mocap_calib.workflows.calibrate import CalibrateRequest, InputSpec, run_calibration
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "euroc_V2_03_difficult" / "mav0"
 
@@ -90,7 +90,8 @@ def main() -> None:
     parser.add_argument("mav0", nargs="?", type=Path, default=DEFAULT,
                         help=f"EuRoC mav0 folder (default {DEFAULT})")
     root = parser.parse_args().mav0
-    res, _ = run_calibration(InputSpec(path=root), CalibrationOptions())
+    res, _ = run_calibration(CalibrateRequest(inputs=InputSpec(mav0=root),
+                                              options=CalibrationOptions()))
     T_IM = read_t_bs(root / "vicon0" / "sensor.yaml")
     T_MI_pub = np.linalg.inv(T_IM)
     gt = gt_implied(root)

@@ -23,12 +23,12 @@ import numpy as np
 from mocap_calib.core.model import so3
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.errors import CalibrationError
-from mocap_calib.workflows.calibrate import InputSpec, load_session, resolve_noise
+from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 RECORDINGS = {
-    "euroc": ("EuRoC V2_03", InputSpec(path=DATA / "euroc_V2_03_difficult" / "mav0")),
+    "euroc": ("EuRoC V2_03", InputSpec(mav0=(DATA / "euroc_V2_03_difficult" / "mav0",))),
     "broad15": ("BROAD 15", InputSpec(imu=DATA / "broad_15_undisturbed_fast_translation_A" /
                                       "data.csv", mocap=DATA /
                                       "broad_15_undisturbed_fast_translation_A" / "data.csv",
@@ -44,13 +44,17 @@ RECORDINGS = {
 }
 
 
-def run(session, opts: CalibrationOptions) -> dict:
-    """One calibration; a refusal is recorded with its exit code and message."""
+def run(session, opts: CalibrationOptions, start: float | None = None,
+        end: float | None = None) -> dict:
+    """One calibration (of the part from ``start`` to ``end`` s); a refusal is recorded with
+    its exit code and message."""
     from mocap_calib.core.pipeline.calibrate import calibrate
+    from mocap_calib.core.prepare.crop import crop_session
 
     t0 = time.perf_counter()
     try:
-        r = calibrate(session.imu, session.mocap, opts)
+        imu, mocap = crop_session(session.imu, session.mocap, start, end, opts.time_offset)
+        r = calibrate(imu, mocap, opts)
     except CalibrationError as err:
         return {"exit": err.exit_code, "error": str(err), "seconds": time.perf_counter() - t0}
     out = {"exit": 0, "seconds": time.perf_counter() - t0, "notes": r.notes}
@@ -138,14 +142,14 @@ def describe(key: str, r: dict, ref: tuple[np.ndarray, np.ndarray | None]) -> di
 def study(key: str, thirds: bool, sensitivity: bool) -> dict:
     label, spec = RECORDINGS[key]
     session = load_session(spec)
-    noise = resolve_noise(session, None, {})
+    noise = NoiseSpec().resolve(session.sensor_noise)
     opts = CalibrationOptions(noise=noise)
     full = run(session, opts)
     ref = reference(key)
     rep: dict = {"recording": label, "full": describe(key, full, ref)}
     dur = session.imu.duration
     if thirds:
-        parts = [run(session, replace(opts, start=k * dur / 3, end=(k + 1) * dur / 3))
+        parts = [run(session, opts, k * dur / 3, (k + 1) * dur / 3)
                  for k in range(3)]
         rep["thirds"] = [describe(key, p, ref) for p in parts]
         ok = [p for p in parts if p["exit"] == 0]

@@ -28,18 +28,20 @@ def test_valid_manifest_defaults_paths_dates(tmp_path: Path) -> None:
     (tmp_path / "m.yaml").write_text(
         "defaults:\n  mocap: take.csv\n  columns: broad\n  date: 2024-05-01\n"
         "sessions:\n"
-        "  - {id: a, imu_id: d1, imu: imu.csv, rigid_body: drone1, window: 4, no_robust: true}\n"
+        "  - {id: a, imu_id: d1, imu: imu.csv, rigid_body: drone1, window: 4, robust: false}\n"
         "  - {id: b, imu_id: d2, imu: imu.csv, date: '2024-05-02T10:30:00', columns: null}\n"
         "  - {id: c, imu_id: 7, mav0: mav0, mocap: null, date: 2024-05-03, prior: [imu.csv]}\n")
     m = load_manifest(tmp_path / "m.yaml")
     a, b, c = m.sessions
-    assert a.args.imu == tmp_path / "imu.csv" and a.args.mocap == tmp_path / "take.csv"
-    assert a.args.rigid_body == "drone1" and a.args.window == 4.0 and a.args.no_robust
-    assert a.args.columns == "broad" and a.date == "2024-05-01"
-    assert b.args.columns is None  # null unsets the default
+    ia, ib, ic = a.request.inputs, b.request.inputs, c.request.inputs
+    assert ia.imu == (tmp_path / "imu.csv",) and ia.mocap == (tmp_path / "take.csv",)
+    assert ia.poses.rigid_body == "drone1" and a.request.options.window == 4.0
+    assert a.request.options.robust is False
+    assert ia.columns == "broad" and a.date == "2024-05-01"
+    assert ib.columns is None  # null unsets the default
     assert b.time_ns - a.time_ns == (24 + 10.5) * 3600 * 10**9
-    assert c.imu_id == "7" and c.args.mav0 == tmp_path / "mav0"
-    assert c.args.mocap is None and c.args.prior == (tmp_path / "imu.csv",)
+    assert c.imu_id == "7" and ic.mav0 == (tmp_path / "mav0",)
+    assert ic.mocap == () and c.request.prior == (tmp_path / "imu.csv",)
 
 
 def test_every_problem_one_line_before_any_work(tmp_path: Path, capsys) -> None:
@@ -100,17 +102,18 @@ def test_options_reach_the_calibrate_workflow(tmp_path: Path, monkeypatch) -> No
         " rigid_body: drone2, columns: broad, time_unit: ms}\n")
     seen = {}
 
-    def fake_load(spec):
+    def fake_load(spec, *_):
         seen["spec"] = spec
         raise InputError("stop here")
 
     monkeypatch.setattr(wf, "load_session", fake_load)
-    args = load_manifest(tmp_path / "m.yaml").sessions[0].args
+    request = load_manifest(tmp_path / "m.yaml").sessions[0].request
     with pytest.raises(InputError, match="stop here"):
-        run_session(SessionJob("a", args))
+        run_session(SessionJob("a", request))
     spec = seen["spec"]
-    assert spec.rigid_body == "drone2" and spec.columns == "broad" and spec.time_unit == "ms"
-    assert spec.imu == tmp_path / "imu.csv" and spec.mocap == tmp_path / "take.csv"
+    assert spec.poses.rigid_body == "drone2" and spec.columns == "broad"
+    assert spec.time_unit == "ms"
+    assert spec.imu == (tmp_path / "imu.csv",) and spec.mocap == (tmp_path / "take.csv",)
 
 
 def _square(x: int) -> int:
@@ -174,19 +177,15 @@ def test_dask_is_imported_only_by_the_dask_engine() -> None:
 
 
 def test_manifest_keys_are_the_calibrate_options() -> None:
-    """Every option of 'mocap-calib calibrate' is a manifest key with the same default, and
-    nothing else (out, rrd, report, html and quiet belong to the batch)."""
-    import inspect
-    from dataclasses import fields
+    """Every option of 'mocap-calib calibrate' is a manifest key, and nothing else (out, rrd,
+    report, html and quiet belong to the batch)."""
+    from mocap_calib.batch.manifest import ARG_KEYS, REFUSED
+    from mocap_calib.cli.build import option_names  # noqa: F401
+    from mocap_calib.cli.main import app, main
 
-    from mocap_calib.batch.manifest import REFUSED
-    from mocap_calib.batch.session import CalibrateArgs
-    from mocap_calib.cli.commands.calibrate import calibrate
+    main(["calibrate", "--help"])  # registers the commands
+    import typer
 
-    params = {k: p.default for k, p in inspect.signature(calibrate).parameters.items()
-              if k not in REFUSED}
-    ours = {f.name: f.default for f in fields(CalibrateArgs)}
-    assert set(ours) == set(params)
-    for k, v in params.items():
-        assert ours[k] == (tuple(v) if isinstance(v, list) else v) or (k == "prior" and
-                                                                       v is None), k
+    cmd = typer.main.get_command(app).commands["calibrate"]
+    cli = {p.name for p in cmd.params if p.name != "help"}
+    assert set(ARG_KEYS) == cli - set(REFUSED)

@@ -468,7 +468,8 @@ def test_bad_input_allan(work: Path, bad_files: dict[str, Path],
         (["--imu", bad_files["short_rw_20min"]], 3,
          "gyroscope random walk .* not resolved .* pass --allow-unresolved"),
         (["--imu", multipos_session[0]], 3, "min long"),
-        (["--imu", static_log[0], "--aggregate", "median"], 2, "use mean or max"),
+        (["--imu", static_log[0], "--aggregate", "median"], 2,
+         "--aggregate.*'median' is not one of 'mean', 'max'"),
         (["--imu", static_log[0], "--tau-min", -1], 2, "--tau-min"),
     ]
     for args, code, pattern in cases:
@@ -501,7 +502,7 @@ def test_bad_input_drift(work: Path, bad_files: dict[str, Path], flight: Path,
         (["--imu", imu, "--mocap", mocap, "--calibration", truth, "--start", 10, "--end", 100],
          2, "outside the IMU log"),
         (["--imu", imu, "--mocap", mocap, "--calibration", truth, "--start", -5, "--end", 10],
-         2, "outside the IMU log"),
+         2, "--start -5.0: must be at least 0 s"),
         (["--imu", imu, "--mocap", mocap, "--calibration", multipos_run[0], "--start", 1,
           "--end", 5], 2, "no T_marker_imu"),
         # No mocap: roll and pitch must come from the accelerometer, but the drone flies.

@@ -267,7 +267,7 @@ def test_unexpected_exception_is_internal_error_70(tmp_path: Path,
     def boom(*args: object, **kwargs: object) -> None:
         raise RuntimeError("simulated bug")
 
-    monkeypatch.setattr(cmd, "simulate_to_folder", boom)
+    monkeypatch.setattr(cmd, "simulate_request", boom)
     monkeypatch.delenv("MOCAP_CALIB_DEBUG", raising=False)
     code, out, err = run_cli(["simulate", str(tmp_path / "o")], capsys)
     assert code == 70

@@ -91,7 +91,7 @@ def test_diagnosis_names_nothing_on_fast_motion_with_mismatched_noise() -> None:
     at 3 Hz instead of 10 this test fails (residual reported unexplained; on a 60 s session of
     this kind the ratios go from 1.2-1.3 to 2.2), and it fails only with the fast motion."""
     sim = _session()
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start=Model(("time_offset",))))
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=Model(("time_offset",))))
     assert rep.found == [] and rep.verdict == "none", rep.found
     assert rep.unexplained is None, rep.unexplained
     for sensor in ("gyro", "accel"):

@@ -9,7 +9,6 @@ same float32-rounded values (mocap turned from NED into the z-up world by hand).
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +20,9 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.io.formats.euroc import write_mav0
 from mocap_calib.io.loader import load_inputs, sniff_format
 from mocap_calib.sim.flight import SimConfig, simulate_flight
-from mocap_calib.workflows.calibrate import InputSpec, run_calibration
+from mocap_calib.workflows.calibrate import CalibrateRequest, InputSpec, run_calibration
 from mocap_calib.workflows.imu.imu_input import ImuSpec
+from mocap_calib.workflows.session import MocapFormat
 
 sys.path.insert(0, str(Path(__file__).parent))
 from recordings import write_bag, write_ulog  # noqa: E402
@@ -41,7 +41,7 @@ def csv_session(tmp_path_factory) -> tuple[Path, ImuSamples, MocapPoses]:
 
 
 def _calibrate(spec: InputSpec) -> dict:
-    result, _ = run_calibration(spec, CalibrationOptions())
+    result, _ = run_calibration(CalibrateRequest(inputs=spec, options=CalibrationOptions()))
     d = result.to_dict()
     return {k: d[k] for k in ("gyro_bias", "accel_bias", "T_marker_imu", "gravity_in_mocap",
                               "time_offset", "sigma")}
@@ -236,5 +236,5 @@ def test_run_calibration_accepts_bag_options(csv_session, csv_result, tmp_path) 
     _, imu, mocap = csv_session
     bag = write_bag(tmp_path / "o.bag", "rosbag1", imu, mocap, mocap_topic="/a",
                     extra_topics={"/b": "nav_msgs/msg/Odometry"})
-    spec = replace(InputSpec(imu=bag, mocap=bag), mocap_topic="/a")
+    spec = InputSpec(imu=bag, mocap=bag, poses=MocapFormat(mocap_topic="/a"))
     np.testing.assert_allclose(_flat(_calibrate(spec)), _flat(csv_result), rtol=0, atol=1e-9)

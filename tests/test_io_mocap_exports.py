@@ -14,7 +14,8 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.io.formats.euroc import write_euroc_imu
 from mocap_calib.io.loader import sniff_format
 from mocap_calib.sim.flight import SimConfig, simulate_flight
-from mocap_calib.workflows.calibrate import InputSpec, run_calibration
+from mocap_calib.workflows.calibrate import CalibrateRequest, InputSpec, run_calibration
+from mocap_calib.workflows.session import MocapFormat
 
 TD = 0.004
 #: Motive's y-up world from the simulator's z-up one: x stays, y is up, z = -y_zup.
@@ -121,8 +122,10 @@ def _imu_csv(tmp_path: Path, sim) -> Path:
 def test_motive_export_calibrates_to_truth(sim, tmp_path) -> None:
     motive = write_motive(tmp_path / "take.csv", sim)
     assert sniff_format(motive) == "motive"
-    spec = InputSpec(imu=_imu_csv(tmp_path, sim), mocap=motive, rigid_body="drone")
-    result, session = run_calibration(spec, CalibrationOptions())
+    spec = InputSpec(imu=_imu_csv(tmp_path, sim), mocap=motive,
+                     poses=MocapFormat(rigid_body="drone"))
+    result, session = run_calibration(CalibrateRequest(inputs=spec,
+                                                       options=CalibrationOptions()))
     assert session.mocap.dropped_rows == 75
     # The capture start time is the simulator's mocap epoch: the clocks agree as simulated.
     _check_truth(result, sim, R_YUP, TD)
@@ -143,9 +146,10 @@ def test_vicon_exports_calibrate_to_truth(sim, tmp_path, section, fmt, rotation,
         text[4] = ",".join(["", "", "", "", "", "mm", "mm", "mm"] + ["", "", "", "mm", "mm", "mm"])
         vicon.write_text("\n".join(text) + "\n")
     assert sniff_format(vicon) == fmt
-    spec = InputSpec(imu=_imu_csv(tmp_path, sim), mocap=vicon, rigid_body="drone",
-                     rotation=rotation + ("" if unit else ":rad"))
-    result, session = run_calibration(spec, CalibrationOptions())
+    spec = InputSpec(imu=_imu_csv(tmp_path, sim), mocap=vicon, poses=MocapFormat(
+        rigid_body="drone", rotation=rotation + ("" if unit else ":rad")))
+    result, session = run_calibration(CalibrateRequest(inputs=spec,
+                                                       options=CalibrationOptions()))
     assert session.mocap.dropped_rows == 75
     # Vicon stamps are frame / rate from frame 1: the offset absorbs the IMU's epoch.
     epoch = sim.imu.time_origin_ns * 1e-9

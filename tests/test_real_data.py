@@ -18,7 +18,7 @@ from conftest import shared_data
 from mocap_calib.core.model import so3
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
-from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
+from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
 BROAD = ("broad_15_undisturbed_fast_translation_A", "broad_21_undisturbed_fast_combined",
          "broad_27_disturbed_phone_vibration_B")
@@ -29,9 +29,9 @@ def _calibrate(spec: InputSpec, factor: float = 1.0, verdict: bool = True):
     ``verdict`` the segments and sensitivity refits are skipped: the values do not depend on
     them)."""
     session = load_session(spec)
-    opts = CalibrationOptions(noise=resolve_noise(session, None, {}).imu_scaled(factor))
+    opts = CalibrationOptions(noise=NoiseSpec().resolve(session.sensor_noise).imu_scaled(factor))
     if not verdict:
-        opts = replace(opts, consistency_segments=0, sensitivity=False)
+        opts = replace(opts, segments=0, sensitivity=False)
     return calibrate(session.imu, session.mocap, opts)
 
 
@@ -47,7 +47,7 @@ def test_broad_trial_calibrates_plausibly_without_a_given_clock(trial: str) -> N
 
 
 def test_euroc_segments_agree_and_noise_densities_barely_matter() -> None:
-    spec = InputSpec(path=shared_data("euroc_V2_03_difficult", "mav0"))
+    spec = InputSpec(mav0=(shared_data("euroc_V2_03_difficult", "mav0"),))
     r = _calibrate(spec)
     assert r.plausibility["verdict"] == "plausible", r.plausibility
     assert r.time_offset == pytest.approx(-0.200, abs=0.002)  # the 200 ms the clocks differ

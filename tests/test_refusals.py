@@ -40,7 +40,7 @@ def test_gyro_in_deg_per_s_is_named_by_the_convention_check() -> None:
     s = session(motion="slow")
     imu = ImuSamples(s.imu.t, np.degrees(s.imu.gyro), s.imu.accel, s.imu.time_origin_ns)
     with pytest.raises(InputError, match="--gyro-unit deg/s"):
-        calibrate(imu, s.mocap, CalibrationOptions(consistency_segments=0, sensitivity=False))
+        calibrate(imu, s.mocap, CalibrationOptions(segments=0, sensitivity=False))
 
 
 def test_gtsam_indeterminate_system_is_one_line() -> None:
@@ -79,7 +79,7 @@ def test_real_sessions_pass_the_checks(name: str) -> None:
     from mocap_calib.workflows.session import InputSpec, load_session
 
     if name == "euroc":
-        spec = InputSpec(path=shared_data("euroc_V2_03_difficult", "mav0").parent)
+        spec = InputSpec(mav0=(shared_data("euroc_V2_03_difficult", "mav0").parent,))
         t_d = -0.197  # this session's coarse offset (-200.3 ms fine, README's real-data section)
     else:
         p = shared_data("broad_21_undisturbed_fast_combined", "data.csv")

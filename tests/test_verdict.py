@@ -19,7 +19,7 @@ from mocap_calib.sim.flight import SimConfig, simulate_flight
 def calibrated():
     sim = simulate_flight(SimConfig(seed=41, duration=60.0, effects={"time_offset": [0.004]},
                                     mocap_noise_corr=0.2))
-    res = calibrate(sim.imu, sim.mocap, CalibrationOptions(consistency_segments=0,
+    res = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0,
                                                            sensitivity=False))
     return sim, res
 
@@ -52,7 +52,7 @@ def test_noise_sensitivity_lands_where_a_rerun_does(calibrated) -> None:
            "t_d": np.sqrt(np.diag(pos.cov["time_offset"]))}
     for f, key in ((3.0, "x3"), (1.0 / 3.0, "x0.333")):
         alt = calibrate(sim.imu, sim.mocap, CalibrationOptions(
-            noise=NoiseModel().imu_scaled(f), consistency_segments=0,
+            noise=NoiseModel().imu_scaled(f), segments=0,
             sensitivity=False)).diagnostics.trace
         a = alt.position
         rerun = {"R_MI": np.max(np.abs(so3.log(pos.R_MI.T @ a.R_MI)) / sig["R_MI"]),
@@ -71,10 +71,10 @@ def test_implausible_answer_exits_4_or_is_marked() -> None:
     imu = sim.imu
     biased = type(imu)(imu.t, imu.gyro, imu.accel + np.array([3.0, 0.0, 0.0]),
                        imu.time_origin_ns, imu.source)
-    opts = CalibrationOptions(consistency_segments=0, sensitivity=False)
+    opts = CalibrationOptions(segments=0, sensitivity=False)
     with pytest.raises(PlausibilityError, match=r"accel bias of [23]\.\d+ m/s\^2"):
         calibrate(biased, sim.mocap, opts)
-    res = calibrate(biased, sim.mocap, CalibrationOptions(consistency_segments=0,
+    res = calibrate(biased, sim.mocap, CalibrationOptions(segments=0,
                                                           sensitivity=False,
                                                           accept_implausible=True))
     assert res.plausibility["verdict"] == "implausible"
@@ -88,11 +88,11 @@ def test_periodic_motion_clock_is_refused_unless_the_range_is_limited() -> None:
     candidates; --max-offset within one period resolves it."""
     sim = simulate_flight(SimConfig(seed=1, duration=60.0, effects={"time_offset": [0.004]},
                                     periodic_motion_s=4.0))
-    opts = CalibrationOptions(consistency_segments=0, sensitivity=False)
+    opts = CalibrationOptions(segments=0, sensitivity=False)
     with pytest.raises(ObservabilityError, match="cannot resolve the clock offset.*--max-offset"):
         calibrate(sim.imu, sim.mocap, opts)
     res = calibrate(sim.imu, sim.mocap, CalibrationOptions(max_offset=1.0,
-                                                           consistency_segments=0,
+                                                           segments=0,
                                                            sensitivity=False))
     assert res.time_offset == pytest.approx(0.004, abs=3e-4)
 

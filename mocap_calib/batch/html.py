@@ -13,9 +13,9 @@ def check_html_available() -> None:
     from mocap_calib.workflows.html.report import write_batch_report  # noqa: F401
 
 
-def write_html(out_dir: Path, sessions: list[dict[str, Any]], fleet_dir: Path) -> Path:
+def write_html(path: Path, sessions: list[dict[str, Any]], fleet_dir: Path) -> Path:
     from mocap_calib.workflows.html.report import write_batch_report
 
     fleet_file = fleet_dir / "fleet.yaml"
     fleet = yaml.safe_load(fleet_file.read_text()) if fleet_file.is_file() else None
-    return Path(write_batch_report(out_dir / "batch.html", sessions, fleet))
+    return Path(write_batch_report(path, sessions, fleet))

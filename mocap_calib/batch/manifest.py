@@ -23,26 +23,23 @@ import datetime as dt
 import difflib
 import re
 import typing
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mocap_calib.batch.session import CalibrateArgs
+from mocap_calib.batch.session import REFUSED
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import load_yaml
+from mocap_calib.workflows.calibrate import CalibrateRequest
+from mocap_calib.workflows.requests import from_flat, leaves
 
 SESSION_KEYS = ("id", "imu_id", "date")
-ARG_KEYS = tuple(f.name for f in fields(CalibrateArgs))
-#: ``calibrate`` options that make no sense per session in a batch, and what to do instead.
-REFUSED = {
-    "out": "each result goes to OUT/<id>/calib.yaml",
-    "rrd": "run 'mocap-calib calibrate --rrd' on that session alone",
-    "report": "the batch writes OUT/batch.yaml and the fleet summary",
-    "quiet": "use 'mocap-calib batch --quiet'",
-    "html": "pass --html to 'mocap-calib batch': OUT/batch.html shows every session",
-}
+#: The manifest's option keys: every option of ``calibrate`` but its outputs.
+_LEAVES = {leaf.name: leaf for leaf in leaves(CalibrateRequest) if leaf.name not in REFUSED}
+ARG_KEYS = tuple(_LEAVES)
+#: Keys whose values are folders, not files.
+_FOLDERS = ("mav0",)
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
-_TYPES = typing.get_type_hints(CalibrateArgs)
 
 
 class ManifestError(InputError):
@@ -55,13 +52,13 @@ class ManifestError(InputError):
 
 @dataclass(frozen=True)
 class SessionEntry:
-    """One checked session: where it goes, whose it is, when, and its ``calibrate`` options."""
+    """One checked session: where it goes, whose it is, when, and its ``calibrate`` request."""
 
     id: str
     imu_id: str
     date: str  # ISO form of the manifest's date
     time_ns: int  # the date as ns since the Unix epoch (UTC): the session's place in a trend
-    args: CalibrateArgs
+    request: CalibrateRequest
 
 
 @dataclass(frozen=True)
@@ -71,12 +68,17 @@ class Manifest:
 
 
 def _kind(name: str) -> str:
-    t = str(_TYPES[name])
-    if "tuple" in t:
+    leaf = _LEAVES[name]
+    if leaf.info.parse is not None:
+        return "str"
+    t = leaf.type
+    if leaf.repeatable:
         return "paths"
-    for k in ("Path", "bool", "float", "int", "str"):
-        if k in t:
-            return k.lower()
+    args = [a for a in typing.get_args(t) if a is not type(None)] or [t]
+    for k, cls in (("path", Path), ("bool", bool), ("int", int), ("float", float),
+                   ("str", str)):
+        if args[0] is cls:
+            return k
     raise AssertionError(name)
 
 
@@ -120,9 +122,9 @@ class _Checker:
                     return None
                 p = Path(v).expanduser()
                 p = p if p.is_absolute() else self.root / p
-                if key == "mav0" and not p.is_dir():
+                if key in _FOLDERS and not p.is_dir():
                     self.bad(where, f"mav0 folder {p} not found", "check the path")
-                elif key != "mav0" and not p.exists():
+                elif key not in _FOLDERS and not p.exists():
                     self.bad(where, f"{key} file {p} not found",
                              "check the path (relative paths start at the manifest's folder)")
                 out.append(p)
@@ -204,16 +206,14 @@ def _session(chk: _Checker, n: int, raw: Any, defaults: dict[str, Any],
         chk.bad(where, "no inputs", "give mav0 (a folder) or both imu and mocap")
     elif opts.get("mav0") is not None and (opts.get("imu") or opts.get("mocap")):
         chk.bad(where, "both mav0 and imu/mocap", "give either a mav0 folder or imu and mocap")
-    if isinstance(opts.get("model"), str):
-        from mocap_calib.core.model.effects import Model
-
-        try:
-            Model.parse(opts["model"])
-        except InputError as err:
-            chk.bad(where, str(err).split(";")[0], "fix model")
-    if sid is None or date is None or not isinstance(imu_id, (str, int)):
+    try:
+        request = from_flat(CalibrateRequest, opts)
+    except InputError as err:  # a value out of range, an unknown effect: one line
+        chk.bad(where, str(err).split(";")[0], "fix that key")
+        request = None
+    if sid is None or date is None or not isinstance(imu_id, (str, int)) or request is None:
         return None
-    return SessionEntry(sid, str(imu_id), date[0], date[1], CalibrateArgs(**opts))
+    return SessionEntry(sid, str(imu_id), date[0], date[1], request)
 
 
 def load_manifest(path: str | Path) -> Manifest:

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mocap_calib.batch.engine import Engine, make_engine
+from mocap_calib.batch.engine import ENGINES, Engine, make_engine
 from mocap_calib.batch.manifest import Manifest, SessionEntry, load_manifest
 from mocap_calib.batch.session import SessionJob, run_session
 from mocap_calib.batch.store import (
@@ -26,6 +26,7 @@ from mocap_calib.batch.store import (
     write_atomic,
 )
 from mocap_calib.core.model.versioned import header
+from mocap_calib.core.params import param
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import load_result, save_result, save_yaml
@@ -136,7 +137,7 @@ class _Batch:
             d = self.results[j].to_dict()
             d["session"] = {**d["session"], "imu_start_ns": self.m.sessions[j].time_ns}
             history.append(d)
-        return SessionJob(s.id, s.args, tuple(history), s.time_ns)
+        return SessionJob(s.id, s.request, tuple(history), s.time_ns)
 
     def tell(self, last: str) -> None:
         st = self.state
@@ -214,9 +215,31 @@ class _Batch:
         self.save_status()
 
 
+@dataclass
+class BatchRequest:
+    """Everything ``batch`` can be told (the sessions' own options are in the manifest)."""
+
+    manifest: Path = param(MISSING, "manifest YAML listing the sessions", argument=True,
+                           metavar="MANIFEST")
+    out: Path = param(MISSING, "output folder (one subfolder per session)", metavar="PATH")
+    engine: str = param("local", "local (a process pool on this machine) or dask (needs "
+                        "pip install 'mocap-calib\\[cluster]')", choices=ENGINES)
+    scheduler: str | None = param(None, "with --engine dask: address of a running Dask "
+                                  "scheduler (default: a local cluster)", show_default=False)
+    workers: int | None = param(None, "worker processes (default: the number of cores; with "
+                                "--scheduler, the cluster's)", lo=1, hi=4096,
+                                show_default=False)
+    prior_from_history: bool = param(
+        False, "calibrate each session with the earlier sessions of the same imu_id as priors "
+        "(a trend from two dates on)", decls=("--prior-from-history",))
+    html: Path | None = param(None, "also write one HTML page over every session",
+                              metavar="PATH", show_default=False)
+    quiet: bool = param(False, "no progress bar", decls=("--quiet", "-q"))
+
+
 def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "local",
               workers: int | None = None, scheduler: str | None = None,
-              prior_from_history: bool = False, html: bool = False,
+              prior_from_history: bool = False, html: Path | None = None,
               progress: ProgressCallback | None = None) -> BatchReport:
     """Calibrate every session of the manifest into ``out_dir``; see the module doc.
 
@@ -231,7 +254,7 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder; choose another --out")
-    if html:
+    if html is not None:
         check_html_available()
     make_engine(engine, workers, scheduler)  # checks the choice before any work
     batch = _Batch(manifest, out, lambda: make_engine(engine, workers, scheduler),
@@ -253,6 +276,7 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
     done = [(manifest.sessions[i], r) for i, r in sorted(batch.results.items())]
     fleet_files, outliers = write_fleet(out / "fleet", done)
     files = [out / "batch.yaml", *fleet_files]
-    if html:
-        files.append(write_html(out, [s.to_dict() for s in batch.status], out / "fleet"))
+    if html is not None:
+        files.append(write_html(Path(html), [s.to_dict() for s in batch.status],
+                                out / "fleet"))
     return BatchReport(out, batch.status, files, outliers)

@@ -7,7 +7,6 @@ import hashlib
 import json
 import os
 from collections.abc import Callable
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +15,7 @@ import yaml
 import mocap_calib
 from mocap_calib.batch.manifest import SessionEntry
 from mocap_calib.errors import InputError
+from mocap_calib.workflows.requests import to_flat
 
 #: Files of a mav0 folder that can change a calibration (not the camera images).
 _FOLDER_SUFFIXES = (".csv", ".yaml", ".yml", ".txt")
@@ -55,11 +55,13 @@ def input_hash(entry: SessionEntry, digests: Digests, history: list[str] | None 
     (not their names, so a moved data folder is still finished), its options, the hashes of
     the earlier sessions it takes priors from, and the mocap-calib version."""
     opts: dict[str, Any] = {}
-    for key, value in asdict(entry.args).items():
+    for key, value in to_flat(entry.request).items():
         if isinstance(value, Path):
             value = digests.path(value)
         elif isinstance(value, tuple):
-            value = [digests.path(v) for v in value]
+            value = [digests.path(v) if isinstance(v, Path) else v for v in value]
+        elif value is not None and not isinstance(value, (bool, int, float, str)):
+            value = str(value)  # e.g. the model
         opts[key] = value
     record = {"options": opts, "history": list(history or []),
               "imu_id": entry.imu_id, "date": entry.date, "version": mocap_calib.__version__}

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 
 import typer
 
-from mocap_calib.errors import CalibrationError, Interrupted, ObservabilityError
+from mocap_calib.errors import CalibrationError, InputError, Interrupted, ObservabilityError
 
 app = typer.Typer(
     name="mocap-calib",
@@ -33,6 +33,22 @@ INTERNAL_ERROR_EXIT = 70
 def _register_commands() -> None:
     # Imported for their side effect of adding commands to ``app``.
     from mocap_calib.cli import commands  # noqa: F401
+
+
+def _refuse_repeated(args: list[str]) -> None:
+    """click keeps the last of a repeated single-value option silently: refuse it instead."""
+    from mocap_calib.cli.build import repeated_options
+
+    group = typer.main.get_command(app)
+    command = getattr(group, "commands", {}).get(args[0]) if args else None
+    if command is None:
+        return
+    repeated = repeated_options(command, args[1:])
+    if repeated:
+        several = [p.opts[0] for p in command.params if getattr(p, "multiple", False)]
+        may = f" (only {', '.join(several)} may repeat)" if several else ""
+        raise InputError(f"{repeated[0]} is given more than once; it takes one value: give it "
+                         f"once{may}")
 
 
 def _raise_interrupted(signum: int, _frame: object) -> None:
@@ -64,6 +80,15 @@ def _is_usage_error(err: BaseException) -> bool:
                                                                 int)
 
 
+def _usage_line(err: BaseException) -> str:
+    """click's usage error as one line, with where to look."""
+    text = " ".join(str(getattr(err, "format_message", lambda: err)()).split())
+    text = text.replace("Value error, ", "")
+    ctx = getattr(err, "ctx", None)
+    where = getattr(ctx, "command_path", None) if ctx is not None else None
+    return f"{text} (see '{where} --help')" if where else text
+
+
 def _is_indeterminate(err: BaseException) -> bool:
     """GTSAM's indeterminate-system exception (a RuntimeError with a multi-line text), wherever
     a solver outside the wrapped calls raises it."""
@@ -80,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with _signals_raise():
             _register_commands()
+            _refuse_repeated(list(sys.argv[1:] if argv is None else argv))
             app(args=argv, standalone_mode=False)
         code = 0
     except CalibrationError as err:
@@ -99,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                   "about all axes", file=sys.stderr)
             code = ObservabilityError.exit_code
         elif _is_usage_error(err):
-            err.show()  # type: ignore[attr-defined]
+            print(f"error: {_usage_line(err)}", file=sys.stderr)
             code = err.exit_code  # type: ignore[attr-defined]
         elif isinstance(err, MemoryError):
             print("error: out of memory; calibrate a shorter part of the session "

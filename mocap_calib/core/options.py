@@ -6,9 +6,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.params import check_options, param
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.position.graph import Prior
 from mocap_calib.errors import InputError
@@ -16,62 +17,60 @@ from mocap_calib.errors import InputError
 
 @dataclass
 class CalibrationOptions:
-    """Everything a calibration can be told.
+    """Everything a calibration can be told. The fields declared with :func:`param` are the
+    options of ``calibrate`` (and of the commands that calibrate: ``diagnose``, ``batch``);
+    the rest are set by the workflow from files (noise model, priors, limits) or by the core's
+    own callers.
 
-    Attributes:
-        model: base model plus effects (default: ``base+time_offset``).
-        gravity: assumed ``|g|`` (m/s^2).
+    Attributes (not options):
         noise: IMU and mocap noise (default: EuRoC ADIS16448, Vicon).
-        attitude_spacing: keyframe spacing of the attitude factors (s).
-        velocity_spacing: keyframe spacing of the velocity factors (s).
-        window: length of the position-factor windows (s).
-        max_mocap_rate: the position stage decimates faster mocap streams to this rate (Hz).
-        time_offset: a known ``t_d`` (s); with ``time_offset`` in the model it is the start
-            value instead of the coarse search.
-        max_offset: search the clock offset only within +-this many seconds of the raw stamps.
         priors: earlier results entering as prior factors.
-        robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise level from the residuals.
-        start, end: calibrate only this part of the session (s from the IMU start).
-        max_iterations: most LM iterations per solve.
-        consistency_segments: calibrate this many time segments on their own and compare them
-            (0: skip).
-        sensitivity: refit with the IMU noise densities scaled by 3 and 1/3.
         plausible: the limits of a physically possible answer.
-        accept_implausible: return an implausible answer (marked) instead of refusing it.
+        max_mocap_rate: the position stage decimates faster mocap streams to this rate (Hz).
+        adapt_noise: re-estimate the mocap noise level from the residuals.
+        sensitivity: refit with the IMU noise densities scaled by 3 and 1/3.
     """
 
-    model: Model = field(default_factory=lambda: Model(("time_offset",)))
-    gravity: float = GRAVITY
+    model: Model = param(
+        Model(("time_offset",)), "the measurement model: base plus effects joined by '+', "
+        "e.g. base+time_offset+accel_delay; effects (docs/conventions.md gives each one's "
+        "form): " + ", ".join(EFFECTS),
+        parse=Model.parse, metavar="MODEL")
+    gravity: float = param(GRAVITY, "the |g| the calibration assumes", unit="m/s^2", lo=5.0,
+                           hi=15.0)
+    keyframe_spacing: float = param(
+        0.5, "keyframe spacing of the attitude and velocity factors (stages 1-2)", unit="s",
+        lo=0.05, hi=10.0)
+    window: float = param(5.0, "length of the position-factor windows", unit="s", lo=0.5,
+                          hi=60.0)
+    time_offset: float | None = param(
+        None, "a known clock offset t_d: an IMU sample stamped t happened at mocap time "
+        "t + t_d; with time_offset in the model it only replaces the coarse search", unit="s",
+        show_default=False)
+    max_offset: float | None = param(
+        None, "search the clock offset only within +-this of the raw stamps", unit="s",
+        lo=0.0, lo_open=True, show_default=False)
+    max_iterations: int = param(
+        30, "most Levenberg-Marquardt iterations per solve (a solve still improving at the "
+        "limit is retried once from where it stopped, then the command exits 4)", lo=1,
+        hi=10_000)
+    segments: int = param(
+        3, "calibrate this many time segments on their own and compare them (consistency; 0: "
+        "skip)", lo=2, hi=20, also=(0,))
+    robust: bool = param(True, "down-weight mocap outliers (--no-robust: every sample counts "
+                         "fully)")
+    accept_implausible: bool = param(
+        False, "write an answer that fails the plausibility checks (marked as such) instead of "
+        "exiting 4", decls=("--accept-implausible",))
     noise: NoiseModel = field(default_factory=NoiseModel)
-    attitude_spacing: float = 0.5
-    velocity_spacing: float = 0.5
-    window: float = 5.0
-    max_mocap_rate: float = 120.0
-    time_offset: float | None = None
-    max_offset: float | None = None
     priors: list[Prior] = field(default_factory=list)
-    robust: bool = True
-    adapt_noise: bool = True
-    start: float | None = None
-    end: float | None = None
-    max_iterations: int = 30
-    consistency_segments: int = 3
-    sensitivity: bool = True
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
-    accept_implausible: bool = False
+    max_mocap_rate: float = 120.0
+    adapt_noise: bool = True
+    sensitivity: bool = True
 
     def validate(self) -> None:
-        if not 5.0 < self.gravity < 15.0:
-            raise InputError(f"--gravity {self.gravity}: give |g| in m/s^2 (about {GRAVITY})")
-        for name, v, lo, hi in (("--attitude-spacing", self.attitude_spacing, 0.02, 10.0),
-                                ("--velocity-spacing", self.velocity_spacing, 0.05, 10.0),
-                                ("--window", self.window, 0.5, 60.0)):
-            if not lo <= v <= hi:
-                raise InputError(f"{name} {v}: must be between {lo} and {hi} s")
-        if not 1 <= self.max_iterations <= 10_000:
-            raise InputError(f"--max-iterations {self.max_iterations}: must be between 1 and "
-                             "10000")
+        check_options(self)
         nz = self.noise
         for k, v in nz.to_dict().items():
             if k.startswith("mocap_noise_corr"):

@@ -6,48 +6,60 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, DiagnoseReport
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS, Model
-from mocap_calib.core.model.plausible import PlausibleLimits
-from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import ProgressFn
-from mocap_calib.core.policy import GRAVITY
-from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
+from mocap_calib.workflows.calibrate import HTML_HELP, QUIET_HELP
 from mocap_calib.workflows.html.provenance import RunClock
-from mocap_calib.workflows.session import InputSpec, load_session, resolve_noise
+from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
+
+#: Calibration options that the diagnosis sets itself (its model is --start-model plus what it
+#: finds; it compares models without the consistency segments and never writes an
+#: implausible answer).
+NOT_OPTIONS = ("model", "segments", "accept_implausible")
 
 
-def diagnose_options(*, start: str = "base", candidates: str | None = None, alpha: float = 0.01,
-                     max_steps: int = 4, gravity: float = GRAVITY,
-                     window: float = 5.0, plausible: Path | None = None) -> DiagnoseOptions:
-    """Diagnosis options from the command line's values (checked; ``plausible``: a file of
-    limits overriding the defaults of docs/diagnosis.md)."""
-    if not 0.0 < alpha < 0.5:
-        raise InputError(f"--alpha {alpha}: must be between 0 and 0.5, e.g. 0.01")
-    if max_steps < 1:
-        raise InputError(f"--max-steps {max_steps}: must be at least 1")
-    cands = CANONICAL_EFFECTS if candidates is None else Model.parse(candidates).effects
-    limits = PlausibleLimits() if plausible is None else load_plausible(plausible)
-    return DiagnoseOptions(start=Model.parse(start), candidates=tuple(cands), alpha=alpha,
-                           max_steps=max_steps, plausible=limits,
-                           calibration=CalibrationOptions(gravity=gravity, window=window,
-                                                          plausible=limits))
+@dataclass
+class DiagnoseOutputs:
+    out: Path = param(Path("report.yaml"), "report YAML to write", metavar="PATH")
+    rrd: Path | None = param(None, "also write a rerun recording with the residuals of every "
+                             "step", metavar="PATH", show_default=False)
+    html: Path | None = param(None, HTML_HELP, metavar="PATH", show_default=False)
+    quiet: bool = param(False, QUIET_HELP, decls=("--quiet", "-q"))
 
 
-def run_diagnosis(spec: InputSpec, options, noise_file: Path | None = None,
-                  noise_overrides: dict[str, float | None] | None = None,
-                  progress: ProgressFn | None = None):
+@dataclass
+class DiagnoseRequest:
+    """Everything ``diagnose`` can be told: the inputs and noise model as ``calibrate``'s, the
+    diagnosis options (with the calibration options it uses), limits and outputs."""
+
+    inputs: InputSpec = group(InputSpec, "Input")
+    noise: NoiseSpec = group(NoiseSpec, "Noise model")
+    diagnosis: DiagnoseOptions = group(DiagnoseOptions, "Diagnosis")
+    plausible: Path | None = param(
+        None, "YAML file overriding the plausible effect magnitudes (docs/diagnosis.md); an "
+        "effect outside them is listed as implausible, never as found", metavar="PATH",
+        show_default=False)
+    outputs: DiagnoseOutputs = group(DiagnoseOutputs, "Output")
+
+
+def run_diagnosis(request: DiagnoseRequest, progress: ProgressFn | None = None):
     """Read the inputs and run the model diagnosis; returns the report and what was read."""
     from mocap_calib.core.diagnosis.diagnose import diagnose
 
-    session = load_session(spec)
+    options = request.diagnosis
+    session = load_session(request.inputs, options.calibration.time_offset)
     for note in session.notes:
         if progress is not None:
             progress(note)
-    noise = resolve_noise(session, noise_file, noise_overrides or {})
-    opts = replace(options, calibration=replace(options.calibration, noise=noise))
-    report = diagnose(session.imu, session.mocap, opts, progress=progress)
+    cal = replace(options.calibration, noise=request.noise.resolve(session.sensor_noise))
+    if request.plausible is not None:
+        limits = load_plausible(request.plausible)
+        cal = replace(cal, plausible=limits)
+        options = replace(options, plausible=limits)
+    report = diagnose(session.imu, session.mocap, replace(options, calibration=cal),
+                      progress=progress)
     report.final.session["inputs"] = list(session.notes)
     return report, session
 
@@ -79,20 +91,21 @@ class DiagnoseRun:
     written: list[str] = field(default_factory=list)
 
 
-def diagnose_to_files(spec: InputSpec, options: DiagnoseOptions, out: Path, rrd: Path | None,
-                      noise_file: Path | None = None,
-                      progress: ProgressFn | None = None, html: Path | None = None) -> DiagnoseRun:
+def diagnose_to_files(request: DiagnoseRequest,
+                      progress: ProgressFn | None = None) -> DiagnoseRun:
     """The ``diagnose`` command: check the outputs, diagnose, write report, recording and
     HTML page."""
     clock = RunClock()
+    out, rrd, html = request.outputs.out, request.outputs.rrd, request.outputs.html
     check_writable(out, rrd, html)
-    report, session = run_diagnosis(spec, options, noise_file, None, progress)
+    report, session = run_diagnosis(request, progress)
     if html is not None:
         from mocap_calib.workflows.html.report import write_diagnosis_html
 
         if progress is not None:
             progress("writing HTML report")
-        write_diagnosis_html(html, report, [spec.path, spec.imu, spec.mocap, noise_file], clock)
+        write_diagnosis_html(html, report, [*request.inputs.sources(), request.noise.noise],
+                             clock)
     save_yaml(out, report.to_dict(), "mocap-calib model diagnosis report (see docs/diagnosis.md)")
     run = DiagnoseRun(report, diagnose_table(report), [f"wrote {out}"])
     if html is not None:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from dataclasses import MISSING, dataclass
 from pathlib import Path
 
+from mocap_calib.core.params import param
 from mocap_calib.errors import InputError
 from mocap_calib.export.targets import (
     FILE_NAMES,
@@ -19,6 +21,34 @@ __all__ = ["TARGETS", "FILE_NAMES", "export_to_file", "export_result", "ALL_TARG
 
 #: Every ``--to``: the calibration targets and the intrinsics ones (multipos -> imu_tk).
 ALL_TARGETS = (*TARGETS, *INTRINSICS_FORMATS)
+TARGETS_HELP = ", ".join(f"{t} ({FILE_NAMES[t]})" for t in TARGETS) + (
+    "; imu_tk (multipos intrinsics: OUT_acc.calib and OUT_gyro.calib, T K (raw - b))")
+
+
+@dataclass
+class ExportRequest:
+    """Everything ``export`` can be told."""
+
+    calibration: Path = param(
+        MISSING, "result YAML of 'mocap-calib calibrate' (for --to imu_tk: intrinsics of "
+        "'mocap-calib multipos')", argument=True, metavar="CALIBRATION")
+    to: str = param(MISSING, "target tool", choices=ALL_TARGETS, decls=("--to",))
+    out: Path | None = param(
+        None, "file to write (default: the tool's own file name); imu_tk: the prefix of its "
+        "two files (default 'imu')", metavar="PATH", show_default=False)
+    noise: Path | None = param(
+        None, "noise YAML (Kalibr keys, e.g. from 'mocap-calib allan'); default: the noise "
+        "model the calibration used", metavar="PATH", show_default=False)
+    imu_rate: float | None = param(None, "IMU rate (default: the one measured by the "
+                                   "calibration)", unit="Hz", lo=0.0, lo_open=True,
+                                   show_default=False)
+    imu_topic: str = param("/imu0", "IMU topic for the targets that name it")
+
+
+def export_request(request: ExportRequest) -> list[str]:
+    """``export`` from its request (see :func:`export_result`)."""
+    r = request
+    return export_result(r.calibration, r.to, r.out, r.noise, r.imu_rate, r.imu_topic)
 
 
 def export_result(path: Path, target: str, out: Path | None = None, noise: Path | None = None,

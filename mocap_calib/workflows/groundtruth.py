@@ -16,15 +16,17 @@ from mocap_calib.core.groundtruth.smoother import (
     ground_truth,
 )
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import EFFECTS
+from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import ProgressFn
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.export.intrinsics import intrinsics_of
 from mocap_calib.io.groundtruth import GT_FORMATS, sidecar_path, write_groundtruth
-from mocap_calib.io.yaml_io import check_writable, load_noise, load_result
-from mocap_calib.workflows.session import InputSpec, load_session
+from mocap_calib.io.yaml_io import check_writable, load_result
+from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
-__all__ = ["GT_FORMATS", "GroundTruthRun", "run_groundtruth"]
+__all__ = ["GT_FORMATS", "GroundTruthRun", "GroundtruthRequest", "run_groundtruth"]
 
 
 @dataclass
@@ -62,11 +64,12 @@ def calibration_for_groundtruth(result: CalibrationResult, source: Path, imu_ori
                                 ) -> GroundTruthCalibration:
     """The calibration's values in the form the core's ground truth takes."""
     intr = intrinsics_of(result.effects)
-    rates = {}
-    for eff, param in (("gyro_bias_drift", "gyro_bias_rate"),
-                       ("accel_bias_drift", "accel_bias_rate")):
-        value = (result.effects.get(eff) or {}).get(param)
-        rates[param] = np.zeros(3) if value is None else np.asarray(value, dtype=float)
+    # Bias trends: the effects whose term is linear in time, by the sensor they act on.
+    rate = {"gyro": np.zeros(3), "accel": np.zeros(3)}
+    for eff in EFFECTS.values():
+        value = (result.effects.get(eff.name) or {}).get(eff.param)
+        if eff.acts_on == "time" and value is not None:
+            rate[eff.sensor] = np.asarray(value, dtype=float)
     t_mid = None
     if "imu_start_ns" in result.session and "duration_s" in result.session:
         t_mid = ((int(result.session["imu_start_ns"]) - imu_origin_ns) * 1e-9
@@ -81,43 +84,62 @@ def calibration_for_groundtruth(result: CalibrationResult, source: Path, imu_ori
         gyro_bias=np.asarray(_value(result, "gyro_bias", result.gyro_bias, source)),
         accel_bias=np.asarray(_value(result, "accel_bias", result.accel_bias, source)),
         gyro_matrix=intr.gyro_matrix, g_sensitivity=intr.g_sensitivity,
-        accel_matrix=intr.accel_matrix, t_mid_s=t_mid, **rates,
+        accel_matrix=intr.accel_matrix, t_mid_s=t_mid,
+        gyro_bias_rate=rate["gyro"], accel_bias_rate=rate["accel"],
         sigma_gyro_bias=(np.full(3, 1e-3) if result.sigma_gyro_bias is None
                          else np.asarray(result.sigma_gyro_bias)),
         sigma_accel_bias=(np.full(3, 2e-2) if result.sigma_accel_bias is None
                           else np.asarray(result.sigma_accel_bias)))
 
 
-def run_groundtruth(spec: InputSpec, calibration: Path, out: Path, fmt: str = "euroc",
-                    rate_hz: float | None = None, noise_file: Path | None = None,
-                    max_position_sigma_mm: float = 2.0, max_rotation_sigma_deg: float = 0.1,
+@dataclass
+class GroundtruthRequest:
+    """Everything ``groundtruth`` can be told: the inputs as ``calibrate``'s, the calibration,
+    the noise model (default: the calibration's), the output and its limits."""
+
+    inputs: InputSpec = group(InputSpec, "Input")
+    noise: NoiseSpec = group(NoiseSpec, "Noise model")
+    calibration: Path = param(Path("calib.yaml"), "result YAML of 'mocap-calib calibrate' for "
+                              "this rig (and clock)", metavar="PATH")
+    out: Path = param(Path("gt.csv"), "trajectory file to write", metavar="PATH")
+    format: str = param("euroc", "euroc (state_groundtruth_estimate0 layout) or tum",
+                        choices=GT_FORMATS)
+    rate: float | None = param(None, "output rate on the IMU clock (default: at the IMU "
+                               "stamps)", unit="Hz", lo=0.0, lo_open=True,
+                               show_default=False)
+    max_position_sigma_mm: float = param(
+        2.0, "leave out states whose smoothed position 1-sigma exceeds this", unit="mm",
+        lo=0.0, lo_open=True)
+    max_rotation_sigma_deg: float = param(
+        0.1, "leave out states whose smoothed attitude 1-sigma exceeds this", unit="deg",
+        lo=0.0, lo_open=True, hi=180.0)
+    quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
+
+
+def run_groundtruth(request: GroundtruthRequest,
                     progress: ProgressFn | None = None) -> GroundTruthRun:
     """Read the session and the calibration, smooth, write the trajectory and its sidecar."""
-    if fmt not in GT_FORMATS:
-        raise InputError(f"unknown --format '{fmt}'; use euroc or tum")
-    for name, v in (("--max-position-sigma-mm", max_position_sigma_mm),
-                    ("--max-rotation-sigma-deg", max_rotation_sigma_deg)):
-        if not v > 0:
-            raise InputError(f"{name} {v}: must be positive")
+    out, calibration = request.out, request.calibration
     check_writable(out, sidecar_path(out))
     result = load_result(calibration)
-    session = load_session(spec)
+    session = load_session(request.inputs, result.time_offset)
     for note in session.notes:
         if progress is not None:
             progress(note)
-    noise = load_noise(noise_file, result.noise) if noise_file is not None else result.noise
+    noise = request.noise.resolve(result.noise)
     cal = calibration_for_groundtruth(result, Path(calibration), session.imu.time_origin_ns)
     if progress is not None:
         progress("smoothing the IMU between the mocap poses (Kalman filter + RTS smoother)")
-    opts = GroundTruthOptions(rate_hz=rate_hz, max_position_sigma=max_position_sigma_mm * 1e-3,
-                              max_rotation_sigma_deg=max_rotation_sigma_deg)
+    opts = GroundTruthOptions(rate_hz=request.rate,
+                              max_position_sigma=request.max_position_sigma_mm * 1e-3,
+                              max_rotation_sigma_deg=request.max_rotation_sigma_deg)
     gt = ground_truth(session.imu, session.mocap, cal, noise, opts)
     if len(gt.t_ns) == 0:
         raise InputError("no IMU state is trustworthy under the sigma limits (the mocap has too "
                          "many gaps, or the calibration is not this session's); raise "
                          "--max-position-sigma-mm / --max-rotation-sigma-deg or check the inputs")
     provenance = {"calibration": str(calibration), "inputs": list(session.notes),
-                  "rate_hz": rate_hz if rate_hz is not None else "IMU stamps",
+                  "rate_hz": request.rate if request.rate is not None else "IMU stamps",
                   "noise": noise.to_dict()}
-    path, side = write_groundtruth(out, gt, fmt, provenance)
+    path, side = write_groundtruth(out, gt, request.format, provenance)
     return GroundTruthRun(path, side, gt, list(session.notes))

@@ -1,4 +1,6 @@
-"""Reading a session for the commands that need both streams: input spec, noise, priors."""
+"""Reading a session for the commands that need both streams: the input spec (every input
+option of ``calibrate``, shared by ``diagnose``, ``groundtruth`` and ``batch``), the noise
+options, priors, and the part of the session to use."""
 
 from __future__ import annotations
 
@@ -8,45 +10,165 @@ from pathlib import Path
 import numpy as np
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.policy import GRAVITY  # noqa: F401  (the CLI's default)
+from mocap_calib.core.params import group, param
+from mocap_calib.core.prepare.crop import crop_session
 from mocap_calib.core.result.priors import priors_from_results
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.bags import RecordingOptions
+from mocap_calib.io.formats.euroc import find_mav0
 from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
 from mocap_calib.io.yaml_io import load_noise, load_result
+
+#: The format options shared with the IMU-only commands (same names, same help).
+COLUMNS_HELP = ("column map of a generic CSV, e.g. 't=0,gyro=1:4,accel=4:7,quat=10:14,"
+                "pos=14:17', or a preset name ('broad')")
+TIME_UNITS = ("s", "ms", "us", "ns")
+GYRO_UNITS = ("rad/s", "deg/s")
+ACCEL_UNITS = ("m/s^2", "g")
+STAMPS = ("header", "receive")
+IMU_TOPIC_HELP = ("IMU topic of a bag or ULog (sensor_msgs/Imu; ULog: sensor_combined, or "
+                  "sensor_gyro/sensor_accel); default: the only one")
+
+
+@dataclass
+class MocapFormat:
+    """How to read the mocap poses (shared with ``drift --mocap``)."""
+
+    quat_order: str | None = param(None, "quaternion order of the mocap file",
+                                   choices=("wxyz", "xyzw"), show_default=False)
+    position_unit: str | None = param(None, "position unit of the mocap file",
+                                      choices=("m", "cm", "mm"), show_default=False)
+    mocap_topic: str | None = param(
+        None, "pose topic of a bag or ULog (PoseStamped, TransformStamped, "
+        "PoseWithCovarianceStamped, Odometry, or /tf with --mocap-frame; ULog: "
+        "vehicle_mocap_odometry or vehicle_visual_odometry); default: the only one",
+        show_default=False)
+    mocap_frame: str | None = param(None, "child frame of the marker body in a "
+                                    "tf2_msgs/TFMessage topic", show_default=False)
+    mocap_format: str | None = param(
+        None, "mocap export format (default: detected from the header)",
+        choices=("motive", "vicon-nexus", "vicon-tracker"), show_default=False)
+    rigid_body: str | None = param(None, "rigid body (Motive) or subject (Vicon) to read when "
+                                   "the export holds several", show_default=False)
+    rotation: str | None = param(
+        None, "Vicon rotations: helical or euler-xyz (R = Rx Ry Rz), optionally :deg or :rad; "
+        "the file does not say which", show_default=False)
+    mocap_rate: float | None = param(None, "mocap frame rate, for exports without one "
+                                     "(frame numbers only)", unit="Hz", lo=0.0, lo_open=True,
+                                     show_default=False)
 
 
 @dataclass
 class InputSpec:
     """Where the two streams come from and how to read them."""
 
-    path: Path | None = None
-    imu: Path | None = None
-    mocap: Path | None = None
-    pose_source: str = "auto"
-    columns: str | None = None
-    time_unit: str | None = None
-    gyro_unit: str | None = None
-    accel_unit: str | None = None
-    quat_order: str | None = None
-    position_unit: str | None = None
-    # Bags and ULogs (io.bags / io.ulog).
-    imu_topic: str | None = None
-    mocap_topic: str | None = None
-    mocap_frame: str | None = None
-    stamp: str = "header"
-    # Motive / Vicon exports (io.mocap_exports).
-    mocap_format: str | None = None
-    rigid_body: str | None = None
-    rotation: str | None = None
-    mocap_rate: float | None = None
+    mav0: tuple[Path, ...] = param(
+        (), "EuRoC/ASL mav0 folder (or its parent) holding imu0/ and vicon0/ (or "
+        "state_groundtruth_estimate0/)", argument=True, metavar="MAV0", show_default=False)
+    imu: tuple[Path, ...] = param(
+        (), "IMU log: CSV (EuRoC imu0/data.csv layout, or generic with --columns), ROS 1 bag, "
+        "ROS 2 bag folder (db3 or MCAP), .mcap, or PX4 .ulg", metavar="PATH",
+        show_default=False)
+    mocap: tuple[Path, ...] = param(
+        (), "mocap poses T_WM: EuRoC vicon0/data.csv, TUM, generic CSV with --columns, Motive "
+        "or Vicon CSV export, a bag/.mcap/.ulg; may be the same file as --imu", metavar="PATH",
+        show_default=False)
+    start: float | None = param(
+        None, "use the session from this many seconds after the IMU log's first sample",
+        unit="s", lo=0.0, show_default=False)
+    end: float | None = param(
+        None, "use the session up to this many seconds after the IMU log's first sample",
+        unit="s", lo=0.0, lo_open=True, show_default=False)
+    pose_source: str = param("auto", "with a mav0 folder: which poses to read (auto: vicon0 if "
+                             "present)", choices=("auto", "vicon0", "groundtruth"))
+    columns: str | None = param(None, COLUMNS_HELP, show_default=False)
+    time_unit: str | None = param(None, "time-stamp unit (default: the format's own)",
+                                  choices=TIME_UNITS, show_default=False)
+    gyro_unit: str | None = param(None, "gyro unit (default: the format's own)",
+                                  choices=GYRO_UNITS, show_default=False)
+    accel_unit: str | None = param(None, "accelerometer unit (default: the format's own)",
+                                   choices=ACCEL_UNITS, show_default=False)
+    imu_topic: str | None = param(None, IMU_TOPIC_HELP, show_default=False)
+    stamp: str = param("header", "bag stamps: header (message header.stamp) or receive (the "
+                       "bag's record time)", choices=STAMPS)
+    poses: MocapFormat = group(MocapFormat, "Input")
+
+    def __post_init__(self) -> None:
+        # The Python API may pass one path where the command line allows several.
+        for name in ("mav0", "imu", "mocap"):
+            value = getattr(self, name)
+            if isinstance(value, (str, Path)):
+                setattr(self, name, (Path(value),))
 
     def recording(self) -> RecordingOptions:
-        return RecordingOptions(self.imu_topic, self.mocap_topic, self.mocap_frame, self.stamp)
+        return RecordingOptions(self.imu_topic, self.poses.mocap_topic, self.poses.mocap_frame,
+                                self.stamp)
 
     def export(self) -> ExportOptions:
-        return ExportOptions(self.mocap_format, self.rigid_body, self.rotation, self.mocap_rate)
+        p = self.poses
+        return ExportOptions(p.mocap_format, p.rigid_body, p.rotation, p.mocap_rate)
+
+    def sources(self) -> list[Path]:
+        """Every input path given (for reports' provenance)."""
+        return [*self.mav0, *self.imu, *self.mocap]
+
+    def single(self) -> tuple[Path | None, Path | None, Path | None]:
+        """(mav0, imu, mocap) of the one recording this command reads; refuses several."""
+        if len(self.mav0) > 1 or len(self.imu) > 1 or len(self.mocap) > 1:
+            raise InputError(
+                f"{max(len(self.mav0), len(self.imu), len(self.mocap))} recordings given (a "
+                "mav0 folder or --imu/--mocap more than once); this command reads one: give "
+                "each option once")
+        return (self.mav0[0] if self.mav0 else None, self.imu[0] if self.imu else None,
+                self.mocap[0] if self.mocap else None)
+
+
+@dataclass
+class NoiseSpec:
+    """The noise model: a file and single values over it (defaults < the mav0's
+    ``imu0/sensor.yaml`` < ``--noise`` file < these options)."""
+
+    noise: Path | None = param(
+        None, "noise model YAML (Kalibr imu.yaml keys, e.g. from 'mocap-calib allan'); "
+        "default: the mav0's imu0/sensor.yaml, else EuRoC ADIS16448 values", metavar="PATH",
+        show_default=False)
+    gyro_noise: float | None = param(None, "gyro noise density", unit="rad/s/sqrt(Hz)",
+                                     lo=0.0, lo_open=True, hi=1.0, show_default=False)
+    gyro_walk: float | None = param(None, "gyro bias random walk", unit="rad/s^2/sqrt(Hz)",
+                                    lo=0.0, lo_open=True, hi=1.0, show_default=False)
+    accel_noise: float | None = param(None, "accel noise density", unit="m/s^2/sqrt(Hz)",
+                                      lo=0.0, lo_open=True, hi=10.0, show_default=False)
+    accel_walk: float | None = param(None, "accel bias random walk", unit="m/s^3/sqrt(Hz)",
+                                     lo=0.0, lo_open=True, hi=10.0, show_default=False)
+    mocap_noise_mm: float | None = param(None, "mocap position noise per axis (default 0.5)",
+                                         unit="mm", lo=0.0, lo_open=True, hi=100.0,
+                                         show_default=False)
+    mocap_noise_deg: float | None = param(None, "mocap attitude noise per axis (default 0.05)",
+                                          unit="deg", lo=0.0, lo_open=True, hi=10.0,
+                                          show_default=False)
+
+    def overrides(self) -> dict[str, float]:
+        """The noise-model fields given as options, in SI units."""
+        given = {
+            "gyroscope_noise_density": self.gyro_noise,
+            "gyroscope_random_walk": self.gyro_walk,
+            "accelerometer_noise_density": self.accel_noise,
+            "accelerometer_random_walk": self.accel_walk,
+            "mocap_position_sigma": None if self.mocap_noise_mm is None
+            else self.mocap_noise_mm * 1e-3,
+            "mocap_rotation_sigma": None if self.mocap_noise_deg is None
+            else float(np.radians(self.mocap_noise_deg)),
+        }
+        return {k: v for k, v in given.items() if v is not None}
+
+    def resolve(self, base: NoiseModel | None) -> NoiseModel:
+        """The noise model: ``base`` (or the defaults) < the file < the options."""
+        noise = base or NoiseModel()
+        if self.noise is not None:
+            noise = load_noise(self.noise, noise)
+        given = self.overrides()
+        return replace(noise, **given) if given else noise
 
 
 @dataclass
@@ -57,23 +179,23 @@ class LoadedSession:
     sensor_noise: NoiseModel | None = None
 
 
-def load_session(spec: InputSpec) -> LoadedSession:
-    """Read both streams (and, from a ``mav0`` folder, the IMU's ``sensor.yaml`` noise)."""
-    if spec.path is None and (spec.imu is None or spec.mocap is None):
+def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSession:
+    """Read both streams (and, from a ``mav0`` folder, the IMU's ``sensor.yaml`` noise), and
+    cut them to ``--start``/``--end`` before anything else looks at them."""
+    path, imu_path, mocap_path = spec.single()
+    if path is None and (imu_path is None or mocap_path is None):
         raise InputError("give a mav0 folder, or both --imu and --mocap")
-    if spec.path is not None and (spec.imu is not None or spec.mocap is not None):
+    if path is not None and (imu_path is not None or mocap_path is not None):
         raise InputError("give either a mav0 folder or --imu/--mocap, not both")
     imu, mocap, notes = load_inputs(
-        spec.imu, spec.mocap, spec.path, pose_source=spec.pose_source, columns=spec.columns,
+        imu_path, mocap_path, path, pose_source=spec.pose_source, columns=spec.columns,
         time_unit=spec.time_unit, gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit,
-        quat_order=spec.quat_order, position_unit=spec.position_unit,
+        quat_order=spec.poses.quat_order, position_unit=spec.poses.position_unit,
         recording=spec.recording(), export=spec.export())
+    imu, mocap = crop_session(imu, mocap, spec.start, spec.end, time_offset)
     sensor_noise = None
-    if spec.path is not None:
-        from mocap_calib.io.formats.euroc import find_mav0
-
-        root = find_mav0(spec.path)
-        sensor = root / "imu0" / "sensor.yaml"
+    if path is not None:
+        sensor = find_mav0(path) / "imu0" / "sensor.yaml"
         if sensor.is_file():
             try:
                 sensor_noise = load_noise(sensor)
@@ -83,20 +205,7 @@ def load_session(spec: InputSpec) -> LoadedSession:
     return LoadedSession(imu, mocap, notes, sensor_noise)
 
 
-def resolve_noise(session: LoadedSession, noise_file: Path | None,
-                  overrides: dict[str, float | None]) -> NoiseModel:
-    """Noise model: defaults < the mav0's ``imu0/sensor.yaml`` < ``--noise`` file < options."""
-    noise = session.sensor_noise or NoiseModel()
-    if noise_file is not None:
-        noise = load_noise(noise_file, noise)
-    given = {k: v for k, v in overrides.items() if v is not None}
-    for k, v in given.items():
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"noise option {k.replace('_', '-')} must be positive, got {v}")
-    return replace(noise, **given) if given else noise
-
-
-def load_priors(paths: list[Path], at_ns: int) -> list:
+def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int) -> list:
     """Prior factors from one or more earlier results (a trend with two or more)."""
     results = [load_result(p) for p in paths]
     return priors_from_results(results, at_ns if len(results) > 1 else None)

@@ -2,17 +2,61 @@
 
 from __future__ import annotations
 
+from dataclasses import MISSING, dataclass
 from pathlib import Path
 
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS
+from mocap_calib.core.params import param
 from mocap_calib.errors import InputError
+from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
+from mocap_calib.sim.motions import MOTIONS
+
+#: What ``--effect`` accepts: every effect of the ladder and the mocap faults.
+EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
 
 
-def effects_doc() -> str:
-    """What ``--effect`` accepts: every effect of the ladder and the mocap faults."""
-    from mocap_calib.core.model.effects import CANONICAL_EFFECTS
-    from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
+@dataclass
+class SimulateRequest:
+    """Everything ``simulate`` can be told."""
 
-    return "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
+    out_dir: Path = param(MISSING, "folder to write the session into", argument=True,
+                          metavar="OUT_DIR")
+    seed: int = param(0, "random seed (same seed, same output)", lo=0)
+    duration: float = param(90.0, "session length", unit="s", lo=1.0, lo_open=True)
+    imu_rate: float = param(200.0, "IMU rate", unit="Hz", lo=1.0, hi=1e5)
+    mocap_rate: float = param(100.0, "mocap rate", unit="Hz", lo=1.0, hi=1e4)
+    effect: tuple[str, ...] = param(
+        (), "inject an effect (repeatable); without a value a realistic magnitude is drawn. "
+        + EFFECTS_DOC, decls=("--effect", "-e"), metavar="NAME[=VALUE]", show_default=False)
+    mocap_noise_corr: float = param(
+        0.0, "mocap noise correlated over this time constant (AR(1) with the same per-sample "
+        "sigma), as real mocap noise is; 0: white", unit="s", lo=0.0, hi=60.0)
+    protocol: str = param(
+        "flight", "flight: a drone flight in a mocap room; multipos: static orientations for "
+        "'mocap-calib multipos' (no mocap); static: a still IMU for 'mocap-calib allan'",
+        choices=("flight", "multipos", "static"))
+    counts: bool = param(
+        False, "with --protocol multipos: write raw counts of a 16-bit MEMS part (+-8 g, "
+        "+-2000 deg/s; truth.yaml gives the nominal scales) for 'multipos --raw'",
+        decls=("--counts",))
+    motion: str = param(
+        "flight", "with --protocol flight: flight (rotates about all axes), turntable (one "
+        "vertical axis), planar (a ground robot: yaw and planar translation) or slow (low "
+        "excitation); the last three cannot determine everything",
+        choices=tuple(MOTIONS))
+    max_motion_hz: float = param(
+        0.0, "with --motion flight: add motion from 1 Hz up to this (1-20 Hz, at most a fifth "
+        "of the mocap rate), as a vibrating or aggressive flight has; 0: off", unit="Hz",
+        lo=1.0, hi=20.0, also=(0.0,))
+
+
+def simulate_request(request: SimulateRequest) -> list[tuple[Path, str]]:
+    """``simulate`` from its request (see :func:`simulate_to_folder`)."""
+    r = request
+    return simulate_to_folder(r.out_dir, protocol=r.protocol, seed=r.seed, duration=r.duration,
+                              imu_rate=r.imu_rate, mocap_rate=r.mocap_rate,
+                              effects=list(r.effect), mocap_noise_corr=r.mocap_noise_corr,
+                              counts=r.counts, motion=r.motion, max_motion_hz=r.max_motion_hz)
 
 
 def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0,

@@ -6,8 +6,10 @@ import os
 import shutil
 import subprocess
 import sys
+from dataclasses import MISSING, dataclass
 from pathlib import Path
 
+from mocap_calib.core.params import param
 from mocap_calib.errors import CalibrationError, InputError
 
 #: First bytes of an ``.rrd`` file (rerun's stream header).
@@ -50,6 +52,13 @@ def has_display() -> bool:
     if sys.platform.startswith("linux"):
         return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     return True
+
+
+@dataclass
+class ViewRequest:
+    """What ``view`` opens."""
+
+    recording: Path = param(MISSING, "the .rrd file to open", argument=True, metavar="RECORDING")
 
 
 def open_recording(recording: Path) -> str | None:

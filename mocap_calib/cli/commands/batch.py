@@ -2,49 +2,23 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Annotated
-
 import typer
 
+from mocap_calib.batch.manifest import ManifestError
+from mocap_calib.batch.progress import ProgressBar
+from mocap_calib.batch.runner import BatchRequest, run_batch
+from mocap_calib.cli.build import add_command
 from mocap_calib.cli.main import app
+from mocap_calib.errors import CalibrationError, InputError, Interrupted
 
 
-@app.command(
-    help="Calibrate many sessions listed in a YAML manifest (sessions: id, imu_id, date, imu, "
-    "mocap or mav0, and any calibrate option with underscores, e.g. rigid_body). Results go to "
-    "OUT/<id>/calib.yaml, finished sessions are skipped on a rerun, a failing session does "
-    "not stop the others; OUT/fleet/ holds the history and trends per imu_id.",
-    epilog="Examples: mocap-calib batch fleet.yaml --out results | mocap-calib batch "
-    "fleet.yaml --out results --engine dask --scheduler tcp://10.0.0.5:8786",
-)
-def batch(
-    manifest: Annotated[Path, typer.Argument(help="Manifest YAML listing the sessions.")],
-    out: Annotated[Path, typer.Option(help="Output folder (one subfolder per session).")],
-    engine: Annotated[str, typer.Option(
-        help="local (a process pool on this machine) or dask (needs "
-        "pip install 'mocap-calib\\[cluster]').")] = "local",
-    scheduler: Annotated[str | None, typer.Option(
-        help="With --engine dask: address of a running Dask scheduler (default: a local "
-        "cluster).", show_default=False)] = None,
-    workers: Annotated[int | None, typer.Option(
-        help="Worker processes (default: the number of cores; with --scheduler, the "
-        "cluster's).", show_default=False)] = None,
-    prior_from_history: Annotated[bool, typer.Option(
-        "--prior-from-history", help="Calibrate each session with the earlier sessions of the "
-        "same imu_id as priors (a trend from two dates on).")] = False,
-    html: Annotated[bool, typer.Option("--html", help="Also write OUT/batch.html.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
-) -> None:
-    from mocap_calib.batch.manifest import ManifestError
-    from mocap_calib.batch.progress import ProgressBar
-    from mocap_calib.batch.runner import run_batch
-    from mocap_calib.errors import CalibrationError, InputError, Interrupted
-
+def _batch(request: BatchRequest) -> None:
+    out = request.out
     try:
-        report = run_batch(manifest, out, engine=engine, workers=workers, scheduler=scheduler,
-                           prior_from_history=prior_from_history, html=html,
-                           progress=ProgressBar(quiet=quiet))
+        report = run_batch(request.manifest, out, engine=request.engine,
+                           workers=request.workers, scheduler=request.scheduler,
+                           prior_from_history=request.prior_from_history, html=request.html,
+                           progress=ProgressBar(quiet=request.quiet))
     except ManifestError as err:  # one line each; main() prints the last and sets the code
         for line in err.problems[:-1]:
             typer.echo(f"error: {line}", err=True)
@@ -66,3 +40,14 @@ def batch(
     if report.failed:
         raise CalibrationError(f"{len(report.failed)} of {len(report.sessions)} sessions "
                                f"failed; see {report.out_dir / 'batch.yaml'}")
+
+
+add_command(
+    app, "batch", BatchRequest, _batch,
+    help="Calibrate many sessions listed in a YAML manifest (sessions: id, imu_id, date, imu, "
+    "mocap or mav0, and any calibrate option with underscores, e.g. rigid_body). Results go to "
+    "OUT/<id>/calib.yaml, finished sessions are skipped on a rerun, a failing session does "
+    "not stop the others; OUT/fleet/ holds the history and trends per imu_id.",
+    epilog="Examples: mocap-calib batch fleet.yaml --out results | mocap-calib batch "
+    "fleet.yaml --out results --engine dask --scheduler tcp://10.0.0.5:8786",
+)

@@ -419,7 +419,7 @@ def screen_conventions(s: PreparedSession, opts: CalibrationOptions, t_d: float,
     """
     rot = float(np.radians(np.sqrt(np.mean(np.square(rms_attitude_deg)))))
     vel = float(np.sqrt(np.mean(np.square(rms_velocity))))
-    if not base_fit_poor(s, opts.attitude_spacing, rot, vel):
+    if not base_fit_poor(s, opts.keyframe_spacing, rot, vel):
         return None
     say("the first fits are poor: checking the inputs' conventions")
     fit = check_conventions(s, [t_d, *candidates], opts.gravity, opts.max_offset,

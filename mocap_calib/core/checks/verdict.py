@@ -62,9 +62,9 @@ def judge(r: CalibrationResult, s: PreparedSession, pos: PositionResult,
                 "clock, or pass --accept-implausible to write it marked as such")
         r.notes.append(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
     cons, sens = Consistency(), Sensitivity()
-    if opts.consistency_segments >= 2:
-        say(f"consistency: {opts.consistency_segments} segments calibrated on their own")
-        cons = segment_consistency(s, opts.model, pos, opts.consistency_segments,
+    if opts.segments >= 2:
+        say(f"consistency: {opts.segments} segments calibrated on their own")
+        cons = segment_consistency(s, opts.model, pos, opts.segments,
                                    opts.max_iterations)
     if opts.sensitivity:
         say("sensitivity: IMU noise densities x3 and x1/3")

@@ -46,6 +46,7 @@ from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.core.position.stage import (
     PositionInit,
@@ -64,12 +65,17 @@ __all__ = ["DiagnoseOptions", "DiagnoseReport", "DiagnoseStep", "CandidateScore"
            "REPORT_KIND", "REPORT_VERSION", "diagnose", "plausibility"]
 
 
+def _effect_names(text: str) -> tuple[str, ...]:
+    """``--candidates``: effect names joined by '+' (checked against the registry)."""
+    return tuple(Model.parse(text).effects)
+
+
 @dataclass
 class DiagnoseOptions:
     """How to diagnose.
 
     Attributes:
-        start: the starting model (default: base, no time offset).
+        start_model: the starting model (default: base, no time offset).
         candidates: effects to try.
         alpha: family-wise false-alarm rate per step (Bonferroni over the candidates).
         max_steps: most effects to add.
@@ -83,11 +89,15 @@ class DiagnoseOptions:
             absorbs (it raises the floor too, so the ratio alone would not show it).
     """
 
-    start: Model = field(default_factory=Model)
-    candidates: tuple[str, ...] = CANONICAL_EFFECTS
-    alpha: float = 0.01
-    max_steps: int = 4
-    calibration: CalibrationOptions = field(default_factory=CalibrationOptions)
+    start_model: Model = param(Model(), "the model the diagnosis starts from, e.g. base or "
+                               "base+time_offset", parse=Model.parse, metavar="MODEL")
+    candidates: tuple[str, ...] = param(
+        CANONICAL_EFFECTS, "effects to try, joined by '+' (default: every canonical effect)",
+        parse=_effect_names, metavar="EFFECTS", show_default=False)
+    alpha: float = param(0.01, "false-alarm rate per step (Bonferroni-corrected over the "
+                         "candidates)", lo=0.0, lo_open=True, hi=0.5, hi_open=True)
+    max_steps: int = param(4, "most effects to add", lo=1, hi=10)
+    calibration: CalibrationOptions = group(CalibrationOptions, "Calibration")
     cutoff_hz: float = 2.0
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
     unexplained_ratio: float = 1.5
@@ -235,11 +245,11 @@ def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
            say: Callable[[str], None]) -> tuple[_Session, Model, PositionResult]:
     """Fit the starting model, then refit it with frozen robust weights (so every later
     comparison uses the same cost) and its mocap noise re-estimated."""
-    model = opts.start
+    model = opts.start_model
     notes: list[str] = []
     # The starting fit only seeds the diagnosis: no segment or noise checks, and a model that
     # misses an effect may well look implausible (that is what the diagnosis is for).
-    cal_opts = replace(opts.calibration, model=model, adapt_noise=False, consistency_segments=0,
+    cal_opts = replace(opts.calibration, model=model, adapt_noise=False, segments=0,
                        sensitivity=False, accept_implausible=True)
     say(f"fitting the starting model {model}")
     try:
@@ -380,5 +390,5 @@ def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
             s_final, st = ds.s, ModelState.from_position(pos, model, ds.t_mid)
         unexplained = {"why": why, **unexplained_signature(
             s_final, st, final_res.analysis, pos, opts.unexplained_ratio)}
-    return DiagnoseReport([], str(opts.start), str(model), steps, final, final_res, 0.0,
+    return DiagnoseReport([], str(opts.start_model), str(model), steps, final, final_res, 0.0,
                           ds.notes, 0.0, [], unexplained)

@@ -50,26 +50,6 @@ ProgressFn = Callable[[str], None]
 IterationFn = Callable[[str, int, dict[str, Any], float], None]
 
 
-def _crop(imu: ImuSamples, mocap: MocapPoses,
-          opts: CalibrationOptions) -> tuple[ImuSamples, MocapPoses]:
-    """``--start``/``--end`` (s from the IMU start) select IMU samples; the mocap is cut to
-    match (with a margin for the clock offset) only when the raw stamps share an epoch. From
-    clocks of different epochs it stays whole: the clock search finds the matching stretch."""
-    if opts.start is None and opts.end is None:
-        return imu, mocap
-    lo = imu.t[0] + (opts.start or 0.0)
-    hi = imu.t[0] + opts.end if opts.end is not None else np.inf
-    if not hi > lo:
-        raise InputError("--end must be after --start")
-    imu_c = imu.select((imu.t >= lo) & (imu.t <= hi))
-    shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
-    tm = mocap.t - shift  # mocap times on the IMU clock (before the fine offset)
-    if tm[-1] < imu.t[0] or tm[0] > imu.t[-1]:  # different epochs
-        return imu_c, mocap
-    margin = 1.0 if opts.time_offset is None else 1.0 + abs(opts.time_offset)
-    return imu_c, mocap.select((tm >= lo - margin) & (tm <= hi + margin))
-
-
 def _corrector(model: Model, effects: dict[str, Array], t_mid: float, gyro_bias: Array,
                accel_bias: Array, which: str):
     """A ``(gyro, accel, u, b) -> (w, f)`` function with ``b`` the gyro or accel bias."""
@@ -104,7 +84,6 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     model = opts.model
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
-    imu, mocap = _crop(imu, mocap, opts)
     s = prepare(imu, mocap, noise=opts.noise)
     notes = _session_notes(s)
     session_info = _session_info(imu, mocap, s)
@@ -217,12 +196,12 @@ def _initial_stages(s: PreparedSession, opts: CalibrationOptions, delta0: float,
     model, say = opts.model, say or (lambda _m: None)
     say("stage 1/3: attitude factors (gyro bias, R_MI)")
     att = run_attitude_stage(
-        s, delta0, opts.noise, opts.attitude_spacing,
+        s, delta0, opts.noise, opts.keyframe_spacing,
         _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
         max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "attitude"))
     say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
     vel = run_velocity_stage(
-        s, delta0, opts.noise, opts.velocity_spacing, att.R_MI,
+        s, delta0, opts.noise, opts.keyframe_spacing, att.R_MI,
         _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
         max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "velocity"))
     return att, vel

@@ -7,16 +7,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from mocap_calib.core.intrinsics.allan import characterise_noise
 from mocap_calib.core.intrinsics.noise_result import AllanResult
 from mocap_calib.core.model.types import ImuSamples
-from mocap_calib.errors import InputError
+from mocap_calib.core.params import group, param
 from mocap_calib.io.yaml_io import check_writable, save_yaml
 from mocap_calib.report.intrinsics_text import allan_summary
+from mocap_calib.workflows.calibrate import HTML_HELP
 from mocap_calib.workflows.html.provenance import RunClock
-from mocap_calib.workflows.imu.imu_input import ImuSpec, ProgressFn, say
+from mocap_calib.workflows.imu.imu_input import CropSpec, ImuSpec, ProgressFn, say
 
 _HEADER = ("mocap-calib allan noise model (Kalibr imu.yaml keys, SI units). See "
            "docs/conventions.md.")
@@ -49,40 +48,48 @@ class AllanRun:
         return allan_summary(self.result)
 
 
-def run_allan(spec: ImuSpec, *, out: Path | None = None, rrd: Path | None = None,
-              aggregate: str = "mean", tau_min_s: float | None = None,
-              require_random_walk: bool = True, progress: ProgressFn | None = None,
-              html: Path | None = None) -> AllanRun:
-    """Read a long static IMU log, fit its Allan-deviation noise model and write it.
+@dataclass
+class AllanRequest:
+    """Everything ``allan`` can be told."""
 
-    Args:
-        spec: the IMU log.
-        out: noise YAML to write (None: write nothing).
-        rrd: rerun recording of the curves to write (None: none).
-        aggregate: ``mean`` or ``max`` over the axes for the Kalibr keys.
-        tau_min_s: shortest averaging time fitted (s); None: one sample.
-        require_random_walk: fail when the log does not resolve the random walks (otherwise
-            they are written as null).
-        progress: one-line progress callback.
-        html: self-contained HTML report to write (None: none).
+    imu: ImuSpec = group(ImuSpec, "Input")
+    crop: CropSpec = group(CropSpec, "Input")
+    out: Path = param(Path("noise.yaml"), "noise YAML to write", metavar="PATH")
+    rrd: Path | None = param(None, "also write a rerun recording of the Allan deviation curves "
+                             "and fitted lines (log-log; x: 1000 log10(tau/s))", metavar="PATH",
+                             show_default=False)
+    aggregate: str = param("mean", "how the Kalibr keys combine the three axes: mean or max "
+                           "(conservative)", choices=("mean", "max"))
+    tau_min: float | None = param(
+        None, "shortest averaging time fitted (raise it when the IMU's low-pass filter bends "
+        "the curve at short tau)", unit="s", lo=0.0, lo_open=True, show_default=False)
+    allow_unresolved: bool = param(
+        False, "write the result even if the log is too short to resolve the random walks "
+        "(written as null; calibrate then keeps its defaults for them)",
+        decls=("--allow-unresolved",))
+    html: Path | None = param(None, HTML_HELP, metavar="PATH", show_default=False)
+    quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
+
+
+def run_allan(request: AllanRequest, progress: ProgressFn | None = None) -> AllanRun:
+    """Read a long static IMU log, fit its Allan-deviation noise model and write it (the
+    request's outputs that are not None).
 
     Raises:
         InputError: bad input files, timestamps or options.
         ObservabilityError: the log is too short, moves, or does not resolve the random walk.
     """
-    if aggregate not in ("mean", "max"):
-        raise InputError(f"--aggregate {aggregate}: use mean or max")
-    if tau_min_s is not None and not (np.isfinite(tau_min_s) and tau_min_s > 0):
-        raise InputError(f"--tau-min {tau_min_s}: must be a positive time in s")
+    spec, out, rrd, html = request.imu, request.out, request.rrd, request.html
     clock = RunClock()
     check_writable(out, rrd, html)
     say(progress, f"reading {spec.name}")
-    imu, notes = spec.load()
+    imu, notes = spec.load(request.crop)
     for n in notes:
         say(progress, n)
     say(progress, "computing overlapping Allan deviations and fitting N, B, K per axis")
-    result = characterise_noise(imu, aggregate=aggregate,  # type: ignore[arg-type]
-                                tau_min_s=tau_min_s, require_random_walk=require_random_walk,
+    result = characterise_noise(imu, aggregate=request.aggregate,  # type: ignore[arg-type]
+                                tau_min_s=request.tau_min,
+                                require_random_walk=not request.allow_unresolved,
                                 unresolved_fix="pass --allow-unresolved")
     run = AllanRun(result, imu, notes)
     if html is not None:

@@ -5,7 +5,7 @@ its figures."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import MISSING, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,13 +24,17 @@ from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.model.versioned import KindError, check_kind
+from mocap_calib.core.params import group, param
 from mocap_calib.core.policy import GAP_FACTOR
 from mocap_calib.errors import InputError
+from mocap_calib.io.formats.bags import RecordingOptions
+from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
 from mocap_calib.io.result_files import describe_kind, file_kind
 from mocap_calib.io.yaml_io import check_writable, load_result, load_yaml, save_yaml
 from mocap_calib.report.intrinsics_text import drift_summary
 from mocap_calib.workflows.imu.imu_input import ImuSpec, ProgressFn, say
+from mocap_calib.workflows.session import MocapFormat
 
 Array = NDArray[np.float64]
 
@@ -191,9 +195,8 @@ def _check_segment_options(start: float, end: float, static_window_s: float) -> 
         raise InputError(f"--static-window {static_window_s:g}: must be positive")
 
 
-def _read_streams(spec: ImuSpec, mocap: Path | None, quat_order: str | None,
-                  position_unit: str | None, progress: ProgressFn | None
-                  ) -> tuple[ImuSamples, MocapPoses | None]:
+def _read_streams(spec: ImuSpec, mocap: Path | None, fmt: MocapFormat,
+                  progress: ProgressFn | None) -> tuple[ImuSamples, MocapPoses | None]:
     say(progress, f"reading {spec.name}" + (f" and {mocap}" if mocap is not None else ""))
     poses: MocapPoses | None = None
     if mocap is None:
@@ -201,8 +204,12 @@ def _read_streams(spec: ImuSpec, mocap: Path | None, quat_order: str | None,
     else:
         imu, poses, read_notes = load_inputs(
             spec.imu, mocap, None, columns=spec.columns, time_unit=spec.time_unit,
-            gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit, quat_order=quat_order,
-            position_unit=position_unit)
+            gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit, quat_order=fmt.quat_order,
+            position_unit=fmt.position_unit,
+            recording=RecordingOptions(spec.imu_topic, fmt.mocap_topic, fmt.mocap_frame,
+                                       spec.stamp),
+            export=ExportOptions(fmt.mocap_format, fmt.rigid_body, fmt.rotation,
+                                 fmt.mocap_rate))
     for n in read_notes:
         say(progress, n)
     return imu, poses
@@ -252,10 +259,30 @@ def _mocap_reference(imu: ImuSamples, poses: MocapPoses, cal: DriftCalibration, 
     return kwargs
 
 
-def run_drift(spec: ImuSpec, calibration: Path, start: float, end: float, *,
-              mocap: Path | None = None, quat_order: str | None = None,
-              position_unit: str | None = None, static_window_s: float = 1.0,
-              out: Path | None = None, progress: ProgressFn | None = None) -> DriftRun:
+@dataclass
+class DriftRequest:
+    """Everything ``drift`` can be told."""
+
+    calibration: Path = param(MISSING, "calibration YAML: a 'calibrate' result or 'multipos' "
+                              "intrinsics", metavar="PATH")
+    start: float = param(MISSING, "segment start, s after the IMU log's first sample",
+                         unit="s", lo=0.0)
+    end: float = param(MISSING, "segment end, s after the IMU log's first sample", unit="s",
+                       lo=0.0, lo_open=True)
+    imu: ImuSpec = group(ImuSpec, "Input")
+    mocap: Path | None = param(
+        None, "mocap poses T_WM of the same session (the reference attitude); without them the "
+        "accelerometer at rest at --start and --end", metavar="PATH", show_default=False)
+    poses: MocapFormat = group(MocapFormat, "Mocap")
+    static_window: float = param(
+        1.0, "without --mocap: window around --start/--end over which the accelerometer is "
+        "averaged", unit="s", lo=0.0, lo_open=True, hi=600.0)
+    out: Path | None = param(None, "also write the figures as YAML", metavar="PATH",
+                             show_default=False)
+    quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
+
+
+def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> DriftRun:
     """Attitude-drift check of a calibration over a segment of an IMU log.
 
     The gyro is integrated over ``[start, end]`` (s after the IMU log's first sample) raw and
@@ -271,6 +298,8 @@ def run_drift(spec: ImuSpec, calibration: Path, start: float, end: float, *,
             with a calibration that has no ``T_marker_imu``.
         ObservabilityError: no mocap and the IMU is not at rest at ``start`` or ``end``.
     """
+    spec, calibration, start, end = request.imu, request.calibration, request.start, request.end
+    mocap, out, static_window_s = request.mocap, request.out, request.static_window
     _check_segment_options(start, end, static_window_s)
     check_writable(out)
     cal = read_calibration(calibration)
@@ -284,7 +313,7 @@ def run_drift(spec: ImuSpec, calibration: Path, start: float, end: float, *,
             raise InputError(f"{calibration}: calibrates raw counts, so the IMU log is read as "
                              "raw counts; leave out --gyro-unit and --accel-unit")
         spec = replace(spec, raw=True)
-    imu, poses = _read_streams(spec, mocap, quat_order, position_unit, progress)
+    imu, poses = _read_streams(spec, mocap, request.poses, progress)
     if cal.raw_input is not None:
         imu = cal.raw_input.apply(imu)
         notes.append("raw counts converted with the calibration's 'raw_input'")

@@ -12,8 +12,18 @@ import numpy as np
 from mocap_calib.core.model.faults import dead_channels, describe_dead, frozen
 from mocap_calib.core.model.rest import runs
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.params import param
+from mocap_calib.core.prepare.crop import crop_imu
 from mocap_calib.errors import InputError
 from mocap_calib.io.loader import load_imu_file
+from mocap_calib.workflows.session import (
+    ACCEL_UNITS,
+    COLUMNS_HELP,
+    GYRO_UNITS,
+    IMU_TOPIC_HELP,
+    STAMPS,
+    TIME_UNITS,
+)
 
 ProgressFn = Callable[[str], None]
 
@@ -25,34 +35,36 @@ def say(progress: ProgressFn | None, message: str) -> None:
 
 @dataclass
 class ImuSpec:
-    """Where the IMU log comes from and how to read it (options of ``cli/common.py``).
+    """Where the IMU log comes from and how to read it (the IMU-only commands' input options;
+    ``raw``, ``accel`` and ``gyro`` are ``multipos``'s)."""
 
-    Attributes:
-        imu: EuRoC ``imu0/data.csv``, a ``mav0`` folder (or its parent), or a generic CSV.
-        columns: column map of a generic CSV (``--columns``).
-        time_unit: s, ms, us or ns; None for the format's own.
-        gyro_unit: rad/s or deg/s; None for the format's own.
-        accel_unit: m/s^2 or g; None for the format's own.
-        imu_topic: bags and ULogs: the IMU topic (``--imu-topic``).
-        stamp: bags: ``header`` or ``receive`` stamps (``--stamp``).
-        raw: the readings are raw sensor counts (``--raw``).
-        accel: imu_tk's accelerometer file (``--accel``), with ``gyro``.
-        gyro: imu_tk's gyroscope file (``--gyro``).
-    """
+    imu: Path | None = param(
+        None, "IMU log: CSV (EuRoC imu0/data.csv layout, or generic with --columns), a mav0 "
+        "folder, ROS 1 bag, ROS 2 bag folder (db3 or MCAP), .mcap, or PX4 .ulg",
+        metavar="PATH", show_default=False)
+    columns: str | None = param(None, COLUMNS_HELP, show_default=False)
+    time_unit: str | None = param(None, "time-stamp unit (default: the format's own)",
+                                  choices=TIME_UNITS, show_default=False)
+    gyro_unit: str | None = param(None, "gyro unit (default: the format's own)",
+                                  choices=GYRO_UNITS, show_default=False)
+    accel_unit: str | None = param(None, "accelerometer unit (default: the format's own)",
+                                   choices=ACCEL_UNITS, show_default=False)
+    imu_topic: str | None = param(None, IMU_TOPIC_HELP, show_default=False)
+    stamp: str = param("header", "bag stamps: header (message header.stamp) or receive (the "
+                       "bag's record time)", choices=STAMPS)
+    raw: bool = param(False, "the readings are raw sensor counts (e.g. a 16-bit MEMS part's "
+                      "registers); results in SI units and in imu_tk's form", decls=("--raw",))
+    accel: Path | None = param(
+        None, "imu_tk's accelerometer file ('t ax ay az' per line, stamps in s unless "
+        "--time-unit), with --gyro instead of --imu", metavar="PATH", decls=("--accel",),
+        show_default=False)
+    gyro: Path | None = param(None, "imu_tk's gyroscope file ('t gx gy gz' per line)",
+                              metavar="PATH", decls=("--gyro",), show_default=False)
 
-    imu: Path | None = None
-    columns: str | None = None
-    time_unit: str | None = None
-    gyro_unit: str | None = None
-    accel_unit: str | None = None
-    imu_topic: str | None = None
-    stamp: str = "header"
-    raw: bool = False
-    accel: Path | None = None
-    gyro: Path | None = None
 
-    def load(self) -> tuple[ImuSamples, list[str]]:
-        """Read the log (:func:`mocap_calib.io.loader.load_imu_file`): samples and notes.
+    def load(self, crop: CropSpec | None = None) -> tuple[ImuSamples, list[str]]:
+        """Read the log (:func:`mocap_calib.io.loader.load_imu_file`), cut to ``crop``:
+        samples and notes.
 
         Raises:
             InputError: also for a dead sensor or a frozen stretch (the same sample repeated),
@@ -62,6 +74,8 @@ class ImuSpec:
                                    gyro_unit=self.gyro_unit, accel_unit=self.accel_unit,
                                    raw=self.raw, accel_file=self.accel, gyro_file=self.gyro,
                                    topic=self.imu_topic, stamp=self.stamp)
+        if crop is not None:
+            imu = crop_imu(imu, crop.start, crop.end)
         refuse_faulty_log(imu)
         return imu, notes
 
@@ -71,6 +85,22 @@ class ImuSpec:
         if self.imu is None and (self.accel is not None or self.gyro is not None):
             return f"{self.accel} and {self.gyro}"
         return str(self.imu)
+
+
+@dataclass
+class CropSpec:
+    """``--start``/``--end`` of the IMU-only commands that read a whole log."""
+
+    start: float | None = param(
+        None, "use the log from this many seconds after its first sample", unit="s", lo=0.0,
+        show_default=False)
+    end: float | None = param(
+        None, "use the log up to this many seconds after its first sample", unit="s",
+        lo=0.0, lo_open=True, show_default=False)
+
+
+#: The options of ``multipos`` alone.
+MULTIPOS_ONLY = ("raw", "accel", "gyro")
 
 
 def refuse_faulty_log(imu: ImuSamples) -> None:

@@ -18,13 +18,15 @@ from mocap_calib.core.intrinsics.multipos import (
 )
 from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.params import group, param
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
 from mocap_calib.io.result_files import INTRINSICS_FIX, read_intrinsics
 from mocap_calib.io.yaml_io import check_writable, save_yaml
 from mocap_calib.report.intrinsics_text import multipos_summary
+from mocap_calib.workflows.calibrate import HTML_HELP
 from mocap_calib.workflows.html.provenance import RunClock
-from mocap_calib.workflows.imu.imu_input import ImuSpec, ProgressFn, say
+from mocap_calib.workflows.imu.imu_input import CropSpec, ImuSpec, ProgressFn, say
 
 #: Parameters a multipos prior constrains by default: the matrices. Turn-on biases change from
 #: one power-up to the next by more than a session's sigma, so they are opt-in.
@@ -128,39 +130,46 @@ def _numbers(value: str | Sequence[float], key: str) -> list[float]:
 
 @dataclass
 class MultiposOptions:
-    """The command's calibration options (``mocap-calib multipos --help``).
+    """The command's calibration options (``mocap-calib multipos --help``); the nominal
+    conversion of raw counts (1 or 3 numbers each) is only the starting point and the units of
+    the result, and applies with ``--raw`` only."""
 
-    Attributes:
-        init_static_s: length of the initial rest period, s.
-        window_s: static-detector window, s.
-        min_interval_s: shortest static interval used, s.
-        gravity: local ``|g|``, m/s^2.
-        min_orientations: fewest distinct static orientations accepted.
-        thresholds: static-detector multiples to scan (imu_tk's meaning); empty: 2..10.
-        g_sensitivity: ``auto``, ``on`` or ``off``.
-        accel_scale, accel_offset, gyro_scale, gyro_offset: nominal conversion of raw counts
-            (1 or 3 numbers each; the scales in m/s^2 and rad/s per count); the starting point
-            and the units of the result. Only with ``raw``.
-        prior_files: earlier intrinsics (one: a prior; two or more: a first-order trend
-            extrapolated to this session's first stamp).
-        prior_biases: let the prior constrain the biases too.
-        prior_sigma_scale: widen (> 1) the prior's sigmas.
-    """
-
-    init_static_s: float = 30.0
-    window_s: float = 1.0
-    min_interval_s: float = 0.5
-    gravity: float = GRAVITY
-    min_orientations: int = 9
-    thresholds: Sequence[float] = ()
-    g_sensitivity: str = "auto"
-    accel_scale: str | Sequence[float] | None = None
-    accel_offset: str | Sequence[float] | None = None
-    gyro_scale: str | Sequence[float] | None = None
-    gyro_offset: str | Sequence[float] | None = None
-    prior_files: Sequence[Path] = ()
-    prior_biases: bool = False
-    prior_sigma_scale: float = 1.0
+    init_static: float = param(30.0, "length of the initial rest period (30-50 recommended)",
+                               unit="s", lo=1.0, hi=3600.0)
+    window: float = param(1.0, "static-detector window", unit="s", lo=0.05, hi=60.0)
+    min_interval: float = param(0.5, "shortest static interval used", unit="s", lo=0.05,
+                                hi=60.0)
+    min_orientations: int = param(9, "fewest distinct static orientations accepted", lo=3,
+                                  hi=1000)
+    gravity: float = param(GRAVITY, "local |g|", unit="m/s^2", lo=5.0, hi=15.0)
+    threshold: tuple[float, ...] = param(
+        (), "static-detector threshold multiple k to try (repeatable; default 2..10): static "
+        "where |var_w(a)| < k |var_init(a)|, imu_tk's meaning", lo=0.0, lo_open=True,
+        show_default=False)
+    g_sensitivity: str = param(
+        "auto", "the gyro's g-sensitivity G (w_m = M_g w + G f + b_g): auto (kept if a "
+        "likelihood-ratio test on the static poses says so), on or off",
+        choices=("auto", "on", "off"))
+    accel_scale: str | None = param(
+        None, "with --raw: nominal accelerometer scale, m/s^2 per count (1 or 3 values, e.g. "
+        "0.0023942 for 4096 LSB/g); default: found from the data", show_default=False)
+    accel_offset: str | None = param(
+        None, "with --raw: nominal accelerometer offset, counts (1 or 3 values; e.g. 32768 for "
+        "unsigned output)", show_default=False)
+    gyro_scale: str | None = param(None, "with --raw: nominal gyro scale, rad/s per count (1 "
+                                   "or 3 values)", show_default=False)
+    gyro_offset: str | None = param(None, "with --raw: nominal gyro offset, counts",
+                                    show_default=False)
+    prior: tuple[Path, ...] = param(
+        (), "earlier intrinsics YAML from 'mocap-calib multipos' as a prior (repeatable; two "
+        "or more give a first-order trend extrapolated to this session's time)",
+        metavar="PATH", show_default=False)
+    prior_biases: bool = param(
+        False, "let the prior constrain the biases too (default: only the matrices; turn-on "
+        "biases change between power-ups)", decls=("--prior-biases",))
+    prior_sigma_scale: float = param(
+        1.0, "multiply the prior's sigmas by this (> 1 allows for change since then)",
+        lo=0.0, lo_open=True)
 
     def nominal(self, raw: bool) -> RawConversion | None:
         """The nominal conversion of raw counts, or None."""
@@ -184,33 +193,36 @@ class MultiposOptions:
                              "positive") from None
 
 
-def run_multipos(spec: ImuSpec, *, out: Path | None = None,
-                 options: MultiposOptions | None = None,
-                 progress: ProgressFn | None = None, html: Path | None = None) -> MultiposRun:
-    """Read an IMU log, calibrate its intrinsics from a multi-position session, and write them.
+@dataclass
+class MultiposRequest:
+    """Everything ``multipos`` can be told."""
 
-    Args:
-        spec: the IMU log (``spec.raw``: raw counts).
-        out: intrinsics YAML to write (None: write nothing).
-        options: the calibration options.
-        progress: one-line progress callback.
-        html: self-contained HTML report to write (None: none).
+    imu: ImuSpec = group(ImuSpec, "Input")
+    crop: CropSpec = group(CropSpec, "Input")
+    options: MultiposOptions = group(MultiposOptions, "Calibration")
+    out: Path = param(Path("intrinsics.yaml"), "intrinsics YAML to write", metavar="PATH")
+    html: Path | None = param(None, HTML_HELP, metavar="PATH", show_default=False)
+    quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
+
+
+def run_multipos(request: MultiposRequest, progress: ProgressFn | None = None) -> MultiposRun:
+    """Read an IMU log, calibrate its intrinsics from a multi-position session, and write them.
 
     Raises:
         InputError: bad input files or options.
         ObservabilityError: no initial rest, too short, too few orientations.
         ConvergenceError: a fit failed.
     """
+    spec, out, html, o = request.imu, request.out, request.html, request.options
     clock = RunClock()
-    o = options or MultiposOptions()
     nominal = o.nominal(spec.raw)
     check_writable(out, html)
-    prior_files = list(o.prior_files)
+    prior_files = list(o.prior)
     # Check the priors before the (longer) IMU read so a wrong file fails fast.
     for p in prior_files:
         read_intrinsics(p)
     say(progress, f"reading {spec.name}")
-    imu, notes = spec.load()
+    imu, notes = spec.load(request.crop)
     for n in notes:
         say(progress, n)
     prior = None
@@ -222,11 +234,11 @@ def run_multipos(spec: ImuSpec, *, out: Path | None = None,
         say(progress, f"prior: {prior.source}")
     say(progress, "detecting static intervals and fitting accelerometer and gyroscope")
     result = calibrate_multipos(
-        imu, init_static_s=o.init_static_s, window_s=o.window_s,
-        min_interval_s=o.min_interval_s, gravity=o.gravity,
+        imu, init_static_s=o.init_static, window_s=o.window,
+        min_interval_s=o.min_interval, gravity=o.gravity,
         min_orientations=o.min_orientations, prior=prior, names=CLI_NAMES, raw=spec.raw,
         nominal=nominal, g_sensitivity=o.g_sensitivity,
-        threshold_multiples=tuple(o.thresholds) or tuple(range(2, 11)))
+        threshold_multiples=tuple(o.threshold) or tuple(range(2, 11)))
     run = MultiposRun(result, imu, notes)
     if html is not None:
         from mocap_calib.workflows.html.intrinsics import write_multipos_html
