@@ -275,7 +275,8 @@ def test_html_page_lists_every_session_and_the_fleet(fleet, local_run, tmp_path)
     self-contained page naming each session and the fleet's trend."""
     out = tmp_path / "out"
     shutil.copytree(local_run[0], out)
-    code = main(["batch", str(fleet[0]), "--out", str(out), "--html", "--workers", "1"])
+    code = main(["batch", str(fleet[0]), "--out", str(out), "--html", str(out / "batch.html"),
+                 "--workers", "1"])
     assert code == 0
     page = (out / "batch.html").read_text()
     for s in local_run[1].sessions:

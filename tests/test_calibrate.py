@@ -11,6 +11,7 @@ from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.prepare.crop import crop_session
 from mocap_calib.errors import InputError, ObservabilityError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
@@ -102,7 +103,7 @@ def test_clocks_from_different_epochs() -> None:
     shift = (1_700_000_000_000_000_000 - 12_345_678_901) * 1e-9
     assert res.time_offset == pytest.approx(shift + 0.0063, abs=2e-4)
     # A part of the session, chosen on the IMU clock, works across epochs too.
-    part = calibrate(sim.imu, sim.mocap, CalibrationOptions(start=10.0, end=50.0))
+    part = calibrate(*crop_session(sim.imu, sim.mocap, 10.0, 50.0), CalibrationOptions())
     assert part.time_offset == pytest.approx(shift + 0.0063, abs=5e-4)
 
 
@@ -132,10 +133,11 @@ def test_too_short_session_is_refused() -> None:
 
 def test_bad_options_are_input_errors() -> None:
     sim = simulate_flight(SimConfig(seed=34, duration=20.0))
-    for opts in (CalibrationOptions(gravity=98.1), CalibrationOptions(window=0.01),
-                 CalibrationOptions(start=10.0, end=5.0)):
+    for opts in (CalibrationOptions(gravity=98.1), CalibrationOptions(window=0.01)):
         with pytest.raises(InputError):
             calibrate(sim.imu, sim.mocap, opts)
+    with pytest.raises(InputError, match="--end 5 must be after --start 10"):
+        crop_session(sim.imu, sim.mocap, 10.0, 5.0)
 
 
 def yaw_only_session() -> tuple[ImuSamples, MocapPoses]:

@@ -15,7 +15,7 @@ import yaml
 
 from mocap_calib.cli.main import main
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS
-from mocap_calib.sim.flight import MOCAP_FAULTS, SimConfig, simulate_flight
+from mocap_calib.sim.flight import SIM_FAULTS, SimConfig, simulate_flight
 
 ENTRY_POINT = Path(sys.executable).parent / "mocap-calib"
 ORIGIN_NS = 1_600_000_000_000_000_000
@@ -104,14 +104,14 @@ def test_acceptance_simulate_seed_7_time_offset(tmp_path: Path) -> None:
 def test_entry_point_help_exits_zero(tmp_path: Path) -> None:
     proc = run_entry_point(["simulate", "--help"], tmp_path)
     assert proc.returncode == 0, proc.stderr
-    for name in (*CANONICAL_EFFECTS, *MOCAP_FAULTS):
+    for name in (*CANONICAL_EFFECTS, *SIM_FAULTS):
         assert name in proc.stdout, name
 
 
 def test_help_mentions_every_effect(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = run_cli(["simulate", "--help"], capsys)
     assert code == 0
-    for name in (*CANONICAL_EFFECTS, *MOCAP_FAULTS):
+    for name in (*CANONICAL_EFFECTS, *SIM_FAULTS):
         assert name in out, name
     assert "--seed" in out and "--effect" in out and "--protocol" in out
 

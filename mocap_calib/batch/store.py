@@ -14,6 +14,7 @@ import yaml
 
 import mocap_calib
 from mocap_calib.batch.manifest import SessionEntry
+from mocap_calib.batch.session import REFUSED
 from mocap_calib.errors import InputError
 from mocap_calib.workflows.requests import to_flat
 
@@ -56,6 +57,8 @@ def input_hash(entry: SessionEntry, digests: Digests, history: list[str] | None 
     the earlier sessions it takes priors from, and the mocap-calib version."""
     opts: dict[str, Any] = {}
     for key, value in to_flat(entry.request).items():
+        if key in REFUSED:  # the outputs: not the session's (the batch writes its own)
+            continue
         if isinstance(value, Path):
             value = digests.path(value)
         elif isinstance(value, tuple):

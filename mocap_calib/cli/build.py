@@ -16,7 +16,6 @@ import typer
 
 from mocap_calib.workflows.requests import Leaf, from_flat, leaves
 
-
 #: Choices longer than this (joined) are listed in the help text instead of the type column,
 #: which would otherwise squeeze every help text of the command.
 LONG_CHOICES = 16

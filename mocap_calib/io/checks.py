@@ -33,8 +33,6 @@ MIN_MOCAP_ROWS = 20
 QUAT_NORM_TOL = 1e-3
 #: Below this |q| - 1 is rounding in the file: leave the numbers alone so they round-trip.
 _QUAT_EXACT_TOL = 1e-12
-#: An IMU step this many times the median step is a gap the preintegration cannot bridge.
-IMU_GAP_FACTOR = 5.0
 #: Plausible sample rates (Hz) of either stream, to catch a wrong time unit.
 MIN_RATE_HZ = 1.0
 MAX_RATE_HZ = 1e5
@@ -256,22 +254,6 @@ def check_time_unit(ns: IntArray, unit: str, kind: str, lines: Lines) -> None:
     raise lines.error(what, fix)
 
 
-def check_imu_gaps(ns: IntArray, lines: Lines) -> None:
-    """Raise at the first IMU sample that follows a gap longer than 5x the median step."""
-    if len(ns) < 3:
-        return
-    d = np.diff(ns)
-    med = float(np.median(d))
-    bad = d > IMU_GAP_FACTOR * med
-    if bad.any():
-        i = _first(bad)
-        raise lines.error(
-            f"IMU gap of {d[i] * 1e-9:.4g} s before this row ({d[i] / med:.0f}x the median "
-            f"step {med * 1e-9:.3g} s)",
-            "the calibration cannot bridge IMU gaps: calibrate the parts before and after it "
-            "separately (--start/--end) or re-record", i + 1)
-
-
 def _integral(x: Array) -> bool:
     return bool(np.all(x == np.round(x)))
 
@@ -362,7 +344,6 @@ def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
     check_increasing(ns, "IMU", lines)
     require_rows(len(ns), MIN_IMU_ROWS, "IMU", lines)
     check_time_unit(ns, time_unit, "IMU", lines)
-    check_imu_gaps(ns, lines)
     if not raw:
         check_imu_units(gyro, accel, gyro_unit, accel_unit, lines)
     origin = int(ns[0])

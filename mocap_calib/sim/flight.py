@@ -21,6 +21,7 @@ from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
+from mocap_calib.sim.faults import imu_gaps
 from mocap_calib.sim.motions import MOTIONS, motion_trajectory
 from mocap_calib.sim.trajectory import (
     Trajectory,
@@ -31,8 +32,11 @@ from mocap_calib.sim.trajectory import (
 
 Array = NDArray[np.float64]
 
-#: Effects only the simulator knows: faults of the mocap stream, not of the IMU model.
+#: Effects only the simulator knows: faults of the streams, not of the IMU model.
 MOCAP_FAULTS = ("mocap_dropouts", "mocap_outliers")
+#: IMU logging faults, as flight controllers' logs have them: dropped samples and stalls.
+IMU_FAULTS = ("imu_dropouts", "imu_stalls")
+SIM_FAULTS = (*MOCAP_FAULTS, *IMU_FAULTS)
 
 #: What a bare ``--effect NAME`` injects: a realistic magnitude (see ``effect_help``).
 DEFAULT_MAGNITUDE: dict[str, float] = {
@@ -48,6 +52,8 @@ DEFAULT_MAGNITUDE: dict[str, float] = {
     "accel_size_effect": 0.01,
     "mocap_dropouts": 5,
     "mocap_outliers": 5,
+    "imu_dropouts": 30,
+    "imu_stalls": 0.5,
 }
 
 EFFECT_HELP: dict[str, str] = {
@@ -64,6 +70,9 @@ EFFECT_HELP: dict[str, str] = {
     "directions), or 6 values r_y, r_z",
     "mocap_dropouts": "number of mocap gaps (0.05-1 s each, rows removed)",
     "mocap_outliers": "number of marker-swap events (1-4 samples jump by 3-10 cm, 5-30 deg)",
+    "imu_dropouts": "number of IMU gaps of 12-161 ms (logger buffer overruns, as PX4 logs have "
+    "them), plus one after the first sample",
+    "imu_stalls": "lengths of IMU stalls in s (1-5 values, e.g. 0.5,3)",
 }
 
 
@@ -71,7 +80,7 @@ def parse_effect(spec: str) -> tuple[str, list[float] | None]:
     """Parse ``NAME`` or ``NAME=VALUE`` or ``NAME=v1,v2,...``."""
     name, _, value = spec.partition("=")
     name = name.strip()
-    known = (*CANONICAL_EFFECTS, *MOCAP_FAULTS)
+    known = (*CANONICAL_EFFECTS, *SIM_FAULTS)
     if name not in known:
         raise InputError(f"unknown effect '{name}'; choose one of: {', '.join(known)}")
     if not value.strip():
@@ -89,7 +98,8 @@ def parse_effect(spec: str) -> tuple[str, list[float] | None]:
         raise InputError(f"effect '{spec}': give {counts} value(s) ({EFFECT_HELP[name]})")
     if name in _NON_NEGATIVE and len(values) == 1 and values[0] < 0:
         raise InputError(f"effect '{spec}': the magnitude must not be negative")
-    if name in MOCAP_FAULTS and (values[0] != int(values[0]) or values[0] > 1000):
+    if name in ("mocap_dropouts", "mocap_outliers", "imu_dropouts") and (
+            values[0] != int(values[0]) or values[0] > 1000):
         raise InputError(f"effect '{spec}': give a whole number of events between 0 and 1000")
     return name, values
 
@@ -102,11 +112,12 @@ _VALUE_COUNTS: dict[str, tuple[int, ...]] = {
     "gyro_bias_drift": (1, 3),
     "accel_bias_drift": (1, 3),
     "accel_size_effect": (1, 6),
+    "imu_stalls": (1, 2, 3, 4, 5),
 }
 #: Effects whose single value is a magnitude (std or count), so it cannot be negative.
 _NON_NEGATIVE = ("gyro_scale_misalignment", "accel_scale_misalignment", "gyro_g_sensitivity",
                  "gyro_bias_drift", "accel_bias_drift", "gravity_magnitude", "accel_size_effect",
-                 *MOCAP_FAULTS)
+                 *MOCAP_FAULTS, "imu_dropouts")
 
 
 @dataclass(frozen=True)
@@ -257,13 +268,18 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
     t_imu, gyro, accel, b_g, b_a = _imu_samples(rng, cfg, traj, rig, tr)
     t_moc, R_meas, p_meas, keep, outlier_rows, gaps = _mocap_samples(rng, cfg, traj, rig,
                                                                      effects)
+    # IMU logging faults last, with their own generator: every other draw stays the seed's.
+    kept, dropped = imu_gaps(np.random.default_rng([cfg.seed, 41]), cfg.duration, t_imu,
+                             effects, DEFAULT_MAGNITUDE)
+    t_imu, gyro, accel, b_g, b_a = (x[kept] for x in (t_imu, gyro, accel, b_g, b_a))
     imu = ImuSamples(t_imu, gyro, accel, cfg.imu_time_origin_ns, "simulated imu")
     mocap = MocapPoses(t_moc[keep], so3.rotmat_to_quat(R_meas[keep]), p_meas[keep],
                        cfg.mocap_time_origin_ns, "simulated mocap")
     truth = _truth_file(cfg, effects, rig, tr, b_g, b_a)
     truth["simulation"].update({"mocap_outlier_rows": outlier_rows,
                                 "mocap_gaps_start_length_s": gaps,
-                                "mocap_rows_removed": int((~keep).sum())})
+                                "mocap_rows_removed": int((~keep).sum()),
+                                **({"imu_gaps_start_length_s": dropped} if dropped else {})})
     return SimulatedSession(imu, mocap, truth, b_g, b_a)
 
 

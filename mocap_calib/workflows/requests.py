@@ -42,8 +42,8 @@ class Leaf:
 
     @property
     def repeatable(self) -> bool:
-        """Given once per value (a tuple or list of values)."""
-        return typing.get_origin(self.type) in (tuple, list)
+        """Given once per value (a tuple or list of values; not one parsed string)."""
+        return typing.get_origin(self.type) in (tuple, list) and self.info.parse is None
 
 
 def _default(f: dataclasses.Field) -> Any:

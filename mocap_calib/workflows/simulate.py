@@ -8,11 +8,11 @@ from pathlib import Path
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.core.params import param
 from mocap_calib.errors import InputError
-from mocap_calib.sim.flight import EFFECT_HELP, MOCAP_FAULTS
+from mocap_calib.sim.flight import EFFECT_HELP, SIM_FAULTS
 from mocap_calib.sim.motions import MOTIONS
 
 #: What ``--effect`` accepts: every effect of the ladder and the mocap faults.
-EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *MOCAP_FAULTS))
+EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *SIM_FAULTS))
 
 
 @dataclass

@@ -142,7 +142,7 @@ def fit_reading(s: PreparedSession, R: Array, p: Array, t_d: float,
     if ov is None:
         return None
     gr = mocap_grid(s, R, p, *ov)
-    ok = gr.ok
+    ok = gr.ok & imu.clear(gr.T - delta)
     if ok.sum() < 200 or float(np.std(gr.w_M[ok], axis=0).max()) < MIN_RATE_STD:
         return None
     if refine:

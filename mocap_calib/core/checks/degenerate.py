@@ -89,8 +89,9 @@ def single_axis_rotation(s: PreparedSession, delta: float, axis: Array
     if ov is None:
         return None
     gr = mocap_grid(s, s.R_WM, s.p_WM, *ov)
-    ok = gr.ok
-    g_I, f_I = SmoothedImu.of(s).at(gr.T[ok] - delta)
+    imu = SmoothedImu.of(s)
+    ok = gr.ok & imu.clear(gr.T - delta)
+    g_I, f_I = imu.at(gr.T[ok] - delta)
     _, reflected, _, Q, _ = rotation_fit(g_I, gr.w_M[ok])
     if reflected:
         return None

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from scipy import signal
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.policy import gap_threshold
+from mocap_calib.core.policy import GRAVITY, gap_threshold
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]
@@ -130,7 +130,7 @@ class _Signal:
 
 
 def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
-             dt: float) -> list[_Signal]:
+             dt: float, gravity: float) -> list[_Signal]:
     gap_i = gap_threshold(u)
     gap_m = gap_threshold(tau)
     win = max(5, int(round(0.05 / dt)))
@@ -153,7 +153,7 @@ def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM:
         near = np.convolve(in_gap.astype(float), np.ones(n), mode="same") > 0
         for axis_name, (i, sign) in UP_AXES.items():
             g = np.zeros(3)
-            g[i] = -9.81 * sign  # gravity points down the up axis
+            g[i] = -gravity * sign  # gravity points down the up axis
             f_m = np.linalg.norm(acc - g, axis=1)
             f_m = f_m - f_m[~near].mean() if np.any(~near) else f_m - f_m.mean()
             f_m[near] = 0.0
@@ -199,7 +199,8 @@ def _statistic(corr: Array, n: Array, tau_c: float, dt: float) -> Array:
 
 
 def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
-                 clock_shift: float, max_offset: float | None = None) -> ClockSearch:
+                 clock_shift: float, max_offset: float | None = None,
+                 gravity: float = GRAVITY) -> ClockSearch:
     """Find the coarse ``t_d`` (see :class:`ClockSearch`).
 
     Args:
@@ -207,12 +208,13 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
         tau, R_WM, p_WM: mocap times (s since the mocap origin) and poses.
         clock_shift: ``(origin_imu - origin_mocap) * 1e-9``.
         max_offset: search only ``|t_d| <= max_offset`` (s, relative to the raw stamps).
+        gravity: the |g| the specific-force signal assumes (m/s^2).
 
     Raises:
         ObservabilityError: no signal varies enough (no motion), or nothing in range.
     """
     dt = 1.0 / GRID_HZ
-    sigs = _signals(u, gyro, accel, tau, R_WM, p_WM, dt)
+    sigs = _signals(u, gyro, accel, tau, R_WM, p_WM, dt, gravity)
     if not sigs:
         raise ObservabilityError(
             "cannot align the clocks: neither the angular speed nor the specific force varies "

@@ -24,6 +24,7 @@ from scipy.interpolate import CubicSpline
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.imu_model import Intrinsics, accel_lag, forward, imu_times
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.policy import gap_threshold
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.state import ModelState
 
@@ -115,21 +116,24 @@ def predict_imu(s: PreparedSession, st: ModelState, min_segment: float = 3.0,
     lag = accel_lag(st.model, timing)
     idx_all: list[NDArray[np.int64]] = []
     parts: list[tuple[Array, ...]] = []
+    imu_gap = gap_threshold(s.u)
     for a, b in spans:
         sel = (s.tau >= a) & (s.tau <= b)
         qs, ps = _pose_splines(s.tau[sel], R_WI[sel], p_WI[sel], smooth_hz)
         # IMU samples whose mocap time lies inside the span (margin for the lag).
         iu = np.flatnonzero((tau_g - lag > a + 0.01) & (tau_g > a + 0.01) & (tau_g < b - 0.01)
                             & (tau_g - lag < b - 0.01))
-        if len(iu) < 10:
-            continue
-        R, w, a_W, alpha = _rate_and_accel(qs, ps, tau_g[iu])
-        f = np.einsum("nji,nj->ni", R, a_W - st.g_W)
-        Ra, wa, a_Wa, alpha_a = (R, w, a_W, alpha) if lag == 0.0 else _rate_and_accel(
-            qs, ps, tau_g[iu] - lag)
-        fa = f if lag == 0.0 else np.einsum("nji,nj->ni", Ra, a_Wa - st.g_W)
-        idx_all.append(iu)
-        parts.append((w, f, alpha, wa, fa, alpha_a))
+        # The filters and spectra need steady sampling: a stretch ends at an IMU gap too.
+        for piece in np.split(iu, np.flatnonzero(np.diff(s.u[iu]) > imu_gap) + 1):
+            if len(piece) < 10:
+                continue
+            R, w, a_W, alpha = _rate_and_accel(qs, ps, tau_g[piece])
+            f = np.einsum("nji,nj->ni", R, a_W - st.g_W)
+            Ra, wa, a_Wa, alpha_a = (R, w, a_W, alpha) if lag == 0.0 else _rate_and_accel(
+                qs, ps, tau_g[piece] - lag)
+            fa = f if lag == 0.0 else np.einsum("nji,nj->ni", Ra, a_Wa - st.g_W)
+            idx_all.append(piece)
+            parts.append((w, f, alpha, wa, fa, alpha_a))
     if not idx_all:
         empty = np.zeros((0, 3))
         return ImuPrediction(np.zeros(0), [], empty, empty, empty, empty, empty, empty)

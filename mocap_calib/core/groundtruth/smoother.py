@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
+from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]
@@ -183,9 +184,11 @@ class _Filter:
         q[12:15] = noise.accelerometer_random_walk ** 2
         self.q = q
 
-    def step(self, R: Array, x: Array, P: Array, w: Array, f: Array, dt: float
-             ) -> tuple[Array, Array, Array, Array]:
-        """Propagate over ``dt`` with the (bias-corrected) rate and specific force."""
+    def step(self, R: Array, x: Array, P: Array, w: Array, f: Array, dt: float,
+             unknown: Array | None = None) -> tuple[Array, Array, Array, Array]:
+        """Propagate over ``dt`` with the (bias-corrected) rate and specific force;
+        ``unknown`` (6,): the 1-sigma of rate and specific force where the IMU has a gap (the
+        signal is interpolated across it)."""
         p, v, bg, ba = x[0:3], x[3:6], x[6:9], x[9:12]
         w = w - bg
         f = f - ba
@@ -206,6 +209,11 @@ class _Filter:
         F[6:9, 12:15] = -R_mid * dt
         Q = np.diag(self.q * dt)
         Q[3:6, 3:6] = np.diag(self.q[6:9]) * dt ** 3 / 3.0
+        if unknown is not None:  # an unknown rate / force held over the step
+            sw2, sf2 = unknown[0:3] ** 2 * dt**2, unknown[3:6] ** 2
+            Q[0:3, 0:3] += np.diag(sw2)
+            Q[3:6, 3:6] += np.diag(sf2 * dt**4 / 4.0)
+            Q[6:9, 6:9] += np.diag(sf2 * dt**2)
         return R1, x1, F @ P @ F.T + Q, F
 
 
@@ -253,11 +261,16 @@ def _forward(tl: _Timeline, imu_t: Array, w: Array, f: Array, Rm: Array, pm: Arr
     a = np.clip((mid - imu_t[j]) / (imu_t[j + 1] - imu_t[j]), 0.0, 1.0)[:, None]
     w_mid = (1 - a) * w[j] + a * w[j + 1]
     f_mid = (1 - a) * f[j] + a * f[j + 1]
+    # Across an IMU gap the signal is only interpolated: its uncertainty is the signal's own
+    # spread (the IMU bridges short gaps; over long ones the mocap carries the state).
+    in_gap = (imu_t[j + 1] - imu_t[j]) > gap_threshold(imu_t)
+    unknown = np.concatenate([np.std(w, axis=0), np.std(f, axis=0)])
     H = np.zeros((6, 15))
     H[0:3, 0:3] = _I3
     H[3:6, 3:6] = _I3
     for k in range(first, n - 1):
-        R1, x1, P1, F = flt.step(R, x, P, w_mid[k], f_mid[k], tl.t[k + 1] - tl.t[k])
+        R1, x1, P1, F = flt.step(R, x, P, w_mid[k], f_mid[k], tl.t[k + 1] - tl.t[k],
+                                 unknown if in_gap[k] else None)
         flt.Pbar[k + 1] = P1
         flt.C[k] = np.linalg.solve(P1, F @ P).T  # P F^T P1^-1 (P1 symmetric)
         m = tl.mocap[k + 1]
@@ -355,6 +368,9 @@ def _assemble(imu: ImuSamples, tl: _Timeline, flt: _Filter, e: Array, var: Array
     t_ns = imu.time_origin_ns + np.round(t * 1e9).astype(np.int64)
     gaps = _gaps(tau[accepted], opts.gap_factor)
     report = _report(t, trusted, gaps, tau, accepted, opts, R_GW, sig_p, sig_r)
+    d = np.diff(imu.t)
+    report["imu_gaps"] = [{"start_s": round(float(imu.t[i]), 6), "length_s": round(float(d[i]), 6)}
+                          for i in np.flatnonzero(d > gap_threshold(imu.t))]
     keep = trusted
     return GroundTruth(t_ns[keep], x[keep, 0:3], so3.rotmat_to_quat(R[keep]), x[keep, 3:6],
                        gyro_b[keep], accel_b[keep], sig_p[keep], sig_r[keep], R_GW, report)

@@ -35,6 +35,7 @@ from scipy.optimize import nnls
 from mocap_calib.core.intrinsics.noise_result import AllanResult, SensorNoise
 from mocap_calib.core.model import rest
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.policy import GAP_FACTOR, gap_threshold
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]
@@ -58,6 +59,9 @@ _MOVING_FRACTION = 0.01  # fraction of moving blocks tolerated
 _MAX_TILT_DEG = 15.0  # gravity direction change (accel random walk alone can do ~5 deg in 6 h)
 _MAX_GYRO_DEV = 0.05  # rad/s, block-mean gyro deviation from the median
 _MAX_GYRO_MEAN = 0.1  # rad/s, a median rate larger than any usable gyro bias
+#: Stamps that jitter this much (fraction of periods off by 10 %) are resampled; beyond, the
+#: log is refused as not uniformly sampled.
+MAX_JITTER_FRACTION = 0.2
 
 
 # --------------------------------------------------------------------------------------------
@@ -80,12 +84,34 @@ def _check_rate(imu: ImuSamples, rate_hz: float | None) -> float:
     if rate_hz is not None and abs(rate_hz - rate) > 0.05 * rate:
         raise InputError(f"{imu.source}: rate_hz={rate_hz:g} but the timestamps give "
                          f"{rate:.4g} Hz; pass the true rate or leave it out")
-    irregular = float(np.mean(np.abs(dt - med) > 0.1 * med))
-    if irregular > 0.01:
+    # Gaps are handled (the log is split at them); the rest must be uniform.
+    steady = dt <= GAP_FACTOR * med
+    irregular = float(np.mean(np.abs(dt[steady] - med) > 0.1 * med))
+    if irregular > MAX_JITTER_FRACTION:
         raise InputError(f"{imu.source}: {100 * irregular:.1f} % of the sample periods differ "
                          f"from {1e3 * med:.3g} ms by more than 10 %; Allan deviation needs "
                          "uniform sampling: fix dropped samples or resample the log")
     return rate
+
+
+def uniform(imu: ImuSamples, rate: float) -> tuple[ImuSamples, bool]:
+    """The log on a uniform grid within each gap-free stretch when its stamps jitter (more than
+    1 % of the periods off by 10 %: flight-controller logs); linear interpolation. Returns the
+    samples and whether they were resampled."""
+    dt = np.diff(imu.t)
+    med = float(np.median(dt))
+    steady = dt <= GAP_FACTOR * med
+    if float(np.mean(np.abs(dt[steady] - med) > 0.1 * med)) <= 0.01:
+        return imu, False
+    ts, gs, acs = [], [], []
+    for sg in segments_of(imu.t):
+        t = imu.t[sg]
+        grid = t[0] + np.arange(int((t[-1] - t[0]) * rate) + 1) / rate
+        ts.append(grid)
+        gs.append(np.stack([np.interp(grid, t, imu.gyro[sg, i]) for i in range(3)], axis=1))
+        acs.append(np.stack([np.interp(grid, t, imu.accel[sg, i]) for i in range(3)], axis=1))
+    return ImuSamples(np.concatenate(ts), np.concatenate(gs), np.concatenate(acs),
+                      imu.time_origin_ns, imu.source), True
 
 
 def _check_static(imu: ImuSamples, rate: float) -> None:
@@ -187,30 +213,55 @@ def _fit_terms(A_all: Array, avar: Array, m: Array, n: int, use: NDArray[np.bool
     return _AxisFit(coef, cov, chi2, sig)
 
 
+def segments_of(t: Array) -> list[slice]:
+    """The gap-free stretches of sample times ``t`` (the gap rule of ``core.policy``)."""
+    cuts = np.flatnonzero(np.diff(t) > gap_threshold(t)) + 1
+    edges = [0, *cuts.tolist(), len(t)]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+
+
+def _oadev(x: Array, segs: list[slice], rate: float, ms: Array) -> tuple[Array, Array]:
+    """Overlapping Allan variance at ``ms`` samples over the gap-free segments combined: each
+    segment's variance weighted by its number of overlapping terms. Returns (avar, terms)."""
+    num = np.zeros(len(ms))
+    terms = np.zeros(len(ms))
+    for sg in segs:
+        y = x[sg]
+        ok = ms * 2 < len(y)
+        if not ok.any() or np.ptp(y) == 0:
+            continue
+        t_out, adev, _, ns = allantools.oadev(y, rate=rate, data_type="freq",
+                                              taus=ms[ok] / rate)
+        m_out = np.round(np.asarray(t_out, dtype=float) * rate)
+        idx = np.searchsorted(ms, m_out)
+        num[idx] += np.asarray(ns, dtype=float) * np.asarray(adev, dtype=float) ** 2
+        terms[idx] += np.asarray(ns, dtype=float)
+    return np.where(terms > 0, num / np.maximum(terms, 1.0), np.nan), terms
+
+
 def _analyse(x: Array, rate: float, sensor: str, tau_min_s: float | None,
-             tau_max_fraction: float) -> SensorNoise:
-    n = len(x)
-    m_max = int(n * tau_max_fraction)
+             tau_max_fraction: float, segs: list[slice] | None = None) -> SensorNoise:
+    segs = segs or [slice(0, len(x))]
+    n = sum(sg.stop - sg.start for sg in segs)
+    longest = max(sg.stop - sg.start for sg in segs)
+    m_max = int(min(n * tau_max_fraction, (longest - 1) / 2))
     m_min = max(1, int(np.ceil((tau_min_s or 0.0) * rate)))
     ms = 2 ** np.arange(0, int(np.log2(max(m_max, 1))) + 1)
     ms = ms[(ms >= m_min) & (ms <= m_max)]
     if len(ms) < 5:
         raise ObservabilityError(f"only {len(ms)} averaging times between {m_min / rate:g} s "
                                  f"and {m_max / rate:g} s; record a longer static log")
-    tau_req = ms / rate
     N, K, Bf, sN, sK, bi, bi_raw, tmin, chi2 = (np.zeros(3) for _ in range(9))
     adev_all, sig_all, fit_all = [], [], []
-    tau = tau_req
+    tau = ms / rate
     for ax in range(3):
         if np.ptp(x[:, ax]) == 0:
             raise ObservabilityError(f"the {sensor} {'xyz'[ax]} axis is constant over the whole "
                                      "log (dead, saturated or not logged); check the sensor")
-        t_out, adev, _, _ = allantools.oadev(x[:, ax], rate=rate, data_type="freq",
-                                             taus=tau_req)
-        tau = np.asarray(t_out, dtype=float)
-        adev = np.asarray(adev, dtype=float)
-        m = np.round(tau * rate)
-        fit = _fit_axis(tau, adev**2, m, n)
+        avar, _ = _oadev(x[:, ax], segs, rate, ms.astype(float))
+        adev = np.sqrt(avar)
+        m = ms.astype(float)
+        fit = _fit_axis(tau, avar, m, n)
         c, cov = fit.coef, fit.cov
         N[ax], Bf[ax], K[ax] = np.sqrt(c)
         sN[ax] = np.sqrt(cov[0, 0]) / (2 * N[ax]) if N[ax] > 0 else np.inf
@@ -296,7 +347,9 @@ def characterise_noise(
     if not 0.0 < tau_max_fraction <= 0.5:
         raise InputError(f"tau_max_fraction={tau_max_fraction}: must be in (0, 0.5]")
     rate = _check_rate(imu, rate_hz)
-    duration = imu.duration
+    imu, _ = uniform(imu, rate)
+    segs = segments_of(imu.t)
+    duration = float(sum(imu.t[sg.stop - 1] - imu.t[sg.start] for sg in segs))
     if duration < MIN_DURATION_S:
         raise ObservabilityError(
             f"{imu.source}: static log is {duration / 60:.1f} min long; Allan analysis needs "
@@ -304,8 +357,8 @@ def characterise_noise(
             "for the random walk")
     if check_static:
         _check_static(imu, rate)
-    gyro = _analyse(imu.gyro, rate, "gyroscope", tau_min_s, tau_max_fraction)
-    accel = _analyse(imu.accel, rate, "accelerometer", tau_min_s, tau_max_fraction)
+    gyro = _analyse(imu.gyro, rate, "gyroscope", tau_min_s, tau_max_fraction, segs)
+    accel = _analyse(imu.accel, rate, "accelerometer", tau_min_s, tau_max_fraction, segs)
     if require_random_walk:
         for s in (gyro, accel):
             if not np.all(s.random_walk_resolved):

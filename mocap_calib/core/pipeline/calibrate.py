@@ -85,6 +85,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
     s = prepare(imu, mocap, noise=opts.noise)
+    if s.imu_gaps is not None and (s.imu_gaps.count or s.imu_gaps.trimmed):
+        say(s.imu_gaps.summary())
     notes = _session_notes(s)
     session_info = _session_info(imu, mocap, s)
     effects0 = {e.name: e.zero() for e in model.units if e.in_effects}
@@ -129,6 +131,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                                clock=clock, position=pos))
     result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
                       time.perf_counter() - t0)
+    if s.imu_gaps is not None:
+        result.imu_gaps = s.imu_gaps.to_dict()
     mark_single_axis(result, s, pos.delta)
     judge(result, s, pos, opts, clock, say)
     mark_undetermined(result)
@@ -220,7 +224,7 @@ def _align_clocks(s: PreparedSession, opts: CalibrationOptions, effects0: dict[s
     if model.has("time_offset") and opts.time_offset is None:
         say("aligning clocks (angular speed and specific force, all lags)")
         search = search_clock(s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM, s.clock_shift,
-                              opts.max_offset)
+                              opts.max_offset, opts.gravity)
         if not search.resolved:
             chosen = _disambiguate(s, opts, search, effects0, t_mid, say)
             search = replace(search, time_offset=chosen, verified_by_fit=True)

@@ -65,6 +65,11 @@ class Windows:
         return int(self.mask.sum())
 
 
+#: How far the fine clock offset may move from the one the windows are cut at (s): windows
+#: keep this clear of IMU gaps.
+CLOCK_ROOM_S = 0.02
+
+
 def make_windows(s: PreparedSession, delta: float, length: float, max_rate: float,
                  v_imu: Array, min_samples: int = 20, margin: float = 0.1) -> Windows:
     """Cut the mocap stream into gap-free windows of at most ``length`` seconds.
@@ -82,7 +87,10 @@ def make_windows(s: PreparedSession, delta: float, length: float, max_rate: floa
     tau = s.tau[sel]
     inside = (tau - delta > s.u[0] + margin) & (tau - delta < s.u[-1] - margin)
     gap = max(s.gap, 3.0 * step / s.mocap_rate)
-    breaks = np.flatnonzero((np.diff(tau) > gap) | (inside[1:] != inside[:-1])) + 1
+    # No window integrates across an IMU gap (with room for the fine clock offset to move).
+    imu_clear = s.imu_clear(tau[:-1] - delta - CLOCK_ROOM_S, tau[1:] - delta + CLOCK_ROOM_S)
+    breaks = np.flatnonzero((np.diff(tau) > gap) | (inside[1:] != inside[:-1])
+                            | ~imu_clear) + 1
     segments = [seg for seg in np.split(np.arange(len(sel)), breaks) if inside[seg[0]]]
     windows: list[NDArray[np.int64]] = []
     for seg in segments:

@@ -160,8 +160,8 @@ def _refuse_unusable(gaps: ImuGaps, t: Array, source: str) -> None:
     ends = np.r_[gaps.before, t[-1]]
     longest = float(np.max(ends - edges))
     worst = int(np.argmax(gaps.lengths))
-    where = (f"the longest gap, {gaps.lengths[worst]:.3f} s, follows {gaps.before[worst] - t[0]:.3f}"
-             f" s (row {gaps.rows[worst]})")
+    where = (f"the longest gap, {gaps.lengths[worst]:.3f} s, follows "
+             f"{gaps.before[worst] - t[0]:.3f} s (data row {gaps.rows[worst] + 1})")
     if covered > IMU_MAX_GAP_FRACTION * span:
         raise ObservabilityError(
             f"{source}: gaps cover {covered:.1f} of the IMU log's {span:.1f} s ({gaps.count} "

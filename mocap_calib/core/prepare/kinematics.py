@@ -39,6 +39,7 @@ class SmoothedImu:
     u: Array
     gyro: Array
     accel: Array
+    session: PreparedSession | None = None
 
     @classmethod
     def of(cls, s: PreparedSession) -> SmoothedImu:
@@ -46,7 +47,14 @@ class SmoothedImu:
         k = np.ones(n) / n
         box = [np.stack([np.convolve(x[:, i], k, mode="same") for i in range(3)], axis=1)
                for x in (s.gyro, s.accel)]
-        return cls(s.u, box[0], box[1])
+        return cls(s.u, box[0], box[1], s)
+
+    def clear(self, u: Array) -> NDArray[np.bool_]:
+        """Points whose smoothed value reaches no IMU gap."""
+        if self.session is None:
+            return np.ones(len(u), bool)
+        reach = 4 * SMOOTH_S + GRID_S
+        return self.session.imu_clear(u - reach, u + reach)
 
     def at(self, u: Array) -> tuple[Array, Array]:
         g = np.stack([np.interp(u, self.u, self.gyro[:, i]) for i in range(3)], axis=1)

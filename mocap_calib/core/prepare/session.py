@@ -18,6 +18,7 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, refuse_dead
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.policy import gap_threshold
+from mocap_calib.core.prepare.gaps import ImuGaps, find_imu_gaps
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]
@@ -50,6 +51,14 @@ class PreparedSession:
     removed_tau: Array = field(default_factory=lambda: np.zeros(0))  # times of removed spikes
     imu_faults: ImuFaults | None = None  # saturated / frozen IMU samples (left out later)
     notes: tuple[str, ...] = ()  # what the sensor-fault screen removed
+    imu_gaps: ImuGaps | None = None  # the IMU's gaps: nothing is integrated across them
+
+    def imu_clear(self, u0: Array, u1: Array) -> NDArray[np.bool_]:
+        """Whether IMU-clock spans ``[u0, u1]`` hold no IMU gap (with the interpolant's
+        margin)."""
+        if self.imu_gaps is None:
+            return np.ones(np.broadcast(u0, u1).shape, bool)
+        return self.imu_gaps.spans_clear(u0, u1)
 
     @property
     def imu_rate(self) -> float:
@@ -61,10 +70,11 @@ class PreparedSession:
 
     def imu_covers(self, tau0: Array, tau1: Array, delta: float,
                    margin: int = 3) -> NDArray[np.bool_]:
-        """Whether the IMU samples cover mocap-time spans ``[tau0, tau1]`` (with a margin)."""
+        """Whether the IMU samples cover mocap-time spans ``[tau0, tau1]`` (with a margin)
+        without a gap."""
         lo = self.u[margin] + delta
         hi = self.u[-1 - margin] + delta
-        return (tau0 >= lo) & (tau1 <= hi)
+        return (tau0 >= lo) & (tau1 <= hi) & self.imu_clear(tau0 - delta, tau1 - delta)
 
     def segments_without_gaps(self, idx0: NDArray[np.int64],
                               idx1: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -84,6 +94,9 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
         InputError: too few samples, rates the method cannot use.
         ObservabilityError: session too short or static.
     """
+    if len(imu) >= 100:  # (fewer: refused below)
+        trim, gaps = find_imu_gaps(imu.t, imu.source)
+        imu = imu.select(np.arange(len(imu)) >= trim) if trim else imu
     if len(imu) < 100:
         raise InputError(f"{imu.source}: only {len(imu)} IMU samples; a calibration needs at "
                          "least a few thousand (tens of seconds of motion)")
@@ -96,7 +109,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
         raise InputError("timestamps must increase strictly; sort the files and remove duplicates")
     if not _both_static(imu, mocap):  # both static: the static session is the message
         refuse_dead(imu, mocap)
-    notes: list[str] = []
+    notes: list[str] = [gaps.summary()] if gaps.count or gaps.trimmed else []
     frozen = frozen_mocap(mocap)
     if frozen.any():
         notes.append(f"{int(frozen.sum())} mocap samples ({frozen.sum() / mocap.rate_hz:.2f} s) "
@@ -131,6 +144,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
         removed_tau=mocap.t[bad],
         imu_faults=imu_faults(imu.gyro, imu.accel, imu.rate_hz),
         notes=tuple(notes),
+        imu_gaps=gaps,
     )
 
 

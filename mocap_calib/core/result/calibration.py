@@ -84,6 +84,7 @@ class CalibrationResult:
     noise: NoiseModel = field(default_factory=NoiseModel)
     notes: list[str] = field(default_factory=list)
     session: dict[str, Any] = field(default_factory=dict)
+    imu_gaps: dict[str, Any] = field(default_factory=dict)  # what the IMU's gaps were, and done
     clock: dict[str, Any] = field(default_factory=dict)  # the clock search and its verdict
     consistency: dict[str, Any] = field(default_factory=dict)  # independent segments
     sensitivity: dict[str, Any] = field(default_factory=dict)  # under scaled noise densities
@@ -154,6 +155,7 @@ class CalibrationResult:
             "solver": self.solver,
             "noise": self.noise.to_dict(),
             "session": self.session,
+            "imu_gaps": self.imu_gaps,
             "clock": self.clock,
             "consistency": self.consistency,
             "sensitivity": self.sensitivity,
@@ -204,6 +206,7 @@ class CalibrationResult:
             noise=NoiseModel.from_dict(d.get("noise") or {}),
             notes=list(d.get("notes") or []),
             session=dict(d.get("session") or {}),
+            imu_gaps=dict(d.get("imu_gaps") or {}),
             clock=dict(d.get("clock") or {}),
             consistency=dict(d.get("consistency") or {}),
             sensitivity=dict(d.get("sensitivity") or {}),

@@ -56,7 +56,8 @@ def initial_rotation(s: PreparedSession, delta: float) -> tuple[Array, Array]:
     w_M = so3.log(dR) / dt[:, None]
     t_mid = 0.5 * (s.tau[1:] + s.tau[:-1])
     _, w_M_s, valid = local_derivative(t_mid, np.cumsum(w_M * dt[:, None], axis=0), 3, s.gap)
-    ok = valid & (t_mid - delta > s.u[2]) & (t_mid - delta < s.u[-3]) & (dt < s.gap)
+    ok = (valid & (t_mid - delta > s.u[2]) & (t_mid - delta < s.u[-3]) & (dt < s.gap)
+          & s.imu_clear(t_mid - delta, t_mid - delta))
     if ok.sum() < 50:
         raise ObservabilityError("fewer than 50 mocap samples overlap the IMU in time; check "
                                  "the files or the time offset")

@@ -7,7 +7,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mocap_calib.core.intrinsics.allan import characterise_noise
+import numpy as np
+
+from mocap_calib.core.intrinsics.allan import characterise_noise, segments_of, uniform
 from mocap_calib.core.intrinsics.noise_result import AllanResult
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.params import group, param
@@ -86,6 +88,16 @@ def run_allan(request: AllanRequest, progress: ProgressFn | None = None) -> Alla
     imu, notes = spec.load(request.crop)
     for n in notes:
         say(progress, n)
+    if uniform(imu, imu.rate_hz)[1]:
+        notes.append("the stamps jitter: each gap-free stretch is resampled to a uniform grid "
+                     f"at {imu.rate_hz:.4g} Hz (linear interpolation)")
+        say(progress, notes[-1])
+    segs = segments_of(imu.t)
+    if len(segs) > 1:
+        gaps = len(segs) - 1
+        notes.append(f"{gaps} gaps in the log ({float(np.diff(imu.t).max()):.3f} s the longest): "
+                     f"Allan deviations over its {len(segs)} gap-free stretches combined")
+        say(progress, notes[-1])
     say(progress, "computing overlapping Allan deviations and fitting N, B, K per axis")
     result = characterise_noise(imu, aggregate=request.aggregate,  # type: ignore[arg-type]
                                 tau_min_s=request.tau_min,

@@ -25,7 +25,7 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.model.versioned import KindError, check_kind
 from mocap_calib.core.params import group, param
-from mocap_calib.core.policy import GAP_FACTOR
+from mocap_calib.core.policy import GAP_FACTOR, gap_threshold
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.bags import RecordingOptions
 from mocap_calib.io.formats.mocap_exports import ExportOptions
@@ -195,6 +195,18 @@ def _check_segment_options(start: float, end: float, static_window_s: float) -> 
         raise InputError(f"--static-window {static_window_s:g}: must be positive")
 
 
+def _refuse_gaps(imu: ImuSamples, t0: float, t1: float) -> None:
+    """The gyro cannot be integrated across an IMU gap: a segment must hold none."""
+    d = np.diff(imu.t)
+    gaps = np.flatnonzero((d > gap_threshold(imu.t)) & (imu.t[1:] > t0) & (imu.t[:-1] < t1))
+    if len(gaps):
+        i = int(gaps[0])
+        raise InputError(
+            f"{imu.source}: the segment holds {len(gaps)} IMU gap(s), the first of "
+            f"{d[i]:.3f} s at {imu.t[i] - imu.t[0]:.3f} s; the gyro cannot be integrated "
+            "across a gap: choose --start/--end between the gaps")
+
+
 def _read_streams(spec: ImuSpec, mocap: Path | None, fmt: MocapFormat,
                   progress: ProgressFn | None) -> tuple[ImuSamples, MocapPoses | None]:
     say(progress, f"reading {spec.name}" + (f" and {mocap}" if mocap is not None else ""))
@@ -323,6 +335,7 @@ def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> Drif
                          "--end inside it")
     t0 = float(imu.t[0]) + start
     t1 = float(imu.t[0]) + end
+    _refuse_gaps(imu, t0, t1)
     stamps = imu.stamps_ns()
     seg_ns = (int(stamps[0]) + int(round(start * 1e9)), int(stamps[0]) + int(round(end * 1e9)))
     gyro_cal = _at_segment(cal, seg_ns, notes)

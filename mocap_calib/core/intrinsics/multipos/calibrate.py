@@ -45,8 +45,8 @@ from mocap_calib.core.intrinsics.multipos.scan import (
 from mocap_calib.core.intrinsics.multipos.start import gyro_start_scale
 from mocap_calib.core.intrinsics.multipos.units import RawConversion, ellipsoid_start, imu_tk_form
 from mocap_calib.core.model.types import ImuSamples
-from mocap_calib.core.policy import GRAVITY
-from mocap_calib.errors import InputError
+from mocap_calib.core.policy import GRAVITY, gap_threshold
+from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -62,16 +62,24 @@ class _Rotations:
     idx: IntArray  # (m, L+1) sample indices
     dt: Array  # (m, L) step lengths
     dur: Array  # (m,) durations
+    before: IntArray  # (m,) the static interval before each rotation (the next one after)
 
     @classmethod
     def between(cls, t: Array, iv: IntArray) -> _Rotations:
-        starts, ends = iv[1:, 0], iv[:-1, 1]
+        """The rotations between consecutive static intervals, but those across an IMU gap
+        (the gyro cannot be integrated over it)."""
+        gap = np.concatenate([[0], np.cumsum(np.diff(t) > gap_threshold(t))])
+        before = np.flatnonzero(gap[iv[1:, 0]] == gap[iv[:-1, 1]])
+        if len(before) == 0:
+            raise ObservabilityError("every rotation between static poses spans an IMU gap; "
+                                     "the gyro cannot be calibrated: re-record")
+        starts, ends = iv[before + 1, 0], iv[before, 1]
         steps = starts - ends
         L = int(steps.max())
         idx = ends[:, None] + np.minimum(np.arange(L + 1)[None, :], steps[:, None])
         step_idx = ends[:, None] + np.minimum(np.arange(L)[None, :], steps[:, None] - 1)
         dt = np.where(np.arange(L)[None, :] < steps[:, None], np.diff(t)[step_idx], 0.0)
-        return cls(idx, dt, t[starts] - t[ends])
+        return cls(idx, dt, t[starts] - t[ends], before)
 
 
 @dataclass(frozen=True)
@@ -128,7 +136,7 @@ def _gyro_start(imu: ImuSamples, start: RawConversion, rot: _Rotations, u: Array
     bias = imu.gyro[init_mask].mean(axis=0)
     w = imu.gyro[rot.idx] - bias
     cands = () if nominal is None else (float(np.mean(nominal.gyro_scale)),)
-    s = gyro_start_scale(w, rot.dt, u[:-1], u[1:], cands)
+    s = gyro_start_scale(w, rot.dt, u[rot.before], u[rot.before + 1], cands)
     if not np.isfinite(s):
         raise InputError("the gyro shows no rotation between the static poses; check the gyro "
                          "columns")
@@ -190,9 +198,11 @@ def _fit_rotations(imu: ImuSamples, rot: _Rotations, u: Array, sig_dir: Array, g
                                     gyro.bias_sd, rate)
         # Residual noise: both gravity directions, angle random walk and bias error over the
         # rotation.
-        sig_rot = np.sqrt(sig_dir[:-1] ** 2 + sig_dir[1:] ** 2 + density**2 * rot.dur
+        sig_rot = np.sqrt(sig_dir[rot.before] ** 2 + sig_dir[rot.before + 1] ** 2
+                          + density**2 * rot.dur
                           + float(np.mean(bg_sd**2)) * rot.dur**2)
-        fit = fit_gyro(gyro_pad, rot.dt, u[:-1], u[1:], sig_rot, offset, prior,
+        fit = fit_gyro(gyro_pad, rot.dt, u[rot.before], u[rot.before + 1], sig_rot, offset,
+                       prior,
                        start=None if fit is None else fit.M)
     assert fit is not None
     return fit

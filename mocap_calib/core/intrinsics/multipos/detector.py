@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from mocap_calib.core.intrinsics.multipos.params import option, option_value
 from mocap_calib.core.model import rest
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]
@@ -54,10 +55,14 @@ class Detector:
     init_mask: NDArray[np.bool_]
     init_magnitude: float
     min_len: int
+    after_gap: NDArray[np.bool_] | None = None  # samples that follow an IMU gap
 
     def intervals(self, k: float) -> IntArray:
+        """Static runs; a run ends at an IMU gap (only whole intervals are used)."""
         with np.errstate(invalid="ignore"):
             static = self.magnitude < k * self.init_magnitude
+        if self.after_gap is not None:
+            static &= ~self.after_gap
         return rest.runs(static, self.min_len)
 
 
@@ -104,7 +109,8 @@ def make_detector(imu: ImuSamples, rate: float, init_static_s: float, window_s: 
     scale = float(np.median(np.linalg.norm(imu.accel[init_mask], axis=1)))
     init_mag = max(init_mag, 1e-16 * scale**2, 1e-300)
     min_len = max(win // 2, int(round(min_interval_s * rate)))
-    return Detector(mag, init_mask, init_mag, min_len)
+    after_gap = np.r_[False, np.diff(imu.t) > gap_threshold(imu.t)]
+    return Detector(mag, init_mask, init_mag, min_len, after_gap)
 
 
 def _rest_fix(init_static_s: float, names: Mapping[str, str] | None) -> str:
