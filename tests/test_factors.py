@@ -73,9 +73,12 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
         KEY_R,
         KEY_T,
         PositionInit,
+        Take,
+        TakeStart,
         build_position_graph,
         key_effect,
         key_knot,
+        key_time,
     )
     from mocap_calib.core.prepare.session import local_derivative, prepare
     from mocap_calib.sim.flight import SimConfig, simulate_flight
@@ -90,17 +93,21 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
     init = PositionInit(
         so3.quat_to_rotmat(np.array(tr["T_marker_imu"]["rotation_wxyz"])) @ so3.exp([1e-3, 0, 0]),
         np.array(tr["T_marker_imu"]["translation"]) + 1e-3,
-        np.array(tr["gravity_in_mocap"]), 9.81, delta,
-        np.array(tr["gyro_bias"]) + 1e-4, np.array(tr["accel_bias"]) + 1e-2,
+        np.array(tr["gravity_in_mocap"]), 9.81,
+        [TakeStart(delta, np.array(tr["gyro_bias"]) + 1e-4, np.array(tr["accel_bias"]) + 1e-2),
+         TakeStart(delta + 2e-4, np.array(tr["gyro_bias"]) - 1e-4,
+                   np.array(tr["accel_bias"]) - 1e-2)],
         {"accel_scale_misalignment": rng.normal(0, 1e-3, 6)})
     model = Model.parse("base+time_offset+accel_scale_misalignment")
-    pg = build_position_graph(s, model, NoiseModel(), win, init)
+    # Two takes (the same recording twice, its second clock 0.2 ms off): the second take's
+    # clock and knots are checked too.
+    pg = build_position_graph([Take(s, win), Take(s, win)], model, NoiseModel(), init)
     values = pg.values
     grad = pg.graph.linearize(values).gradientAtZero()
     base = pg.graph.error(values)
     eps = 1e-7
     checks = [(KEY_R, 3), (KEY_P, 3), (KEY_G, 2), (KEY_T, 1), (key_knot(1), 6),
-              (key_effect(1), 6)]
+              (key_effect(1), 6), (key_time(1), 1), (key_knot(win.count + 1), 6)]
     for key, dim in checks:
         g_ana = np.asarray(grad.at(key))
         g_num = np.zeros(dim)

@@ -165,8 +165,8 @@ def test_allan_over_gap_free_stretches_matches_the_whole_log() -> None:
     keep[90000:90300] = False  # a 3 s stall
     whole = characterise_noise(imu, require_random_walk=False)
     gappy = characterise_noise(imu.select(keep), require_random_walk=False)
-    np.testing.assert_allclose(gappy.gyroscope.noise_density, whole.gyroscope.noise_density, rtol=0.03)
-    np.testing.assert_allclose(gappy.accelerometer.noise_density, whole.accelerometer.noise_density, rtol=0.03)
+    for a, b in ((gappy.gyroscope, whole.gyroscope), (gappy.accelerometer, whole.accelerometer)):
+        np.testing.assert_allclose(a.noise_density, b.noise_density, rtol=0.03)
     # And against the simulator's truth.
     np.testing.assert_allclose(gappy.gyroscope.noise_density.mean(),
                                truth["gyroscope_noise_density"], rtol=0.1)

@@ -10,7 +10,8 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
-from mocap_calib.core.uncertainty.consistency import noise_sensitivity, segment_consistency
+from mocap_calib.core.uncertainty.segments import segment_consistency
+from mocap_calib.core.uncertainty.sensitivity import noise_sensitivity
 from mocap_calib.errors import ObservabilityError, PlausibilityError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
@@ -29,14 +30,17 @@ def test_one_step_refits_match_full_refits(calibrated) -> None:
     convergence does (to a small fraction of a sigma)."""
     _, res = calibrated
     tr = res.diagnostics.trace
-    s, model, pos = tr.session, tr.model_state.model, tr.position
-    one = segment_consistency(s, model, pos, 3)
-    full = segment_consistency(s, model, pos, 3, one_step=False)
+    model, pos = tr.model_state.model, tr.position
+    one = segment_consistency(pos, model, 3)
+    full = segment_consistency(pos, model, 3, one_step=False)
     for a, b in zip(one.segments, full.segments, strict=True):
-        assert np.all(np.abs(so3.log(a.R_MI.T @ b.R_MI)) < 0.05 * b.sigma_R)
-        assert np.all(np.abs(a.p_MI - b.p_MI) < 0.05 * b.sigma_p)
-        assert abs(a.t_d - b.t_d) < 0.05 * b.sigma_t_d
-        np.testing.assert_allclose(a.sigma_p, b.sigma_p, rtol=0.05)
+        a, b = a.est, b.est
+        assert np.all(np.abs(so3.log(a.R_MI.T @ b.R_MI)) < 0.05 * b.sigma["R_MI"])
+        assert np.all(np.abs(a.p_MI - b.p_MI) < 0.05 * b.sigma["p_MI"])
+        assert abs(a.t_d - b.t_d) < 0.05 * b.sigma["t_d"][0]
+        # The sigmas include the sandwich over the segment's few windows (20 s: four blocks),
+        # which moves with the linearisation point more than the estimate does.
+        np.testing.assert_allclose(a.sigma["p_MI"], b.sigma["p_MI"], rtol=0.25)
 
 
 def test_noise_sensitivity_lands_where_a_rerun_does(calibrated) -> None:
@@ -46,7 +50,7 @@ def test_noise_sensitivity_lands_where_a_rerun_does(calibrated) -> None:
     sim, res = calibrated
     tr = res.diagnostics.trace
     s, model, pos = tr.session, tr.model_state.model, tr.position
-    sens = noise_sensitivity(s, model, pos)
+    sens = noise_sensitivity(pos, model, mocap_model=False)
     sig = {"R_MI": np.sqrt(np.diag(pos.cov["rotation"])),
            "p_MI": np.sqrt(np.diag(pos.cov["translation"])),
            "t_d": np.sqrt(np.diag(pos.cov["time_offset"]))}

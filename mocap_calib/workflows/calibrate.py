@@ -7,7 +7,12 @@ from pathlib import Path
 
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
-from mocap_calib.core.pipeline.calibrate import IterationFn, ProgressFn, calibrate
+from mocap_calib.core.pipeline.calibrate import (
+    IterationFn,
+    ProgressFn,
+    Recording,
+    calibrate_takes,
+)
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
@@ -59,22 +64,32 @@ class CalibrateRequest:
 def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = None,
                     on_iteration: IterationFn | None = None, extra_priors: list | None = None,
                     ) -> tuple[CalibrationResult, LoadedSession]:
-    """Read the inputs and calibrate; returns the result and what was read."""
+    """Read the inputs and calibrate (several takes together when given); returns the result
+    and what was read (the first take's, for recordings and reports)."""
     opts = request.options
-    session = load_session(request.inputs, opts.time_offset)
-    for note in session.notes:
-        if progress is not None:
-            progress(note)
-    priors = (load_priors(request.prior, session.imu.time_origin_ns) if request.prior
-              else [])
-    opts = replace(opts, noise=request.noise.resolve(session.sensor_noise),
+    sessions = [load_session(spec, opts.time_offset) for spec in request.inputs.takes()]
+    for session in sessions:
+        for note in session.notes:
+            if progress is not None:
+                progress(note)
+    first = sessions[0]
+    priors = (load_priors(request.prior, first.imu.time_origin_ns) if request.prior else [])
+    opts = replace(opts, noise=request.noise.resolve(first.sensor_noise),
                    priors=[*opts.priors, *priors, *(extra_priors or [])],
                    plausible=(opts.plausible if request.plausible is None
                               else load_plausible(request.plausible)))
-    result = calibrate(session.imu, session.mocap, opts, progress=progress,
-                       on_iteration=on_iteration)
-    result.session["inputs"] = list(session.notes)
-    return result, session
+    recordings = [Recording(s.imu, s.mocap, *_names(spec))
+                  for s, spec in zip(sessions, request.inputs.takes(), strict=True)]
+    result = calibrate_takes(recordings, opts, progress=progress, on_iteration=on_iteration)
+    result.session["inputs"] = [n for s in sessions for n in s.notes]
+    return result, first
+
+
+def _names(spec: InputSpec) -> tuple[str, str]:
+    """How a take's inputs are named in the result (as given)."""
+    if spec.mav0:
+        return str(spec.mav0[0]), str(spec.mav0[0])
+    return str(spec.imu[0]), str(spec.mocap[0])
 
 
 @dataclass

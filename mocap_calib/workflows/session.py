@@ -113,6 +113,21 @@ class InputSpec:
         """Every input path given (for reports' provenance)."""
         return [*self.mav0, *self.imu, *self.mocap]
 
+    def takes(self) -> list[InputSpec]:
+        """One spec per take: several mav0 folders, or --imu/--mocap pairs in order (one
+        recording: itself). Unequal numbers of --imu and --mocap are refused."""
+        if self.mav0 and (self.imu or self.mocap):
+            raise InputError("give either mav0 folders or --imu/--mocap, not both")
+        if self.mav0:
+            return [replace(self, mav0=(m,)) for m in self.mav0]
+        if len(self.imu) != len(self.mocap):
+            raise InputError(
+                f"{len(self.imu)} --imu and {len(self.mocap)} --mocap given; several takes are "
+                "given as pairs, in order: --imu A --mocap A --imu B --mocap B (the same file "
+                "twice when one file holds both streams)")
+        return [replace(self, imu=(i,), mocap=(m,))
+                for i, m in zip(self.imu, self.mocap, strict=True)] or [self]
+
     def single(self) -> tuple[Path | None, Path | None, Path | None]:
         """(mav0, imu, mocap) of the one recording this command reads; refuses several."""
         if len(self.mav0) > 1 or len(self.imu) > 1 or len(self.mocap) > 1:

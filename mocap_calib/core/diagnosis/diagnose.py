@@ -48,8 +48,8 @@ from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import (
-    PositionInit,
     PositionResult,
     block_value,
     effect_estimate,
@@ -157,15 +157,14 @@ class _Session:
     def fit(self, m: Model, base: PositionResult, nz: NoiseModel,
             extra: dict[str, Array] | None = None, adapt: bool = False,
             covariance: bool = True) -> PositionResult:
-        init = PositionInit(
-            R_MI=base.R_MI, p_MI=base.p_MI, g_dir=base.g_dir, g_mag=base.g_mag,
-            delta=base.delta, gyro_bias=base.gyro_bias_mean, accel_bias=base.accel_bias_mean,
-            effects={**base.effects, **(extra or {})}, knots=base.knots)
+        start = TakeStart(base.delta, base.gyro_bias_mean, base.accel_bias_mean, base.knots)
         for name, v in (extra or {}).items():
             if EFFECTS[name].acts_on == "clock":
-                init.delta = float(v[0])
-        return run_position_stage(self.s, m, nz, self.windows, init, robust=False,
-                                  adapt_noise=adapt, weights=self.weights,
+                start.delta = float(v[0])
+        init = PositionInit(base.R_MI, base.p_MI, base.g_dir, base.g_mag, [start],
+                            {**base.effects, **(extra or {})})
+        return run_position_stage([Take(self.s, self.windows)], m, nz, init, robust=False,
+                                  adapt_noise=adapt, weights=[self.weights],
                                   max_iterations=self.opts.calibration.max_iterations,
                                   covariance=covariance)
 
@@ -266,14 +265,14 @@ def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
     st0: ModelState = tr.model_state
     g_mag0 = float(np.linalg.norm(st0.g_W))
     init0 = PositionInit(
-        R_MI=st0.R_MI, p_MI=st0.p_MI, g_dir=st0.g_W / g_mag0, g_mag=g_mag0, delta=st0.delta,
-        gyro_bias=st0.bias[:, 0:3].mean(axis=0), accel_bias=st0.bias[:, 3:6].mean(axis=0),
-        effects=dict(st0.effects), knots=st0.bias)
+        st0.R_MI, st0.p_MI, st0.g_W / g_mag0, g_mag0,
+        [TakeStart(st0.delta, st0.bias[:, 0:3].mean(axis=0), st0.bias[:, 3:6].mean(axis=0),
+                   st0.bias)], dict(st0.effects))
     # Every step first re-estimates the mocap noise with the current model (a missing effect
     # inflates it, so it is redone after each effect is added); the candidates of the step are
     # then fitted with it frozen.
-    current = run_position_stage(ds.s, model, tr.noise_used, ds.windows, init0, robust=False,
-                                 adapt_noise=True, weights=ds.weights)
+    current = run_position_stage([Take(ds.s, ds.windows)], model, tr.noise_used, init0,
+                                 robust=False, adapt_noise=True, weights=[ds.weights])
     return ds, model, current
 
 

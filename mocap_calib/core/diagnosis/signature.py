@@ -24,7 +24,7 @@ from mocap_calib.core.diagnosis.predict import ResidualAnalysis, lowpass, predic
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.state import ModelState
-from mocap_calib.core.uncertainty.consistency import segment_consistency
+from mocap_calib.core.uncertainty.segments import segment_consistency
 
 Array = NDArray[np.float64]
 
@@ -98,12 +98,12 @@ def _clock_profile(s: PreparedSession, st: ModelState, pos: PositionResult,
     slope of a straight line through them (ppm) and the largest jump between neighbours."""
     if "time_offset" not in pos.cov:
         return {"note": "time_offset is not in the model"}
-    cons = segment_consistency(s, st.model, pos, k)
+    cons = segment_consistency(pos, st.model, k)
     if not cons.segments:
         return {"note": cons.note}
     t = np.array([0.5 * (g.start_s + g.end_s) for g in cons.segments])
-    td = np.array([g.t_d for g in cons.segments])
-    sig = np.array([g.sigma_t_d for g in cons.segments])
+    td = np.array([g.est.t_d for g in cons.segments])
+    sig = np.array([g.est.sigma["t_d"][0] for g in cons.segments])
     slope = float(np.polyfit(t, td, 1, w=1.0 / sig)[0]) if len(t) > 2 else 0.0
     jumps = np.abs(np.diff(td)) / np.hypot(sig[1:], sig[:-1])
     return {"t_s": [round(float(x), 2) for x in t], "t_d_ms": [round(1e3 * x, 4) for x in td],

@@ -12,58 +12,46 @@ Each stage starts from the previous one's result; no user guess is needed.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.checks.conventions import explain_failure, screen_conventions
 from mocap_calib.core.checks.degenerate import mark_single_axis, mark_undetermined
 from mocap_calib.core.checks.verdict import judge
-from mocap_calib.core.clock.search import MIN_MARGIN_Z, ClockSearch, search_clock
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import EFFECTS, Model
-from mocap_calib.core.model.imu_model import Intrinsics, correct
+from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
-from mocap_calib.core.position.engine import make_windows
-from mocap_calib.core.position.stage import (
-    PositionInit,
-    PositionResult,
-    effect_estimate,
-    run_position_stage,
-)
-from mocap_calib.core.prepare.imu_faults import leave_out_imu_faults
-from mocap_calib.core.prepare.session import PreparedSession, local_derivative, prepare
+from mocap_calib.core.pipeline.first_fits import FirstFits, IterationFn, ProgressFn, first_fits
+from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
+from mocap_calib.core.position.stage import PositionResult, effect_estimate, run_position_stage
+from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.calibration import CalibrationResult, Diagnostics
 from mocap_calib.core.result.state import CalibrationTrace, ModelState
-from mocap_calib.core.stages.attitude import AttitudeResult, run_attitude_stage
 from mocap_calib.core.stages.figures import StageStats
-from mocap_calib.core.stages.velocity import VelocityResult, run_velocity_stage
-from mocap_calib.errors import CalibrationError, InputError, ObservabilityError
 
 Array = NDArray[np.float64]
 
-ProgressFn = Callable[[str], None]
-IterationFn = Callable[[str, int, dict[str, Any], float], None]
+__all__ = ["calibrate", "calibrate_takes", "Recording", "ProgressFn", "IterationFn"]
 
 
-def _corrector(model: Model, effects: dict[str, Array], t_mid: float, gyro_bias: Array,
-               accel_bias: Array, which: str):
-    """A ``(gyro, accel, u, b) -> (w, f)`` function with ``b`` the gyro or accel bias."""
-    def fn(g: Array, a: Array, u: Array, b: Array) -> tuple[Array, Array]:
-        bg, ba = (b, accel_bias) if which == "gyro" else (gyro_bias, b)
-        c = correct(model, Intrinsics(bg, ba, effects, t_mid), g, a, u, sensitivities=False)
-        return c.w, c.f
-    return fn
+@dataclass(frozen=True)
+class Recording:
+    """One take of a rig: its IMU samples and mocap poses, and what to call it in the result
+    (``imu``, ``mocap``: the inputs as given)."""
+
+    imu: ImuSamples
+    mocap: MocapPoses
+    imu_name: str = ""
+    mocap_name: str = ""
 
 
 def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | None = None,
               progress: ProgressFn | None = None,
               on_iteration: IterationFn | None = None) -> CalibrationResult:
-    """Calibrate the IMU against the mocap poses.
+    """Calibrate the IMU against the mocap poses of one recording.
 
     Args:
         imu: raw IMU samples.
@@ -79,194 +67,94 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
         InputError: bad options or streams that do not overlap.
         ObservabilityError: too little motion for what the model asks.
     """
+    return calibrate_takes([Recording(imu, mocap)], options, progress, on_iteration)
+
+
+def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | None = None,
+                    progress: ProgressFn | None = None,
+                    on_iteration: IterationFn | None = None) -> CalibrationResult:
+    """Calibrate one rig from several takes (recordings) together: one ``T_MI``, one mocap
+    world (gravity direction), one set of IMU effects; every take its own clock offset and
+    biases (a power cycle changes both). One take is :func:`calibrate`.
+
+    The result keeps the shared quantities under their usual keys; with several takes, their
+    own (clock offset, biases) are under ``takes``, in input order.
+    """
     opts = options or CalibrationOptions()
     opts.validate()
     model = opts.model
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
-    s = prepare(imu, mocap, noise=opts.noise)
-    if s.imu_gaps is not None and (s.imu_gaps.count or s.imu_gaps.trimmed):
-        say(s.imu_gaps.summary())
-    notes = _session_notes(s)
-    session_info = _session_info(imu, mocap, s)
     effects0 = {e.name: e.zero() for e in model.units if e.in_effects}
     for pr in opts.priors:
         if pr.block in effects0:
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
-    t_mid = 0.5 * (s.u[0] + s.u[-1])
-    try:  # a failure here is often a convention mistake: name it if one explains the data
-        s, t_d0, clock, left_out, att, vel = _first_fits(s, opts, effects0, t_mid,
-                                                         on_iteration, say)
-    except CalibrationError:
-        found = explain_failure(s, opts, mocap.position_unit_m, say)
-        if found is None:
-            raise
-        notes.append(f"clock offset started at {found:.4f} s, where a closed-form fit of the "
-                     "data is unambiguous (the clock search could not tell)")
-        s, t_d0, clock, left_out, att, vel = _first_fits(
-            s, replace(opts, time_offset=found), effects0, t_mid, on_iteration, say)
-    notes += left_out
-    t_d0, clock, att, vel = _screen(s, opts, t_d0, clock, att, vel, effects0, t_mid,
-                                    mocap.position_unit_m, on_iteration, say)
-    delta0 = s.clock_shift + t_d0
-
+    fits: list[FirstFits] = []
+    for k, rec in enumerate(recordings):
+        if len(recordings) > 1:
+            say(f"take {k + 1} of {len(recordings)}: {rec.imu_name or rec.imu.source}")
+        fits.append(first_fits(rec.imu, rec.mocap, opts, effects0, on_iteration, say))
     say("stage 3/3: position factors (all parameters jointly)")
-    v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
-    windows = make_windows(s, delta0, opts.window, opts.max_mocap_rate, v_imu)
-    if windows.count < 2:
-        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; the "
-                                 "session is too short or its mocap has too many gaps")
-    init = PositionInit(att.R_MI, vel.p_MI, vel.gravity_dir, opts.gravity, delta0,
-                        att.gyro_bias, vel.accel_bias, effects0)
-    pos = run_position_stage(s, model, opts.noise, windows, init, opts.priors, opts.robust,
-                             opts.max_iterations, adapt_noise=opts.adapt_noise,
-                             on_iteration=on_iteration, progress=say)
-    if not model.has("time_offset"):
-        notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
+    # The shared parameters start from the take with the most windows (its stages 1-2 saw
+    # the most data); every take starts its own from its own stages.
+    lead = max(range(len(fits)), key=lambda k: fits[k].windows.count)
+    f0 = fits[lead]
+    init = PositionInit(f0.att.R_MI, f0.vel.p_MI, f0.vel.gravity_dir, opts.gravity,
+                        [TakeStart(f.delta0, f.att.gyro_bias, f.vel.accel_bias) for f in fits],
+                        effects0)
+    pos = run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise, init,
+                             opts.priors, opts.robust, opts.max_iterations,
+                             adapt_noise=opts.adapt_noise, on_iteration=on_iteration,
+                             progress=say)
+    f = fits[0]
     diag = Diagnostics(
-        residuals={"attitude": att.series, "velocity": vel.series, "position": pos.series},
+        residuals={"attitude": f.att.series, "velocity": f.vel.series, "position": pos.series},
         iterations=pos.history,
-        trace=CalibrationTrace(session=s, model_state=ModelState.from_position(pos, model, t_mid),
+        trace=CalibrationTrace(session=f.s,
+                               model_state=ModelState.from_position(pos, model, f.t_mid),
                                noise_used=pos.noise, windows=pos.windows, weights=pos.weights,
-                               clock=clock, position=pos))
-    result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
-                      time.perf_counter() - t0)
-    if s.imu_gaps is not None:
-        result.imu_gaps = s.imu_gaps.to_dict()
-    mark_single_axis(result, s, pos.delta)
-    judge(result, s, pos, opts, clock, say)
+                               clock=f.clock, position=pos))
+    notes = [n for f in fits for n in f.notes]
+    result = _package(pos, f.s, opts, [f.att.stats, f.vel.stats, pos.stats], notes,
+                      f.session_info, diag, time.perf_counter() - t0)
+    if f.s.imu_gaps is not None:
+        result.imu_gaps = f.s.imu_gaps.to_dict()
+    if len(fits) > 1:
+        _with_takes(result, pos, fits, recordings)
+    mark_single_axis(result, f.s, pos.delta)
+    judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits], say)
     mark_undetermined(result)
     return result
 
 
-def _first_fits(s: PreparedSession, opts: CalibrationOptions, effects0: dict[str, Array],
-                t_mid: float, on_iteration: IterationFn | None, say: ProgressFn):
-    """Clock alignment, the IMU's faulty spans left out, stages 1-2."""
-    t_d0, clock = _align_clocks(s, opts, effects0, t_mid, say)
-    s, left_out = leave_out_imu_faults(s, s.clock_shift + t_d0)
-    att, vel = _initial_stages(s, opts, s.clock_shift + t_d0, effects0, t_mid, on_iteration,
-                               say)
-    return s, t_d0, clock, left_out, att, vel
+def _with_takes(r: CalibrationResult, pos: PositionResult, fits: list[FirstFits],
+                recordings: list[Recording]) -> None:
+    """Several takes: each one's clock offset and biases under ``takes``; the top-level keys
+    of what they do not share are null (in place)."""
+    def sig(c: dict[str, Array], name: str) -> list[float] | None:
+        return None if name not in c else np.sqrt(np.maximum(np.diag(c[name]), 0)).tolist()
 
-
-def _screen(s: PreparedSession, opts: CalibrationOptions, t_d0: float,
-            clock: ClockSearch | None, att: AttitudeResult, vel: VelocityResult,
-            effects0: dict[str, Array], t_mid: float, position_unit_m: float,
-            on_iteration: IterationFn | None, say: ProgressFn):
-    """The convention check when stages 1-2 fit poorly; restarts them at the clock offset a
-    closed-form fit finds when the search picked a wrong lag."""
-    better = screen_conventions(s, opts, t_d0, [] if clock is None else [
-        c for c, _ in clock.candidates], att.stats.rms_after, vel.stats.rms_after,
-        position_unit_m, say)
-    if better is None:
-        return t_d0, clock, att, vel
-    clock = None if clock is None else replace(clock, time_offset=better, verified_by_fit=True)
-    att, vel = _initial_stages(s, opts, s.clock_shift + better, effects0, t_mid, on_iteration,
-                               say)
-    return better, clock, att, vel
-
-
-def _stage_hook(on_iteration: IterationFn | None, stage: str):
-    if on_iteration is None:
-        return None
-    return lambda it, v, err: on_iteration(stage, it, {}, err)
-
-
-def _session_notes(s: PreparedSession) -> list[str]:
-    notes: list[str] = list(s.notes)
-    if s.dropped_mocap_rows:
-        notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
-    if s.spikes_removed:
-        notes.append(f"{s.spikes_removed} mocap samples with implausible jumps (marker swaps) "
-                     "were removed")
-    return notes
-
-
-def _session_info(imu: ImuSamples, mocap: MocapPoses, s: PreparedSession) -> dict[str, Any]:
-    return {
-        "imu_samples": len(imu), "mocap_samples": len(mocap),
-        "imu_rate_hz": round(s.imu_rate, 3), "mocap_rate_hz": round(s.mocap_rate, 3),
-        "duration_s": round(min(imu.duration, mocap.duration), 3),
-        "mocap_spikes_removed": s.spikes_removed,
-        "imu_start_ns": int(imu.time_origin_ns + round(float(imu.t[0]) * 1e9)),
-    }
-
-
-def _initial_stages(s: PreparedSession, opts: CalibrationOptions, delta0: float,
-                    effects0: dict[str, Array], t_mid: float,
-                    on_iteration: IterationFn | None = None,
-                    say: ProgressFn | None = None) -> tuple[AttitudeResult, VelocityResult]:
-    """Stages 1 and 2 at clock offset ``delta0``."""
-    model, say = opts.model, say or (lambda _m: None)
-    say("stage 1/3: attitude factors (gyro bias, R_MI)")
-    att = run_attitude_stage(
-        s, delta0, opts.noise, opts.keyframe_spacing,
-        _corrector(model, effects0, t_mid, np.zeros(3), np.zeros(3), "gyro"),
-        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "attitude"))
-    say("stage 2/3: velocity factors (accel bias, p_MI, gravity direction)")
-    vel = run_velocity_stage(
-        s, delta0, opts.noise, opts.keyframe_spacing, att.R_MI,
-        _corrector(model, effects0, t_mid, att.gyro_bias, np.zeros(3), "accel"), opts.gravity,
-        max_iterations=opts.max_iterations, on_iteration=_stage_hook(on_iteration, "velocity"))
-    return att, vel
-
-
-def _align_clocks(s: PreparedSession, opts: CalibrationOptions, effects0: dict[str, Array],
-                  t_mid: float, say: ProgressFn) -> tuple[float, ClockSearch | None]:
-    """The starting ``t_d``: the coarse search when the model estimates it (and none is
-    given), else the given value; checks that the streams then overlap.
-
-    Raises:
-        ObservabilityError: the search cannot tell which lag is right (refused, not guessed).
-    """
-    model = opts.model
-    search = None
-    if model.has("time_offset") and opts.time_offset is None:
-        say("aligning clocks (angular speed and specific force, all lags)")
-        search = search_clock(s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM, s.clock_shift,
-                              opts.max_offset, opts.gravity)
-        if not search.resolved:
-            chosen = _disambiguate(s, opts, search, effects0, t_mid, say)
-            search = replace(search, time_offset=chosen, verified_by_fit=True)
-        t_d0 = search.time_offset
-    else:
-        t_d0 = opts.time_offset or 0.0
-    delta0 = s.clock_shift + t_d0
-    overlap = min(s.u[-1] + delta0, s.tau[-1]) - max(s.u[0] + delta0, s.tau[0])
-    if overlap < 10.0:
-        fix = ("add time_offset to the model (--model base+time_offset) to search the offset"
-               if not model.has("time_offset") else "check that both files are from one session")
-        raise InputError(f"the IMU and mocap streams overlap for only {max(overlap, 0):.1f} s "
-                         f"with a time offset of {t_d0:.3f} s; {fix}")
-    return t_d0, search
-
-
-def _disambiguate(s: PreparedSession, opts: CalibrationOptions, search: ClockSearch,
-                  effects0: dict[str, Array], t_mid: float, say: ProgressFn) -> float:
-    """Several lags correlate about equally well: fit stages 1-2 at each and keep the one
-    whose fit is clearly better (half the chi2/dof of the next), else refuse."""
-    best_z = search.peak_z
-    cands = [t for t, z in search.candidates if z >= best_z - MIN_MARGIN_Z][:4]
-    if best_z < 3.0 or len(cands) < 2:
-        raise ObservabilityError(
-            "cannot align the clocks: no lag of the two streams correlates clearly (peak "
-            f"{best_z:.1f} null sigmas); check that IMU and mocap are from the same session, "
-            "or give --time-offset")
-    costs = []
-    for t in cands:
-        say(f"checking clock offset candidate {t:.4f} s")
-        try:
-            _, vel = _initial_stages(s, opts, s.clock_shift + t, effects0, t_mid)
-            costs.append(vel.stats.chi2_per_dof)
-        except CalibrationError:
-            costs.append(np.inf)
-    order = np.argsort(costs)
-    if np.isfinite(costs[order[0]]) and costs[order[0]] < 0.5 * costs[order[1]]:
-        return float(cands[order[0]])
-    listed = ", ".join(f"{t:.4g} s" for t in cands)
-    raise ObservabilityError(
-        f"cannot resolve the clock offset: lags {listed} fit about equally well (periodic "
-        "motion?); pass --time-offset S if you know it, or --max-offset S to limit the search")
+    r.takes = []
+    for k, (tf, f, rec) in enumerate(zip(pos.takes, fits, recordings, strict=True)):
+        s_td = sig(tf.cov, "time_offset")
+        r.takes.append({
+            "imu": rec.imu_name or rec.imu.source, "mocap": rec.mocap_name or rec.mocap.source,
+            "time_offset": float(tf.delta - f.s.clock_shift),
+            "gyro_bias": tf.gyro_bias_mean.tolist(), "accel_bias": tf.accel_bias_mean.tolist(),
+            "sigma": {"time_offset": None if s_td is None else s_td[0],
+                      "gyro_bias": sig(tf.cov, "gyro_bias"),
+                      "accel_bias": sig(tf.cov, "accel_bias")},
+            "session": f.session_info,
+            **({"imu_gaps": f.s.imu_gaps.to_dict()} if f.s.imu_gaps is not None else {}),
+            **({"clock": f.clock.to_dict()} if f.clock is not None else {}),
+            "take": k + 1})
+    r.gyro_bias = r.accel_bias = None
+    r.time_offset = None
+    r.sigma_gyro_bias = r.sigma_accel_bias = None
+    r.sigma_time_offset = None
+    r.notes.append(f"{len(fits)} takes calibrated together: T_marker_imu, gravity_in_mocap and "
+                   "the effects are shared; each take's clock offset and biases are under "
+                   "'takes'")
 
 
 def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
@@ -326,13 +214,3 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
         noise=pos.noise, notes=notes, session=session_info, diagnostics=diag)
 
 
-def _imu_velocity(s: PreparedSession, delta: float, R_MI: Array, p_MI: Array,
-                  gyro_bias: Array) -> Array:
-    """IMU velocity at every mocap sample (local fit + lever arm): start guesses of windows."""
-    half = max(2, int(round(0.05 * s.mocap_rate)))
-    _, vM, valid = local_derivative(s.tau, s.p_WM, half, s.gap)
-    u = np.clip(s.tau - delta, s.u[0], s.u[-1])
-    w = np.stack([np.interp(u, s.u, s.gyro[:, i]) for i in range(3)], axis=1) - gyro_bias
-    v = vM + np.einsum("nij,nj->ni", s.R_WM @ so3.hat(w @ R_MI.T), np.broadcast_to(p_MI, w.shape))
-    v[~valid] = 0.0
-    return v

@@ -1,14 +1,15 @@
-"""Uncertainty of the position stage: marginal covariances, the session-mean bias, and which
-parameters the data did not determine.
+"""Uncertainty of the position stage: marginal covariances, every take's session-mean bias,
+and which parameters the data did not determine.
 
 Two covariances are computed. The model-based one (``H^-1``, GTSAM's marginals) is right when
 the noise model is. The sandwich ``H^-1 B H^-1`` takes the spread of the data's own scores
-instead: ``B`` sums, over blocks of about a second of mocap samples, the outer products of
-each block's whitened score ``J^T r``, plus the information of the factors that are not data
-(bias random walk, priors). When the model is right, ``B`` estimates ``H`` and both agree; when
-the residuals hold structure the model lacks (correlated noise of another shape, an effect not
-in the model), the blocks' scores scatter more than the model says and the sandwich grows with
-them. The reported sigma of every component is the larger of the two.
+instead: ``B`` sums, over the windows, the outer products of each window's whitened score
+``J^T r``, plus the information of the factors that are not data (bias random walk, priors).
+A window is a block of at least five seconds: longer than the correlation of real mocap noise
+(vibration, marker-body flex), and its diffuse start makes windows nearly independent. When
+the model is right, ``B`` estimates ``H`` and both agree; when the residuals hold structure the
+model lacks, the windows' scores scatter more than the model says and the sandwich grows with
+them. The statistical sigma of every component is the larger of the two.
 """
 
 from __future__ import annotations
@@ -19,21 +20,26 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import (
-    information_matrix,
-    linear_combination_covariance,
-    marginals,
-)
+from mocap_calib.core.graph import information_matrix, marginals
 from mocap_calib.core.model.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.position.graph import key_knot, key_time
 from mocap_calib.core.position.windows import Windows
 
 Array = NDArray[np.float64]
 
+#: Per-take blocks: the clock offset and the session-mean biases.
+TAKE_BLOCKS = ("time_offset", "gyro_bias", "accel_bias")
 
-def key_knot(w: int) -> int:
-    """GTSAM key of window ``w``'s bias knot (gyro + accel, Vector6)."""
-    return gtsam.symbol("b", w)
+
+@dataclass
+class TakeUncertainty:
+    """One take's own covariances: ``time_offset`` (when estimated), ``gyro_bias`` and
+    ``accel_bias`` (of the take's session-mean bias), the knots' 1-sigma and the mean bias."""
+
+    cov: dict[str, Array]
+    knot_sigma: Array
+    bias_mean: Array
 
 
 @dataclass
@@ -41,17 +47,15 @@ class PositionUncertainty:
     """Covariances at the solution.
 
     Attributes:
-        cov: per parameter block, its marginal covariance (tangent space); ``gyro_bias`` and
-            ``accel_bias`` are those of the session-mean bias.
-        knot_sigma: (W, 6) marginal 1-sigma of each bias knot.
-        bias_mean: (6,) session-mean gyro and accel bias.
-        cov_model: the model-based covariances (``cov`` before the sandwich).
+        cov: per shared parameter block, its covariance (tangent space).
+        takes: every take's own.
+        cov_model: the model-based covariances of every block (the first take's own blocks
+            under their names), before the sandwich.
         robust_ratio: per block, the sandwich's sigma over the model's, per component.
     """
 
     cov: dict[str, Array]
-    knot_sigma: Array
-    bias_mean: Array
+    takes: list[TakeUncertainty]
     cov_model: dict[str, Array] = field(default_factory=dict)
     robust_ratio: dict[str, list[float]] = field(default_factory=dict)
 
@@ -72,89 +76,144 @@ def mean_bias_weights(windows: Windows) -> Array:
     return (lengths / lengths.sum()) @ coef
 
 
-def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
-                         block_keys: dict[str, int], windows: Windows, knots: Array,
-                         noise: NoiseModel, scores: Array | None = None,
-                         score_blocks: list[tuple[str, int]] | None = None,
-                         n_window_factors: int = 0) -> PositionUncertainty:
-    """Marginals of every block, of every knot, and the session-mean bias covariance.
-
-    Args:
-        graph, sol: the position graph and its solution.
-        block_keys: parameter block name -> key.
-        windows, knots, noise: the stage's windows, bias knots and noise model.
-        scores: (W, B, p) per-block whitened scores of the window factors (sandwich), with
-            ``score_blocks`` the (name, dimension) of their columns' parameter blocks in order
-            (the window's knot last, not listed); without them only the model-based covariance
-            is computed.
-        n_window_factors: the window factors are the graph's first this many factors.
-    """
-    W = windows.count
-    marg = marginals(graph, sol)
-    cov = {name: np.asarray(marg.marginalCovariance(key)) for name, key in block_keys.items()}
-    knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(w))))
-                           for w in range(W)])
-    c_mean = mean_bias_weights(windows)
-    Cm = np.kron(c_mean[None, :], np.eye(6))  # (6, 6W)
-    bias_mean = Cm @ knots.reshape(-1)
-    combo = {key_knot(w): Cm[:, 6 * w:6 * w + 6] for w in range(W)}
-    knot_part = linear_combination_covariance(graph, sol, combo)
-    # Random-walk wander inside each window around the interpolation (Brownian bridge).
+def _bridge(windows: Windows, noise: NoiseModel) -> Array:
+    """(6,) variance of the bias random walk's wander inside the windows around the
+    interpolation between knots (Brownian bridge), in the session-mean bias."""
     lengths = windows.end - windows.start
-    weights_w = lengths / lengths.sum()
-    bridge = (weights_w**2 * lengths).sum() / 12.0
+    weights = lengths / lengths.sum()
     rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2),
                 np.full(3, noise.accelerometer_random_walk**2)]
-    bias_cov = knot_part + np.diag(rw2 * bridge)
-    cov["gyro_bias"] = bias_cov[0:3, 0:3]
-    cov["accel_bias"] = bias_cov[3:6, 3:6]
-    unc = PositionUncertainty(cov, knot_sigma, bias_mean, dict(cov), {})
-    if scores is not None and score_blocks is not None:
-        robust = _sandwich(graph, sol, block_keys, combo, scores, score_blocks, n_window_factors)
-        robust["gyro_bias"] = robust["gyro_bias"] + np.diag(rw2[0:3] * bridge)
-        robust["accel_bias"] = robust["accel_bias"] + np.diag(rw2[3:6] * bridge)
-        unc.cov, unc.robust_ratio = _larger(cov, robust)
+    return rw2 * (weights**2 * lengths).sum() / 12.0
+
+
+@dataclass(frozen=True)
+class CovarianceInputs:
+    """What :func:`position_covariances` needs of the stage.
+
+    Attributes:
+        shared_keys: shared block name -> key.
+        blocks: (name, dim) of a window's Jacobian columns in order, the knot excluded.
+        windows: every take's windows; knot0: every take's first knot index.
+        knots: every take's (W, 6) knots.
+        timed: the model estimates each take's clock offset.
+        scores: every take's (W, B, p) per-window-and-block whitened scores, or None.
+    """
+
+    shared_keys: dict[str, int]
+    blocks: list[tuple[str, int]]
+    windows: list[Windows]
+    knot0: list[int]
+    knots: list[Array]
+    timed: bool
+    scores: list[Array] | None = None
+
+
+def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
+                         inp: CovarianceInputs, noise: NoiseModel) -> PositionUncertainty:
+    """Marginals of every shared block, every take's clock offset, knots and session-mean
+    bias; with the scores, the sandwich too (the larger of the two per component)."""
+    marg = marginals(graph, sol)
+    cov = {name: np.asarray(marg.marginalCovariance(key))
+           for name, key in inp.shared_keys.items()}
+    takes: list[TakeUncertainty] = []
+    H, offsets, n = information_matrix(graph, sol)
+    combos = [_combo(w, k0) for w, k0 in zip(inp.windows, inp.knot0, strict=True)]
+    from scipy.sparse.linalg import splu
+
+    lu = splu(H)
+    for k, (win, k0) in enumerate(zip(inp.windows, inp.knot0, strict=True)):
+        C = np.zeros((n, 6))
+        for key, Ck in combos[k].items():
+            C[offsets[key]:offsets[key] + 6] = Ck.T
+        bias_cov = C.T @ lu.solve(C) + np.diag(_bridge(win, noise))
+        own = {"gyro_bias": bias_cov[0:3, 0:3], "accel_bias": bias_cov[3:6, 3:6]}
+        if inp.timed:
+            own["time_offset"] = np.asarray(marg.marginalCovariance(key_time(k)))
+        knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(k0 + w))))
+                               for w in range(win.count)])
+        mean = np.kron(mean_bias_weights(win)[None, :], np.eye(6)) @ inp.knots[k].reshape(-1)
+        takes.append(TakeUncertainty(own, knot_sigma, mean))
+    cov_model = {**cov, **takes[0].cov}
+    unc = PositionUncertainty(cov, takes, cov_model, {})
+    if inp.scores is not None:
+        _with_sandwich(unc, graph, sol, inp, noise, combos, (H, offsets, n, lu))
     return unc
 
 
-def _sandwich(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values, block_keys: dict[str, int],
-              combo: dict[int, Array], scores: Array, score_blocks: list[tuple[str, int]],
-              n_window_factors: int) -> dict[str, Array]:
-    """``H^-1 B H^-1`` for every parameter block and for the session-mean bias."""
-    from scipy.sparse.linalg import splu
+def _combo(windows: Windows, knot0: int) -> dict[int, Array]:
+    """The session-mean bias as a combination of a take's knots: key -> (6, 6) block."""
+    c = mean_bias_weights(windows)
+    return {key_knot(knot0 + w): c[w] * np.eye(6) for w in range(windows.count)}
 
-    H, offsets, n = information_matrix(graph, sol)
+
+def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
+                   sol: gtsam.Values, inp: CovarianceInputs, noise: NoiseModel,
+                   combos: list[dict[int, Array]], lin: tuple) -> None:
+    """``H^-1 B H^-1`` for every block, raised to where it exceeds the model's (in place)."""
+    H, offsets, n, lu = lin
+    n_windows = sum(w.count for w in inp.windows)
     other = gtsam.NonlinearFactorGraph()
-    for i in range(n_window_factors, graph.size()):
+    for i in range(n_windows, graph.size()):
         other.add(graph.at(i))
     H_other, _, _ = information_matrix(other, sol, offsets, n)
-    # Targets: every block's tangent components, then the six mean-bias components.
-    dims = dict(score_blocks)
-    q = sum(dims.values()) + 6
-    E = np.zeros((n, q))
-    col = 0
-    spans: dict[str, slice] = {}
-    for name, key in block_keys.items():
-        E[offsets[key]:offsets[key] + dims[name], col:col + dims[name]] = np.eye(dims[name])
-        spans[name] = slice(col, col + dims[name])
-        col += dims[name]
-    for key, Ck in combo.items():
-        E[offsets[key]:offsets[key] + 6, col:col + 6] = Ck.T
-    Z = splu(H).solve(E)  # H^-1 E
+    # Targets: the shared blocks' components, then per take its clock offset and mean bias.
+    dims = dict(inp.blocks)
+    cols: list[tuple[str, int | None, int, Array]] = []  # (name, take, dim, rows of H)
+    for name, key in inp.shared_keys.items():
+        cols.append((name, None, dims[name], offsets[key] + np.arange(dims[name])))
+    E_parts = []
+    for _, _, d, rows in cols:
+        e = np.zeros((n, d))
+        e[rows, np.arange(d)] = 1.0
+        E_parts.append(e)
+    for k in range(len(inp.windows)):
+        if inp.timed:
+            e = np.zeros((n, 1))
+            e[offsets[key_time(k)], 0] = 1.0
+            E_parts.append(e)
+        e = np.zeros((n, 6))
+        for key, Ck in combos[k].items():
+            e[offsets[key]:offsets[key] + 6] = Ck.T
+        E_parts.append(e)
+    E = np.concatenate(E_parts, axis=1)
+    Z = lu.solve(E)
     meat = Z.T @ (H_other @ Z)
-    glob = np.concatenate([offsets[block_keys[name]] + np.arange(d) for name, d in score_blocks])
-    # Each block's score mapped to the targets. Centred: at the optimum they sum to (about)
-    # zero anyway, and a refit evaluated near, not at, its optimum keeps its mean out of B.
-    T = np.concatenate([scores[w] @ Z[np.concatenate([glob, offsets[key_knot(w)] + np.arange(6)])]
-                        for w in range(scores.shape[0])])
-    T = T[np.any(T != 0.0, axis=1)]  # padding blocks of short windows hold no samples
-    if len(T) > 1:
+    rows = []
+    for k, (sc, k0) in enumerate(zip(inp.scores, inp.knot0, strict=True)):
+        keys = {**inp.shared_keys, **({"time_offset": key_time(k)} if inp.timed else {})}
+        glob = np.concatenate([offsets[keys[name]] + np.arange(d) for name, d in inp.blocks])
+        per_window = sc.sum(axis=1)  # a window is one block (see the module doc)
+        for w in range(per_window.shape[0]):
+            idx = np.concatenate([glob, offsets[key_knot(k0 + w)] + np.arange(6)])
+            rows.append(per_window[w] @ Z[idx])
+    T = np.array(rows)
+    T = T[np.any(T != 0.0, axis=1)]
+    if len(T) > 1:  # centred: a refit near (not at) its optimum keeps its mean out of B
         T = (T - T.mean(axis=0)) * np.sqrt(len(T) / (len(T) - 1.0))
     meat += T.T @ T
-    out = {name: meat[sl, sl] for name, sl in spans.items()}
-    out["gyro_bias"] = meat[col:col + 3, col:col + 3]
-    out["accel_bias"] = meat[col + 3:col + 6, col + 3:col + 6]
-    return out
+    o = 0
+    robust: dict[str, Array] = {}
+    for name, _, d, _ in cols:
+        robust[name] = meat[o:o + d, o:o + d]
+        o += d
+    take_robust = []
+    for _ in inp.windows:
+        r = {}
+        if inp.timed:
+            r["time_offset"] = meat[o:o + 1, o:o + 1]
+            o += 1
+        r["gyro_bias"] = meat[o:o + 3, o:o + 3]
+        r["accel_bias"] = meat[o + 3:o + 6, o + 3:o + 6]
+        o += 6
+        take_robust.append(r)
+    unc.cov, unc.robust_ratio = _larger(unc.cov, robust)
+    for k, (tu, r) in enumerate(zip(unc.takes, take_robust, strict=True)):
+        bridge = _bridge(inp.windows[k], noise)
+        r["gyro_bias"] = r["gyro_bias"] + np.diag(bridge[0:3])
+        r["accel_bias"] = r["accel_bias"] + np.diag(bridge[3:6])
+        tu.cov, ratio = _larger(tu.cov, r)
+        if k == 0:
+            unc.robust_ratio.update(ratio)
 
 
 def _larger(model: dict[str, Array], robust: dict[str, Array]

@@ -1,5 +1,11 @@
 """The position stage's factor graph: its variables (keys), start values, window factors,
-bias random walk, weak range priors and user priors."""
+bias random walk, weak range priors and user priors.
+
+A calibration may hold several takes of one rig (separate recordings, a power cycle between
+them): ``R_MI``, ``p_MI``, the mocap world's gravity direction, ``|g|`` and the IMU effects are
+shared; each take has its own clock offset and its own chain of bias knots (a random walk
+within the take, none between takes).
+"""
 
 from __future__ import annotations
 
@@ -14,7 +20,6 @@ from mocap_calib.core.graph import BatchFactors, BatchOutput
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.ranges import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.core.position.covariance import key_knot  # noqa: F401  (re-exported)
 from mocap_calib.core.position.engine import PositionProblem, Theta, Windows, compress
 from mocap_calib.core.prepare.session import PreparedSession
 
@@ -23,16 +28,25 @@ Array = NDArray[np.float64]
 KEY_R = gtsam.symbol("r", 0)
 KEY_P = gtsam.symbol("p", 0)
 KEY_G = gtsam.symbol("g", 0)
-KEY_T = gtsam.symbol("t", 0)
 KEY_GM = gtsam.symbol("m", 0)
+
+
+def key_time(take: int) -> int:
+    """GTSAM key of take ``take``'s clock offset (``delta``)."""
+    return gtsam.symbol("t", take)
+
+
+#: The first take's clock offset (the only one of a single-take calibration).
+KEY_T = key_time(0)
 
 
 def key_effect(i: int) -> int:
     return gtsam.symbol("e", i)
 
 
-
-
+def key_knot(w: int) -> int:
+    """GTSAM key of window ``w``'s bias knot (gyro + accel, Vector6), counted over all takes."""
+    return gtsam.symbol("b", w)
 
 
 @dataclass
@@ -52,46 +66,68 @@ class Prior:
     sigma: Array
 
 
+@dataclass(frozen=True)
+class Take:
+    """One recording in the position stage: its prepared session and its windows."""
+
+    s: PreparedSession
+    windows: Windows
+
+    @property
+    def t_mid(self) -> float:
+        return 0.5 * float(self.s.u[0] + self.s.u[-1])
+
+
+@dataclass
+class TakeStart:
+    """Where a take's own parameters start: its clock offset ``delta`` (mocap minus IMU
+    time), its biases, and optionally the bias knots of an earlier fit."""
+
+    delta: float
+    gyro_bias: Array
+    accel_bias: Array
+    knots: Array | None = None
+
+
 @dataclass
 class PositionInit:
-    """Starting point of stage 3 (from stages 1-2 or from priors)."""
+    """Starting point of stage 3 (from stages 1-2, or an earlier fit): the shared parameters
+    and every take's own."""
 
     R_MI: Array
     p_MI: Array
     g_dir: Array
     g_mag: float
-    delta: float
-    gyro_bias: Array
-    accel_bias: Array
+    takes: list[TakeStart]
     effects: dict[str, Array] = field(default_factory=dict)
-    knots: Array | None = None  # (W, 6) bias knots to start from (a previous fit's)
 
 
-def theta_of(values: gtsam.Values, model: Model, W: int, fixed: PositionInit,
-             t_mid: float) -> Theta:
+def _theta(values: gtsam.Values, model: Model, take: int, knot0: int, W: int,
+           init: PositionInit, t_mid: float) -> Theta:
     u3 = values.atUnit3(KEY_G)
     effects = {}
     for i, eff in enumerate(model.units):
         if eff.in_effects:
             effects[eff.name] = np.asarray(values.atVector(key_effect(i)), dtype=float)
-    knots = np.stack([np.asarray(values.atVector(key_knot(w))) for w in range(W)])
+    knots = np.stack([np.asarray(values.atVector(key_knot(knot0 + w))) for w in range(W)])
     return Theta(
         R_MI=values.atRot3(KEY_R).matrix(),
         p_MI=np.asarray(values.atPoint3(KEY_P), dtype=float),
         g_dir=u3.point3(),
         g_basis=u3.basis(),
-        g_mag=float(values.atVector(KEY_GM)[0]) if model.has("gravity_magnitude") else fixed.g_mag,
-        delta=float(values.atVector(KEY_T)[0]) if model.has("time_offset") else fixed.delta,
+        g_mag=(float(values.atVector(KEY_GM)[0]) if model.has("gravity_magnitude")
+               else init.g_mag),
+        delta=(float(values.atVector(key_time(take))[0]) if model.has("time_offset")
+               else init.takes[take].delta),
         effects=effects,
         knots=knots,
         t_mid=t_mid,
     )
 
 
-def _block_keys(model: Model) -> dict[str, int]:
+def _shared_keys(model: Model) -> dict[str, int]:
+    """Block name -> key of the parameters every take shares."""
     keys = {"rotation": KEY_R, "translation": KEY_P, "gravity": KEY_G}
-    if model.has("time_offset"):
-        keys["time_offset"] = KEY_T
     if model.has("gravity_magnitude"):
         keys["gravity_magnitude"] = KEY_GM
     for i, eff in enumerate(model.units):
@@ -113,97 +149,145 @@ def _prior_factor(block: str, key: int, value: Any, sigma: Array) -> gtsam.Nonli
 
 @dataclass
 class PositionGraph:
-    """The stage-3 factor graph, its start values and the machinery behind its factors."""
+    """The stage-3 factor graph, its start values and the machinery behind its factors.
+
+    Attributes:
+        problems: one window engine per take.
+        knot0: index of each take's first knot among all knots.
+        shared_keys: block name -> key of the shared parameters.
+        evals: the latest evaluations, each a list of per-take outputs.
+    """
 
     graph: gtsam.NonlinearFactorGraph
     values: gtsam.Values
     batch: BatchFactors
-    problem: PositionProblem
+    problems: list[PositionProblem]
+    takes: list[Take]
+    knot0: list[int]
     model: Model
     init: PositionInit
-    block_keys: dict[str, int]
-    t_mid: float
-    evals: list[Any]
+    shared_keys: dict[str, int]
+    evals: list[list[Any]]
 
-    def theta(self, values: gtsam.Values) -> Theta:
-        return theta_of(values, self.model, self.problem.win.count, self.init, self.t_mid)
+    @property
+    def problem(self) -> PositionProblem:
+        """The first take's engine (the only one of a single-take calibration)."""
+        return self.problems[0]
+
+    def theta(self, values: gtsam.Values, take: int = 0) -> Theta:
+        return _theta(values, self.model, take, self.knot0[take],
+                      self.takes[take].windows.count, self.init, self.takes[take].t_mid)
+
+    def thetas(self, values: gtsam.Values) -> list[Theta]:
+        return [self.theta(values, k) for k in range(len(self.takes))]
+
+    def block_keys(self, take: int) -> dict[str, int]:
+        """Block name -> key of every parameter block a window of ``take`` depends on (the
+        window's knot aside)."""
+        keys = dict(self.shared_keys)
+        if self.model.has("time_offset"):
+            keys["time_offset"] = key_time(take)
+        return keys
+
+    def set_weights(self, weights: list[Array]) -> None:
+        for pp, w in zip(self.problems, weights, strict=True):
+            pp.weights = np.asarray(w, dtype=float).copy()
+
+    def for_each(self, fn_name: str, *args: Any) -> None:
+        """Call a method of every take's engine (noise and whitening changes)."""
+        for pp in self.problems:
+            getattr(pp, fn_name)(*args)
 
 
-def build_position_graph(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
-                         init: PositionInit, priors: list[Prior] | None = None) -> PositionGraph:
+def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
+                         init: PositionInit,
+                         priors: list[Prior] | None = None) -> PositionGraph:
     """Variables, window factors, bias random-walk factors, range priors and user priors."""
-    W = windows.count
-    t_mid = 0.5 * (s.u[0] + s.u[-1])
-    pp = PositionProblem(s, model, noise, windows)
-    layout = pp.layout
-    block_keys = _block_keys(model)
-    key_kinds = {KEY_R: "rot3", KEY_P: "point3", KEY_G: "unit3", KEY_T: "vector",
-                 KEY_GM: "vector"}
-    for k in block_keys.values():
+    problems = [PositionProblem(t.s, model, noise, t.windows) for t in takes]
+    layout = problems[0].layout
+    shared = _shared_keys(model)
+    key_kinds = {KEY_R: "rot3", KEY_P: "point3", KEY_G: "unit3", KEY_GM: "vector"}
+    for k in shared.values():
         key_kinds.setdefault(k, "vector")
-    shared = list(block_keys.values())
-    for w in range(W):
-        key_kinds[key_knot(w)] = "vector"
-    factor_keys = [shared + [key_knot(w)] for w in range(W)]
-    col_keys = [(block_keys[n] if n != "knot" else None, layout.slice(n)) for n, _ in layout.blocks]
-
-    evals: list[Any] = []  # every evaluation's output, latest last
+    knot0 = list(np.cumsum([0, *[t.windows.count for t in takes[:-1]]]).astype(int))
+    factor_keys: list[list[int]] = []
+    col_keys: list[list[tuple[int | None, slice]]] = []
+    for k, t in enumerate(takes):
+        if model.has("time_offset"):
+            key_kinds[key_time(k)] = "vector"
+        blocks = {**shared, **({"time_offset": key_time(k)} if model.has("time_offset")
+                               else {})}
+        cols = [(blocks[n] if n != "knot" else None, layout.slice(n))
+                for n, _ in layout.blocks]
+        for w in range(t.windows.count):
+            key_kinds[key_knot(knot0[k] + w)] = "vector"
+            # A factor's keys in the order of its Jacobian's column blocks (the layout's).
+            factor_keys.append([key if key is not None else key_knot(knot0[k] + w)
+                                for key, _ in cols])
+            col_keys.append(cols)
+    pg_ref: list[PositionGraph] = []
+    evals: list[list[Any]] = []  # every evaluation's per-take outputs, latest last
 
     def evaluate(values: gtsam.Values) -> BatchOutput:
-        out = pp.evaluate(theta_of(values, model, W, init, t_mid))
-        evals.append(out)
+        outs = [pp.evaluate(th) for pp, th in zip(problems, pg_ref[0].thetas(values),
+                                                   strict=True)]
+        evals.append(outs)
         del evals[:-2]
-        e, H = compress(out.gram)
-        jac = [[H[w][:, sl] for _, sl in col_keys] for w in range(W)]
+        e = np.concatenate([compress(o.gram)[0] for o in outs])
+        H = np.concatenate([compress(o.gram)[1] for o in outs])
+        jac = [[H[w][:, sl] for _, sl in col_keys[w]] for w in range(len(col_keys))]
         return BatchOutput(list(e), jac)
 
-    batch = BatchFactors(evaluate, factor_keys, key_kinds, shared,
+    batch = BatchFactors(evaluate, factor_keys, key_kinds, list(shared.values()),
                          gtsam.noiseModel.Unit.Create(layout.dim + 1))
     graph = gtsam.NonlinearFactorGraph()
     for f in batch.factors():
         graph.add(f)
-    # Bias random walk between consecutive knots.
-    for w in range(W - 1):
-        dt = float(windows.start[w + 1] - windows.start[w])
-        sig = np.r_[np.full(3, noise.gyroscope_random_walk),
-                    np.full(3, noise.accelerometer_random_walk)]
-        graph.add(gtsam.BetweenFactorVector(key_knot(w), key_knot(w + 1), np.zeros(6),
-                                            gtsam.noiseModel.Diagonal.Sigmas(sig * np.sqrt(dt))))
+    sig = np.r_[np.full(3, noise.gyroscope_random_walk),
+                np.full(3, noise.accelerometer_random_walk)]
+    for k, t in enumerate(takes):  # bias random walk between consecutive knots of a take
+        starts = t.windows.start
+        for w in range(t.windows.count - 1):
+            dt = float(starts[w + 1] - starts[w])
+            graph.add(gtsam.BetweenFactorVector(
+                key_knot(knot0[k] + w), key_knot(knot0[k] + w + 1), np.zeros(6),
+                gtsam.noiseModel.Diagonal.Sigmas(sig * np.sqrt(dt))))
+    values = _start_values(model, init, takes, knot0)
+    _add_range_priors(graph, model, init, knot0)
+    _add_user_priors(graph, priors or [], shared, model, takes, knot0)
+    pg = PositionGraph(graph, values, batch, problems, takes, knot0, model, init, shared, evals)
+    pg_ref.append(pg)
+    return pg
 
-    values = _start_values(model, init, W)
-    _add_range_priors(graph, model, init)
-    _add_user_priors(graph, priors or [], block_keys, W, s.clock_shift)
-    return PositionGraph(graph, values, batch, pp, model, init, block_keys, t_mid, evals)
 
-
-def _start_values(model: Model, init: PositionInit, W: int) -> gtsam.Values:
+def _start_values(model: Model, init: PositionInit, takes: list[Take],
+                  knot0: list[int]) -> gtsam.Values:
     values = gtsam.Values()
     values.insert(KEY_R, gtsam.Rot3(init.R_MI))
     values.insert(KEY_P, gtsam.Point3(*init.p_MI))
     values.insert(KEY_G, gtsam.Unit3(init.g_dir))
-    if model.has("time_offset"):
-        values.insert(KEY_T, np.array([init.delta]))
     if model.has("gravity_magnitude"):
         values.insert(KEY_GM, np.array([init.g_mag]))
     for i, eff in enumerate(model.units):
         if eff.in_effects:
             values.insert(key_effect(i), init.effects.get(eff.name, eff.zero()))
-    for w in range(W):
-        values.insert(key_knot(w), np.r_[init.gyro_bias, init.accel_bias] if init.knots is None
-                      else np.asarray(init.knots[w], dtype=float))
+    for k, (t, st) in enumerate(zip(takes, init.takes, strict=True)):
+        if model.has("time_offset"):
+            values.insert(key_time(k), np.array([st.delta]))
+        for w in range(t.windows.count):
+            values.insert(key_knot(knot0[k] + w), np.r_[st.gyro_bias, st.accel_bias]
+                          if st.knots is None else np.asarray(st.knots[w], dtype=float))
     return values
 
 
 def _add_range_priors(graph: gtsam.NonlinearFactorGraph, model: Model,
-                      init: PositionInit) -> None:
+                      init: PositionInit, knot0: list[int]) -> None:
     """Weak range priors (see RANGE_SIGMA) around the starting point."""
-    range_priors = {
+    range_priors: dict[str, tuple[int, Any]] = {
         "rotation": (KEY_R, init.R_MI),
         "translation": (KEY_P, init.p_MI),
         "gravity": (KEY_G, init.g_dir),
     }
-    if model.has("time_offset"):
-        range_priors["time_offset"] = (KEY_T, init.delta)
     if model.has("gravity_magnitude"):
         range_priors["gravity_magnitude"] = (KEY_GM, init.g_mag)
     for i, eff in enumerate(model.units):
@@ -212,31 +296,43 @@ def _add_range_priors(graph: gtsam.NonlinearFactorGraph, model: Model,
     for block, (key, val) in range_priors.items():
         dim = {"rotation": 3, "translation": 3, "gravity": 2}.get(block)
         if dim is None:
-            dim = 1 if block in ("time_offset", "gravity_magnitude") else EFFECTS[block].dim
+            dim = 1 if block == "gravity_magnitude" else EFFECTS[block].dim
         graph.add(_prior_factor(block, key, val, np.full(dim, RANGE_SIGMA[block])))
-    graph.add(_prior_factor("knot", key_knot(0), np.r_[init.gyro_bias, init.accel_bias],
-                            np.r_[np.full(3, RANGE_SIGMA["gyro_bias"]),
-                                  np.full(3, RANGE_SIGMA["accel_bias"])]))
+    knot_sigma = np.r_[np.full(3, RANGE_SIGMA["gyro_bias"]), np.full(3, RANGE_SIGMA["accel_bias"])]
+    for k, st in enumerate(init.takes):
+        if model.has("time_offset"):
+            graph.add(_prior_factor("time_offset", key_time(k), st.delta,
+                                    np.full(1, RANGE_SIGMA["time_offset"])))
+        graph.add(_prior_factor("knot", key_knot(knot0[k]), np.r_[st.gyro_bias, st.accel_bias],
+                                knot_sigma))
 
 
 def _add_user_priors(graph: gtsam.NonlinearFactorGraph, priors: list[Prior],
-                     block_keys: dict[str, int], W: int, clock_shift: float) -> None:
-    """Priors from earlier calibrations."""
+                     shared: dict[str, int], model: Model, takes: list[Take],
+                     knot0: list[int]) -> None:
+    """Priors from earlier calibrations; those of a take's own parameters (clock offset,
+    biases) act on every take."""
     for pr in priors:
-        key = block_keys.get(pr.block)
         if pr.block in ("gyro_bias", "accel_bias"):
             # A prior on the session-mean bias acts on the middle knot (random walk between).
-            kw = key_knot(W // 2)
             lo = 0 if pr.block == "gyro_bias" else 3
             sig = np.full(6, 1e6)
             sig[lo:lo + 3] = pr.sigma
             val = np.zeros(6)
             val[lo:lo + 3] = pr.value
-            graph.add(gtsam.PriorFactorVector(kw, val, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+            for k, t in enumerate(takes):
+                kw = key_knot(knot0[k] + t.windows.count // 2)
+                graph.add(gtsam.PriorFactorVector(kw, val,
+                                                  gtsam.noiseModel.Diagonal.Sigmas(sig)))
             continue
+        if pr.block == "time_offset":
+            if not model.has("time_offset"):
+                continue
+            for k, t in enumerate(takes):  # t_d -> delta, on the take's own clocks
+                value = np.atleast_1d(np.asarray(pr.value, dtype=float)) + t.s.clock_shift
+                graph.add(_prior_factor(pr.block, key_time(k), value, pr.sigma))
+            continue
+        key = shared.get(pr.block)
         if key is None:
             continue  # a prior on a parameter this model does not have
-        value = pr.value
-        if pr.block == "time_offset":
-            value = np.atleast_1d(np.asarray(value, dtype=float)) + clock_shift  # t_d -> delta
-        graph.add(_prior_factor(pr.block, key, value, pr.sigma))
+        graph.add(_prior_factor(pr.block, key, pr.value, pr.sigma))

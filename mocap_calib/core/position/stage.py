@@ -1,13 +1,19 @@
 """Stage 3, position factors: refine every parameter jointly on a GTSAM factor graph.
 
-Variables: ``R_MI`` (Rot3), ``p_MI`` (Point3), the gravity direction (Unit3), the clock offset
-and ``|g|`` when the model estimates them, one vector per IMU-side effect, and one bias knot
-(gyro + accel, Vector6) at the start of every window. Factors: one window factor per window
-(:mod:`mocap_calib.core.position.engine`, evaluated together), a random-walk between-factor for
-consecutive knots, weak range priors that keep the system well posed (a parameter whose
-uncertainty they dominate is reported as unobservable), and user priors. Mocap outliers are
-handled per sample by a redescending kernel on the whitened innovation (iteratively
-re-weighted; weights are frozen during each LM run so LM sees one fixed cost).
+Variables: ``R_MI`` (Rot3), ``p_MI`` (Point3), the gravity direction (Unit3), ``|g|`` when the
+model estimates it, one vector per IMU-side effect (all shared by the takes), and per take its
+clock offset and one bias knot (gyro + accel, Vector6) at the start of every window. Factors:
+one window factor per window (:mod:`mocap_calib.core.position.engine`, evaluated together), a
+random-walk between-factor for consecutive knots of a take, weak range priors that keep the
+system well posed (a parameter whose uncertainty they dominate is reported as unobservable),
+and user priors.
+
+The point estimate does not depend on a noise model the session cannot verify: the mocap noise
+is white, its level (attitude and position) estimated from the innovations, and mocap outliers
+are down-weighted per sample by Huber's kernel on the whitened innovation (convex: one fixed
+point wherever the weights start). Levels and weights settle in short LM runs on a fixed cost;
+the last run goes to convergence. The correlated-noise model is a check on the answer
+(:mod:`mocap_calib.core.uncertainty.sensitivity`), not part of it.
 """
 
 from __future__ import annotations
@@ -20,31 +26,28 @@ from typing import Any
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
+from scipy import stats as sps
 
 from mocap_calib.core.graph import require_converged, run_lm
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.covariance import (
+    CovarianceInputs,
     PositionUncertainty,
+    TakeUncertainty,
     mean_bias_weights,
     position_covariances,
     unobservable_blocks,
 )
-from mocap_calib.core.position.engine import Theta, Windows
-from mocap_calib.core.position.graph import (  # noqa: F401  (re-exported)
-    KEY_G,
-    KEY_GM,
-    KEY_P,
-    KEY_R,
-    KEY_T,
+from mocap_calib.core.position.engine import ROBUST_C, Theta
+from mocap_calib.core.position.graph import (
     PositionGraph,
     PositionInit,
     Prior,
+    Take,
     build_position_graph,
-    key_effect,
-    theta_of,
 )
-from mocap_calib.core.position.noise_fit import CorrelationFit, fit_mocap_correlation
+from mocap_calib.core.position.windows import Windows
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.stages.figures import ResidualSeries, StageStats
 
@@ -52,40 +55,100 @@ Array = NDArray[np.float64]
 
 IterationHook = Callable[[str, int, dict[str, Any], float], None]
 
+#: LM iterations of a round that settles the levels and weights (the last round converges).
+SETTLING_ITERATIONS = 4
+#: Rounds end when the cost moves by less than this fraction and the levels by < 5 %.
+COST_SETTLED = 1e-3
+
+
+@dataclass
+class TakeFit:
+    """One take's own estimates (``delta``: mocap minus IMU time on the take's relative clocks;
+    the knots: its bias at each window start)."""
+
+    take: Take
+    delta: float
+    knots: Array
+    knot_sigma: Array
+    gyro_bias_mean: Array
+    accel_bias_mean: Array
+    cov: dict[str, Array]
+    weights: Array
+    series: ResidualSeries
+
+    @property
+    def s(self) -> PreparedSession:
+        return self.take.s
+
+    @property
+    def windows(self) -> Windows:
+        return self.take.windows
+
+
 @dataclass
 class PositionResult:
-    """Stage 3 estimates with covariances in GTSAM tangent spaces."""
+    """Stage 3 estimates with covariances in GTSAM tangent spaces. The shared parameters are
+    fields; every take's own are in ``takes``. ``cov`` holds the shared blocks' covariances and
+    the first take's own (``time_offset``, ``gyro_bias``, ``accel_bias``), so that a
+    single-take caller reads everything there; the properties below are the first take's."""
 
     R_MI: Array
     p_MI: Array
     g_dir: Array
     g_mag: float
-    delta: float
     effects: dict[str, Array]
-    gyro_bias_mean: Array
-    accel_bias_mean: Array
-    knots: Array
-    knot_sigma: Array  # (W, 6) marginal 1-sigma of each bias knot
+    takes: list[TakeFit]
     cov: dict[str, Array]
     unobservable: dict[str, str]
     stats: StageStats
-    series: ResidualSeries
     chi2_per_dof: float
-    windows: Windows
-    weights: Array
     noise: NoiseModel
-    cost: float  # chi^2 of the whole graph at the solution (NaN after a one-step refit)
+    cost: float  # chi^2 of the whole graph at the solution (NaN after a Gauss-Newton refit)
     dof: int  # residual dimensions minus parameters
     solver: dict[str, Any]
     history: list[dict[str, Any]]
     covariances: Callable[[], PositionUncertainty] | None = field(default=None, repr=False)
+
+    @property
+    def delta(self) -> float:
+        return self.takes[0].delta
+
+    @property
+    def knots(self) -> Array:
+        return self.takes[0].knots
+
+    @property
+    def knot_sigma(self) -> Array:
+        return self.takes[0].knot_sigma
+
+    @property
+    def gyro_bias_mean(self) -> Array:
+        return self.takes[0].gyro_bias_mean
+
+    @property
+    def accel_bias_mean(self) -> Array:
+        return self.takes[0].accel_bias_mean
+
+    @property
+    def windows(self) -> Windows:
+        return self.takes[0].windows
+
+    @property
+    def weights(self) -> Array:
+        return self.takes[0].weights
+
+    @property
+    def series(self) -> ResidualSeries:
+        return self.takes[0].series
 
     def with_covariance(self) -> PositionResult:
         """This result with its covariances (computed now when the fit left them out)."""
         if self.cov or self.covariances is None:
             return self
         unc = self.covariances()
-        return replace(self, cov=unc.cov, knot_sigma=unc.knot_sigma,
+        takes = [replace(t, cov=u.cov, knot_sigma=u.knot_sigma)
+                 for t, u in zip(self.takes, unc.takes, strict=True)]
+        return replace(self, cov={**unc.cov, **unc.takes[0].cov}, takes=takes,
                        unobservable=unobservable_blocks(unc.cov_model))
 
 
@@ -110,79 +173,88 @@ def effect_estimate(pos: PositionResult, name: str,
     return value, sigma
 
 
-def run_position_stage(s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
+def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
                        init: PositionInit, priors: list[Prior] | None = None,
                        robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
-                       adapt_noise: bool = True, weights: Array | None = None,
+                       adapt_noise: bool = True, weights: list[Array] | None = None,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
                        covariance: bool = True, one_step: bool | int = False,
                        reweight: bool = False,
                        settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
-    """Refine all parameters on the window factors.
+    """Refine all parameters on the window factors of every take.
 
     Args:
-        s: prepared session; model: active effects; noise: noise densities.
-        windows: from :func:`~mocap_calib.core.position.windows.make_windows`.
+        takes: every take's prepared session and windows (one for a single recording).
+        model: active effects; noise: noise densities (and the mocap's starting levels).
         init: starting values.
         priors: user priors (earlier calibrations), added as prior factors.
         robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise level from the innovations.
-        weights: fixed robust weights (W, m+1) from an earlier fit: no re-weighting, so that
-            fits of different models minimise costs of the same family (model comparison).
+        adapt_noise: re-estimate the mocap noise levels from the innovations.
+        weights: per take, fixed robust weights (W, m+1) from an earlier fit: no re-weighting,
+            so that fits of different models minimise costs of the same family.
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
-        progress: called with a short message at every IRLS round.
+        progress: called with a short message as the stage advances.
         covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
         one_step: Gauss-Newton steps from ``init`` instead of LM rounds (``True``: one; an
             int: that many): for refits from a nearby solution (segments, other noise
-            densities), where the cost is nearly quadratic over the step. Between steps the
-            mocap levels (with ``adapt_noise``) and the weights (with ``reweight``) follow the
-            innovations, as between the rounds of a full run.
+            models). Between steps the mocap levels (with ``adapt_noise``) and the weights
+            (with ``reweight``) follow the innovations, as between the rounds of a full run.
         reweight: with ``one_step`` and given ``weights``, update the weights between steps.
         settled: with ``one_step``, ``settled(before, after)`` true ends the steps early
             (never before the second, the first with the levels re-estimated).
     """
     t_start = time.perf_counter()
-    pg = build_position_graph(s, model, noise, windows, init, priors)
-    pg.problem.collect_scores = True  # cheap, and a later covariance needs them
+    pg = build_position_graph(takes, model, noise, init, priors)
+    for pp in pg.problems:
+        pp.collect_scores = True  # cheap, and a covariance needs them
     if weights is not None:
-        pg.problem.weights = np.asarray(weights, dtype=float).copy()
+        pg.set_weights(weights)
         robust = False
     history = _History(pg, on_iteration)
     if one_step:
-        fit = _gauss_newton_step(pg, adapt_noise, int(one_step), reweight, settled)
+        fit = _gauss_newton_steps(pg, adapt_noise, int(one_step), reweight, settled)
     else:
         fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
                             robust, adapt_noise, history, progress)
-    sol, out = fit.values, pg.evals[-1]
-    th = pg.theta(sol)
-    blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
+    sol, outs = fit.values, pg.evals[-1]
+    thetas = pg.thetas(sol)
     # A Gauss-Newton refit keeps the linearisation it last stepped from: its covariance is
     # that of the nearby point (no further evaluation).
     at = fit.linearized_at if one_step else sol
+    blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
 
     def covariances() -> PositionUncertainty:
-        return position_covariances(pg.graph, at, pg.block_keys, windows, th.knots,
-                                    pg.problem.noise, out.scores, blocks, windows.count)
+        inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes], pg.knot0,
+                               [th.knots for th in thetas], model.has("time_offset"),
+                               [o.scores for o in outs])
+        return position_covariances(pg.graph, at, inp, pg.problem.noise)
 
-    unc = (covariances() if covariance
-           else PositionUncertainty({}, np.zeros((windows.count, 6)), _mean_bias(windows, th)))
-    stats, series, chi2, dof = _figures(pg, fit, out, time.perf_counter() - t_start)
+    if covariance:
+        unc = covariances()
+    else:
+        unc = PositionUncertainty({}, [TakeUncertainty(
+            {}, np.zeros((t.windows.count, 6)), _mean_bias(t.windows, th))
+            for t, th in zip(takes, thetas, strict=True)])
+    stats, series, chi2, dof = _figures(pg, fit, outs, time.perf_counter() - t_start)
     solver = {"position_batch_seconds": round(pg.batch.seconds, 3),
-              "position_evaluations": pg.batch.evaluations, "windows": windows.count,
-              "window_steps": windows.steps,
+              "position_evaluations": pg.batch.evaluations,
+              "windows": sum(t.windows.count for t in takes),
+              "window_steps": max(t.windows.steps for t in takes),
+              "position_rounds": fit.rounds,
               "mocap_noise_variance_scale": [round(float(x), 4) for x in fit.noise_scale],
               "sandwich_over_model_sigma": unc.robust_ratio}
-    if fit.correlation is not None:
-        solver["mocap_noise_correlation_fit"] = [
-            {k: round(v, 4) for k, v in row.items()} for row in fit.correlation.candidates]
+    fits = [TakeFit(t, th.delta, th.knots, u.knot_sigma, u.bias_mean[0:3], u.bias_mean[3:6],
+                    u.cov, p.weights, sr)
+            for t, th, u, p, sr in zip(takes, thetas, unc.takes, pg.problems, series,
+                                       strict=True)]
+    th0 = thetas[0]
     return PositionResult(
-        R_MI=th.R_MI, p_MI=th.p_MI, g_dir=th.g_dir, g_mag=th.g_mag, delta=th.delta,
-        effects=th.effects, gyro_bias_mean=unc.bias_mean[0:3], accel_bias_mean=unc.bias_mean[3:6],
-        knots=th.knots, knot_sigma=unc.knot_sigma, cov=unc.cov,
-        unobservable=unobservable_blocks(unc.cov_model), stats=stats, series=series,
-        chi2_per_dof=chi2, windows=windows, weights=pg.problem.weights, noise=pg.problem.noise,
-        # (a one-step refit's cost would cost an evaluation at the new values: not needed)
+        R_MI=th0.R_MI, p_MI=th0.p_MI, g_dir=th0.g_dir, g_mag=th0.g_mag, effects=th0.effects,
+        takes=fits, cov={**unc.cov, **unc.takes[0].cov} if covariance else {},
+        unobservable=unobservable_blocks(unc.cov_model), stats=stats, chi2_per_dof=chi2,
+        noise=pg.problem.noise,
+        # (a Gauss-Newton refit's cost would cost an evaluation at the new values: not needed)
         cost=float("nan") if one_step else 2.0 * pg.graph.error(sol), dof=int(dof),
         solver=solver, history=history.records, covariances=None if covariance else covariances)
 
@@ -214,172 +286,168 @@ class _Fit:
     values: gtsam.Values
     iterations: int
     noise_scale: Array
-    out0: Any  # the evaluation at the start values (unit weights): the "before" figures
-    correlation: CorrelationFit | None = None
+    out0: Any  # per take, the evaluation at the start values (the "before" figures)
+    rounds: int = 1
     linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
 
 
-def _gauss_newton_step(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
-                       robust: bool = False,
-                       settled: Callable[[Theta, Theta], bool] | None = None) -> _Fit:
-    """Gauss-Newton steps from the start values; the evaluation stays the one at the start.
+def mocap_levels(pg: PositionGraph, outs: list[Any], skip: int = 5) -> tuple[float, float]:
+    """How much larger (variance) the mocap attitude / position noise is than modelled, from
+    every take's innovations: the median of the whitened innovations' squares over the median
+    of chi^2_3, on inlier samples past each window's first ``skip`` (where the diffuse start
+    still absorbs them)."""
+    q_rot, q_pos = [], []
+    for pp, out in zip(pg.problems, outs, strict=True):
+        use = pp.win.mask & (pp.weights >= 1.0)
+        use[:, :skip] = False
+        q_rot.append(out.q_rot[use])
+        q_pos.append(out.q_pos[use])
+    qr, qp = np.concatenate(q_rot), np.concatenate(q_pos)
+    if len(qr) < 50:
+        return 1.0, 1.0
+    med = float(sps.chi2.median(3))
+    return float(np.median(qr)) / med, float(np.median(qp)) / med
 
-    With ``adapt_noise`` the mocap noise (correlation and level) is first chosen again at the
-    start values, as a full run given this noise model would; between steps the mocap levels
-    (attitude and position apart) and with ``robust`` the weights follow the innovations of
-    the last linearisation, as between a full run's rounds. One evaluation per step; after
-    the second, ``settled(before, after)`` may end the steps early."""
-    pp, batch = pg.problem, pg.batch
-    pp.freeze_whitening(False)
-    noise_scale = np.ones(2)
+
+def huber_weights(d: Array, mask: NDArray[np.bool_], c: float = ROBUST_C) -> Array:
+    """Huber's weights on the whitened innovation norms ``d``: 1 up to ``c``, ``c / d``
+    beyond (convex: one fixed point)."""
+    w = np.where(d <= c, 1.0, c / np.maximum(d, 1e-12))
+    w[~mask] = 1.0
+    return np.maximum(w, 1e-6)
+
+
+def _settle(pg: PositionGraph, outs: list[Any], adapt_noise: bool, robust: bool,
+            noise_scale: Array) -> tuple[bool, float]:
+    """Between rounds: the mocap levels and the weights follow the innovations. Returns
+    (anything changed, the largest relative level change)."""
+    changed, moved = False, 0.0
+    d_scale = 1.0  # how the whitened innovations shrink with the noise change
     if adapt_noise:
-        old = pp.noise
-        pp.noise = fit_mocap_correlation(pp, pg.theta(pg.values)).noise
-        noise_scale = _variance_ratio(pp.noise, old)
-        batch.invalidate()
+        s_rot, s_pos = np.clip(mocap_levels(pg, outs), 0.05, 400.0)
+        moved = float(max(abs(np.log(s_rot)), abs(np.log(s_pos))))
+        if moved > np.log(1.05):
+            pg.for_each("scale_mocap_noise", s_rot, s_pos)
+            noise_scale *= (s_rot, s_pos)
+            d_scale = float((s_rot * s_pos) ** -0.25)
+            changed = True
+    if robust:
+        for pp, out in zip(pg.problems, outs, strict=True):
+            w = huber_weights(out.d_raw * d_scale, pp.win.mask)
+            if float(np.max(np.abs(w - pp.weights), initial=0.0)) > 0.05:
+                changed = True
+            pp.weights = w
+    return changed, moved
+
+
+def _evaluate_at(pg: PositionGraph, values: gtsam.Values) -> list[Any]:
+    """A full (unfrozen) evaluation at ``values``: whitening, statistics, scores there."""
+    pg.for_each("freeze_whitening", False)
+    pg.batch.invalidate()
+    pg.batch.output(values, 0)
+    return pg.evals[-1]
+
+
+def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
+                        robust: bool = False,
+                        settled: Callable[[Theta, Theta], bool] | None = None) -> _Fit:
+    """Gauss-Newton steps from the start values; between steps the mocap levels (with
+    ``adapt_noise``) and the weights (with ``robust``) follow the innovations of the last
+    linearisation, as between a full run's rounds. One evaluation per step; after the second,
+    ``settled(before, after)`` may end the steps early. The noise model's kind (white or
+    correlated) stays as given."""
+    pg.for_each("freeze_whitening", False)
+    noise_scale = np.ones(2)
     values = pg.values
     out0 = None
+    k = 0
+    at = values
     for k in range(steps):
         at = values
         lin = pg.graph.linearize(at)
-        out = pg.evals[-1]
-        out0 = out if out0 is None else out0
+        outs = pg.evals[-1]
+        out0 = outs if out0 is None else out0
         values = values.retract(lin.optimize())
         if k == steps - 1 or (k >= 1 and settled is not None
                               and settled(pg.theta(at), pg.theta(values))):
             break
-        d_scale = 1.0
-        if adapt_noise:
-            s_rot, s_pos = np.clip(pp.mocap_noise_scale(out), 0.05, 400.0)
-            pp.scale_mocap_noise(s_rot, s_pos)
-            noise_scale *= (s_rot, s_pos)
-            d_scale = float((s_rot * s_pos) ** -0.25)
-        if robust:
-            pp.update_weights(out.d_raw * d_scale)
-        batch.invalidate()
-    return _Fit(values, k + 1, noise_scale, out0, linearized_at=at)
+        _settle(pg, outs, adapt_noise, robust, noise_scale)
+        pg.batch.invalidate()
+    return _Fit(values, k + 1, noise_scale, out0, k + 1, linearized_at=at)
 
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
                   adapt_noise: bool, hook: _History,
                   progress: Callable[[str], None] | None) -> _Fit:
-    """Rounds of LM on a fixed cost; between rounds the mocap noise level is re-estimated from
-    the innovations (it is rarely known well) and the robust weights are updated (IRLS)."""
-    graph, batch, pp, evals = pg.graph, pg.batch, pg.problem, pg.evals
-    iterations = 0
-    sol = pg.values
-    out0 = None
+    """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
+    are re-estimated from the innovations and the robust weights updated. Settling rounds are
+    short; once nothing changes (or the cost moves by less than :data:`COST_SETTLED`) one LM
+    run goes to convergence."""
+    graph, batch = pg.graph, pg.batch
+    iterations, sol, out0 = 0, pg.values, None
     noise_scale = np.ones(2)
-    correlation = None
-    # The mocap noise's correlation is chosen after the first solve (unless given), and checked
-    # once more where the rest has settled: chosen at a white-noise solution, it depends on
-    # where that landed; a choice that holds at its own solution does not.
-    fit_corr = adapt_noise and not pp.noise.mocap_correlated
-    recheck = fit_corr
-    budget = rounds
-    rnd = -1
+    prev_cost = None
+    final = rounds <= 1
+    rnd = 0
     while True:
         rnd += 1
         if progress is not None:
-            progress(f"position factors: solve {rnd + 1} ({pp.win.count} windows)")
-        pp.freeze_whitening(True)
+            n = sum(p.win.count for p in pg.problems)
+            progress(f"position factors: {'final solve' if final else 'settling'} round {rnd} "
+                     f"({n} windows)")
+        pg.for_each("freeze_whitening", True)
         batch.invalidate()
-        sol, rep = run_lm(graph, sol, max_iterations, hook)
-        last_report = rep
-        if out0 is None:
-            out0 = hook.first_eval
+        sol, rep = run_lm(graph, sol, max_iterations if final else SETTLING_ITERATIONS, hook)
+        out0 = hook.first_eval if out0 is None else out0
         iterations += rep.iterations
-        # A full evaluation at the solution: whitening, statistics and marginals there.
-        pp.freeze_whitening(False)
-        batch.invalidate()
-        batch.output(sol, 0)
-        last_out = evals[-1]
-        changed = False
-        d_scale = 1.0  # how the whitened innovations shrink with the noise change below
-        if rnd < budget - 1:
-            if fit_corr and correlation is None:
-                correlation = fit_mocap_correlation(pp, pg.theta(sol))
-                old, pp.noise = pp.noise, correlation.noise
-                ratio = _variance_ratio(pp.noise, old)
-                noise_scale *= ratio
-                d_scale = float(np.sqrt(np.prod(ratio)) ** -0.5)
-                changed = True
-            elif adapt_noise:
-                s_rot, s_pos = pp.mocap_noise_scale(last_out)
-                if max(abs(np.log(s_rot)), abs(np.log(s_pos))) > np.log(1.05):
-                    s_rot, s_pos = np.clip([s_rot, s_pos], 0.05, 400.0)
-                    pp.scale_mocap_noise(s_rot, s_pos)
-                    noise_scale *= (s_rot, s_pos)
-                    d_scale = float((s_rot * s_pos) ** -0.25)
-                    changed = True
-            if robust:
-                # The weights follow the innovations under the new noise level (mocap noise
-                # dominates them), so both updates share one round.
-                w_before = pp.weights.copy()
-                if pp.update_weights(last_out.d_raw * d_scale) < 0.25:
-                    pp.weights = w_before  # keep the weights the solution was computed with
-                else:
-                    changed = True
-        if not changed and recheck and correlation is not None:
-            recheck = False
-            again = fit_mocap_correlation(pp, pg.theta(sol))
-            keep = (pp.noise.mocap_noise_corr_time, pp.noise.mocap_noise_corr_fraction)
-            if (again.noise.mocap_noise_corr_time, again.noise.mocap_noise_corr_fraction) != keep:
-                old, pp.noise = pp.noise, again.noise
-                noise_scale *= _variance_ratio(pp.noise, old)
-                correlation = again
-                changed = True
-                budget = max(budget, rnd + 4)  # room for the levels to settle again
-        if not changed:
+        outs = _evaluate_at(pg, sol)
+        if final:
             break
+        changed, moved = _settle(pg, outs, adapt_noise, robust, noise_scale)
+        cost = float(rep.final_error)
+        small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
+        prev_cost = cost
+        final = (not changed) or (small and moved < np.log(1.05)) or rnd >= rounds - 1
         batch.invalidate()
-    # Earlier rounds may stop early: the next round goes on from there. The last must converge.
-    require_converged("position", last_report, max_iterations)
-    return _Fit(sol, iterations, noise_scale, out0, correlation)
+    require_converged("position", rep, max_iterations)
+    return _Fit(sol, iterations, noise_scale, out0, rnd)
 
 
 def _mean_bias(windows: Windows, th: Theta) -> Array:
     return np.kron(mean_bias_weights(windows)[None, :], np.eye(6)) @ th.knots.reshape(-1)
 
 
-def _variance_ratio(new: NoiseModel, old: NoiseModel) -> Array:
-    """Mocap noise variances (attitude, position) of ``new`` over ``old``."""
-    return np.array([(new.mocap_rotation_sigma / old.mocap_rotation_sigma) ** 2,
-                     (new.mocap_position_sigma / old.mocap_position_sigma) ** 2])
-
-
-def _figures(pg: PositionGraph, fit: _Fit, out: Any,
-             seconds: float) -> tuple[StageStats, ResidualSeries, float, int]:
-    """Stage statistics, residual series and chi2/dof at the solution."""
-    windows, layout, w_final = pg.problem.win, pg.problem.layout, pg.problem.weights
-    out0 = fit.out0
-    mask = windows.mask
-    W = windows.count
-    n_res = int(mask.sum())
+def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float
+             ) -> tuple[StageStats, list[ResidualSeries], float, int]:
+    """Stage statistics over every take, each take's residual series, chi2/dof."""
+    layout = pg.problem.layout
+    out0 = fit.out0 if fit.out0 is not None else outs
+    masks = [p.win.mask for p in pg.problems]
+    wts = [p.weights for p in pg.problems]
+    n_res = int(sum(m.sum() for m in masks))
+    W = sum(p.win.count for p in pg.problems)
     dof = 6 * n_res - 9 * W - layout.dim
-    chi2 = float(out.chi2.sum()) / max(dof, 1)
+    chi2 = float(sum(o.chi2.sum() for o in outs)) / max(dof, 1)
 
-    def rms(x: Array) -> list[float]:
-        return np.sqrt(np.mean(x[mask] ** 2, axis=0)).tolist()
+    def rms(parts: list[Array], keep: list[NDArray[np.bool_]]) -> list[float]:
+        x = np.concatenate([p[k] for p, k in zip(parts, keep, strict=True)])
+        return np.sqrt(np.mean(x**2, axis=0)).tolist()
 
-    inl = mask & (w_final > 0.5)
-
-    def rms_in(x: Array) -> list[float]:
-        return np.sqrt(np.mean(x[inl] ** 2, axis=0)).tolist()
-
+    inl = [m & (w > 0.5) for m, w in zip(masks, wts, strict=True)]
+    pos_after = [o.innovation[..., 3:6] for o in outs]
     stats = StageStats(
         name="position", unit="m",
-        rms_before=rms(out0.innovation[..., 3:6]), rms_after=rms(out.innovation[..., 3:6]),
-        rms_after_inliers=rms_in(out.innovation[..., 3:6]),
-        n_factors=W, n_residuals=n_res, outliers=int(np.sum(mask & (w_final < 0.5))),
+        rms_before=rms([o.innovation[..., 3:6] for o in out0], masks),
+        rms_after=rms(pos_after, masks), rms_after_inliers=rms(pos_after, inl),
+        n_factors=W, n_residuals=n_res,
+        outliers=int(sum(int(np.sum(m & (w < 0.5))) for m, w in zip(masks, wts, strict=True))),
         iterations=fit.iterations, seconds=seconds, chi2_per_dof=chi2,
-        rms_rotation_deg=np.degrees(rms(out.innovation[..., 0:3])).tolist(),
+        rms_rotation_deg=np.degrees(rms([o.innovation[..., 0:3] for o in outs], masks)).tolist(),
         batch_evaluations=pg.batch.evaluations)
-    series = ResidualSeries(
-        t=windows.tau[mask], before=out0.innovation[..., 3:6][mask],
-        after=out.innovation[..., 3:6][mask], weight=w_final[mask], unit="m",
-        rotation_before=np.degrees(out0.innovation[..., 0:3][mask]),
-        rotation_after=np.degrees(out.innovation[..., 0:3][mask]))
+    series = [ResidualSeries(
+        t=p.win.tau[m], before=b.innovation[..., 3:6][m], after=a.innovation[..., 3:6][m],
+        weight=p.weights[m], unit="m",
+        rotation_before=np.degrees(b.innovation[..., 0:3][m]),
+        rotation_after=np.degrees(a.innovation[..., 0:3][m]))
+        for p, m, b, a in zip(pg.problems, masks, out0, outs, strict=True)]
     return stats, series, chi2, dof
-
-

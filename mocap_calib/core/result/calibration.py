@@ -85,10 +85,12 @@ class CalibrationResult:
     notes: list[str] = field(default_factory=list)
     session: dict[str, Any] = field(default_factory=dict)
     imu_gaps: dict[str, Any] = field(default_factory=dict)  # what the IMU's gaps were, and done
+    takes: list[dict[str, Any]] = field(default_factory=list)  # several takes: each one's own
     clock: dict[str, Any] = field(default_factory=dict)  # the clock search and its verdict
     consistency: dict[str, Any] = field(default_factory=dict)  # independent segments
     sensitivity: dict[str, Any] = field(default_factory=dict)  # under scaled noise densities
     plausibility: dict[str, Any] = field(default_factory=dict)  # the physical checks
+    uncertainty: dict[str, Any] = field(default_factory=dict)  # every sigma's terms
     version: int = RESULT_VERSION
     diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
 
@@ -156,10 +158,12 @@ class CalibrationResult:
             "noise": self.noise.to_dict(),
             "session": self.session,
             "imu_gaps": self.imu_gaps,
+            **({"takes": self.takes} if self.takes else {}),
             "clock": self.clock,
             "consistency": self.consistency,
             "sensitivity": self.sensitivity,
             "plausibility": self.plausibility,
+            "uncertainty": self.uncertainty,
             "notes": list(self.notes),
         }
 
@@ -207,9 +211,11 @@ class CalibrationResult:
             notes=list(d.get("notes") or []),
             session=dict(d.get("session") or {}),
             imu_gaps=dict(d.get("imu_gaps") or {}),
+            takes=list(d.get("takes") or []),
             clock=dict(d.get("clock") or {}),
             consistency=dict(d.get("consistency") or {}),
             sensitivity=dict(d.get("sensitivity") or {}),
             plausibility=dict(d.get("plausibility") or {}),
+            uncertainty=dict(d.get("uncertainty") or {}),
             version=version,
         )

@@ -158,7 +158,7 @@ def _consistency_blocks(d: dict[str, Any], r: CalibrationResult) -> list[Any]:
                      *[num(f"{p}/translation/{a}", s["translation"][a], 1e3,
                            sg.get("translation", [None] * 3)[a]) for a in range(3)]])
     summary = []
-    for what in ("max_pairwise_z", "birge_ratio", "sigma_inflation"):
+    for what in ("max_pairwise_z", "birge_ratio", "sigma_factor"):
         for k, v in (cons.get(what) or {}).items():
             summary.append([what, k, num(f"consistency/{what}/{k}", v, digits=4)])
     full = {"time_offset": r.time_offset,

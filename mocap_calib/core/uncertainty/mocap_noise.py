@@ -1,18 +1,18 @@
-"""The mocap noise model from the session itself: its level and correlation.
+"""The correlated part of the mocap noise, fitted for the check of the answer (not for the
+answer itself: :mod:`mocap_calib.core.uncertainty.sensitivity`).
 
 Real mocap noise is far from white: marker sets change with occlusions, and the pose solver and
-its filters smooth, so consecutive poses share most of their error (on EuRoC V2_03 the
-position-stage innovations keep a correlation of 0.98 between 10 ms samples and 0.67 at 0.2 s).
-A white-noise likelihood then counts every sample as new information, and its sigmas are
-several times too small. The window filter models a fraction of the mocap variance as an AR(1)
-process (:mod:`mocap_calib.core.position.engine`); its time constant and fraction are
-chosen here by the windows' exact likelihood, each candidate at its own best level.
+its filters smooth, so consecutive poses share much of their error. The window filter can model
+a fraction of the mocap variance as an AR(1) process (:mod:`mocap_calib.core.position.engine`);
+its time constant and fraction are chosen here by the windows' exact likelihood, each candidate
+at its own best level. On EuRoC V2_03 the choice moved with the IMU densities and with where
+the white solution landed, and fed back into the point estimate moved it by several mm: it is
+now a check, the point estimate stays white.
 
 The IMU densities are not chosen here: the same likelihood, free to scale them, prefers 16-26
 times the data sheet on EuRoC V2_03 (the in-flight vibration) and then lands 50 mm from the
-lever arm the dataset's ground truth implies, against 3-9 mm with the data sheet's values. They
-stay as given; the result's sensitivity section (densities x3 and x1/3) carries what not
-knowing them costs.
+lever arm the dataset's ground truth implies. They stay as given; the sensitivity refits
+(densities x3 and x1/3) carry what not knowing them costs.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class CorrelationFit:
 
 
 def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
-                          max_windows: int = MAX_WINDOWS) -> CorrelationFit:
+                          max_windows: int = MAX_WINDOWS, decimate: bool = True) -> CorrelationFit:
     """Choose the mocap noise's correlation time, fraction and level by the windows' exact
     likelihood.
 
@@ -62,6 +62,7 @@ def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
         th: parameter values to evaluate at (the current solution).
         grid: candidate (time constant, fraction) pairs.
         max_windows: at most this many windows, spread evenly over the session.
+        decimate: at about :data:`RATE_HZ` (else at the windows' own rate).
     """
     from mocap_calib.core.position.engine import PositionProblem
 
@@ -69,7 +70,7 @@ def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
     which = np.unique(np.linspace(0, W - 1, min(W, max_windows)).round().astype(int))
     win = problem.win.subset(which)
     rate = 1.0 / float(np.median(np.diff(win.tau[0][win.mask[0]])))
-    k = max(1, int(rate // RATE_HZ))
+    k = max(1, int(rate // RATE_HZ)) if decimate else 1
     sub = PositionProblem(problem.s, problem.model, problem.noise, win.decimate(k), split=False)
     sub.weights = problem.weights[which][:, ::k].copy() if k > 1 else problem.weights[which]
     th_sub = replace(th, knots=th.knots[which])

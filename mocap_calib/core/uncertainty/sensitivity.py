@@ -1,0 +1,185 @@
+"""Does the answer depend on a noise model the session cannot check?
+
+- IMU noise densities: the white noise and random walks scaled by 3 and by 1/3 reweight the
+  data; an answer that moves by more than its sigma depends on an assumption the session
+  cannot check.
+- The mocap noise's correlation: the point estimate takes it white (with its level from the
+  residuals). Real mocap noise is band-limited (vibration, marker-body flex, the pose solver's
+  filters), and neither white nor AR(1) is right; so the AR(1) model that the windows' exact
+  likelihood prefers is fitted once, at the solution and at the engine's rate, and the answer
+  refitted under it. How far it moves is model uncertainty, carried into the sigmas like the
+  IMU densities' (:mod:`mocap_calib.core.checks.verdict`).
+
+Each refit starts at the solution and takes up to three Gauss-Newton steps, between which the
+mocap levels and the robust weights follow the innovations, as a full run's rounds would.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.position.engine import PositionProblem, Theta
+from mocap_calib.core.position.graph import Prior
+from mocap_calib.core.position.stage import PositionResult
+from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
+from mocap_calib.core.uncertainty.refit import everything, refit, sigmas, z_pair
+from mocap_calib.errors import CalibrationError, Interrupted
+
+Array = NDArray[np.float64]
+
+#: A refit stops stepping once a step moves no parameter by this many sigmas.
+SETTLED_SIGMA = 0.1
+#: The correlated model's fit uses at most this many windows (spread over the session).
+CORRELATION_WINDOWS = 60
+#: Its candidates (time constant s, correlated fraction); (0, 0) is white noise.
+CORRELATION_GRID: tuple[tuple[float, float], ...] = (
+    (0.0, 0.0), *((T, rho) for T in (0.1, 0.3, 1.0, 3.0) for rho in (0.5, 0.9)))
+#: The key of the correlated mocap model among the alternatives.
+MOCAP_AR1 = "mocap_ar1"
+
+#: Result parameter -> covariance block of the position stage.
+_BLOCKS = {"R_MI": "rotation", "p_MI": "translation", "t_d": "time_offset",
+           "gyro_bias": "gyro_bias", "accel_bias": "accel_bias", "gravity": "gravity"}
+
+
+@dataclass
+class Sensitivity:
+    """How far the answer moves under other noise models.
+
+    Attributes:
+        shift: alternative -> parameter -> |change| per component beyond what the reweighting
+            explains by chance (parameter units; rotation and gravity in rad).
+        raw: alternative -> parameter -> |change|.
+        moved: alternative -> parameter -> largest |change| / the statistical sigma.
+        mocap_model: the correlated mocap model fitted (time constant, fraction, likelihood
+            gain over white noise) when one was.
+    """
+
+    shift: dict[str, dict[str, Array]] = field(default_factory=dict)
+    raw: dict[str, dict[str, Array]] = field(default_factory=dict)
+    moved: dict[str, dict[str, float]] = field(default_factory=dict)
+    mocap_model: dict[str, float] = field(default_factory=dict)
+    note: str = ""
+
+    def systematic(self, param: str, which: tuple[str, ...] | None = None) -> Array | None:
+        """Per component, the largest shift beyond chance over the alternatives (``which``:
+        only those), or None when not computed."""
+        shifts = [d[param] for k, d in self.shift.items()
+                  if param in d and (which is None or k in which)]
+        return np.max(np.stack(shifts), axis=0) if shifts else None
+
+    def largest_move(self, param: str) -> Array | None:
+        """Per component, the largest plain |change| over the alternatives."""
+        moves = [d[param] for d in self.raw.values() if param in d]
+        return np.max(np.stack(moves), axis=0) if moves else None
+
+    def to_dict(self, total_sigma: dict[str, Array] | None = None) -> dict[str, Any]:
+        d: dict[str, Any] = {"moved_statistical_sigmas": {
+            f: {k: round(v, 3) for k, v in m.items()} for f, m in self.moved.items()}}
+        if total_sigma:
+            d["moved_sigmas"] = {
+                f: {k: round(float(np.max(v / total_sigma[k])), 3) for k, v in sh.items()
+                    if k in total_sigma} for f, sh in self.raw.items()}
+        if self.mocap_model:
+            d["mocap_noise_model"] = {k: round(v, 4) for k, v in self.mocap_model.items()}
+        if self.note:
+            d["note"] = self.note
+        return d
+
+
+def _shifts(alt: PositionResult,
+            pos: PositionResult) -> tuple[dict[str, Array], dict[str, Array]]:
+    """Per parameter and component, the part of |alt - pos| that the reweighting itself does
+    not explain, and the plain |alt - pos|. Two estimates from the same data under different
+    weights differ by chance with variance about |var_alt - var| (Hausman); only the excess is a
+    systematic shift."""
+    raw = {"R_MI": so3.log(pos.R_MI.T @ alt.R_MI), "p_MI": alt.p_MI - pos.p_MI,
+           "gyro_bias": alt.gyro_bias_mean - pos.gyro_bias_mean,
+           "accel_bias": alt.accel_bias_mean - pos.accel_bias_mean,
+           "gravity": np.asarray(gtsam.Unit3(pos.g_dir).localCoordinates(gtsam.Unit3(alt.g_dir)))}
+    if "time_offset" in pos.cov:
+        raw["t_d"] = np.array([alt.delta - pos.delta])
+    excess = {}
+    for name, d in raw.items():
+        block = _BLOCKS[name]
+        chance = 0.0
+        if block in pos.cov and block in alt.cov:
+            chance = np.abs(np.diag(alt.cov[block]) - np.diag(pos.cov[block]))
+        excess[name] = np.sqrt(np.maximum(d**2 - chance, 0.0))
+    return excess, {k: np.abs(v) for k, v in raw.items()}
+
+
+def noise_sensitivity(pos: PositionResult, model: Model,
+                      factors: tuple[float, ...] = (3.0, 1.0 / 3.0),
+                      max_iterations: int = 30, one_step: bool | int = 3,
+                      priors: list[Prior] | None = None,
+                      mocap_model: bool = True) -> Sensitivity:
+    """Refit with the IMU noise densities scaled, and under the correlated mocap noise model
+    the session prefers (``mocap_model``), as full runs given those models would land.
+
+    User priors come from earlier sessions calibrated under the same densities, so their
+    sigmas scale with them: the balance between prior and data stays, and a prior that
+    disagrees with a short session by chance does not pass for a systematic."""
+    out = Sensitivity()
+    sig = sigmas(pos)
+
+    def settled(a: Theta, b: Theta) -> bool:
+        # A step below a tenth of a sigma: the rest of the way is smaller still.
+        return max(z_pair(a, b, sig, None).values()) < SETTLED_SIGMA
+
+    def run(key: str, noise: NoiseModel, scale: float) -> None:
+        scaled_priors = [replace(p, sigma=np.asarray(p.sigma) * scale) for p in priors or []]
+        try:
+            alt = refit(pos, model, everything(pos), noise=noise, adapt_noise=True,
+                        reweight=True, priors=scaled_priors, max_iterations=max_iterations,
+                        one_step=one_step, settled=settled)
+        except Interrupted:
+            raise
+        except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
+            out.note = f"{key}: refit failed ({err})"
+            return
+        out.shift[key], out.raw[key] = _shifts(alt, pos)
+        out.moved[key] = z_pair(alt, pos, sig, None)
+
+    for f in factors:
+        run(f"x{f:.3g}", pos.noise.imu_scaled(f), f)
+    if mocap_model and not pos.noise.mocap_correlated:
+        corr = correlated_mocap_model(pos, model)
+        if corr is not None:
+            noise, out.mocap_model = corr
+            run(MOCAP_AR1, noise, 1.0)
+    return out
+
+
+def correlated_mocap_model(pos: PositionResult,
+                           model: Model) -> tuple[NoiseModel, dict[str, float]] | None:
+    """The AR(1) mocap noise model the windows' exact likelihood prefers, fitted at the
+    solution on up to :data:`CORRELATION_WINDOWS` windows of the take with the most, at the
+    engine's rate; None when white noise fits best."""
+    k = max(range(len(pos.takes)), key=lambda i: pos.takes[i].windows.count)
+    t = pos.takes[k]
+    problem = PositionProblem(t.s, model, pos.noise, t.windows, split=False)
+    problem.weights = t.weights
+    th = Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(), pos.g_mag,
+               t.delta, dict(pos.effects), t.knots, t.take.t_mid)
+    fit = fit_mocap_correlation(problem, th, CORRELATION_GRID, CORRELATION_WINDOWS,
+                                decimate=False)
+    best = fit.noise
+    if not best.mocap_correlated:
+        return None
+    white = [r for r in fit.candidates if r["time_constant_s"] == 0.0 and r["level"] == 1.0]
+    chosen = min((r for r in fit.candidates if r["level"] == 1.0),
+                 key=lambda r: r["minus_2_log_likelihood"])
+    gain = (white[0]["minus_2_log_likelihood"] - chosen["minus_2_log_likelihood"]
+            if white else float("nan"))
+    return best, {"time_constant_s": best.mocap_noise_corr_time,
+                  "fraction": best.mocap_noise_corr_fraction,
+                  "minus_2_log_likelihood_gain_over_white": float(gain)}
