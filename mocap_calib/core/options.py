@@ -28,13 +28,16 @@ class CalibrationOptions:
         plausible: the limits of a physically possible answer.
         max_mocap_rate: the position stage decimates faster mocap streams to this rate (Hz).
         adapt_noise: re-estimate the mocap noise level from the residuals.
-        sensitivity: refit with the IMU noise densities scaled by 3 and 1/3.
+        sensitivity: refit with the IMU noise densities scaled by 3 and 1/3 and under the
+            correlated mocap noise model.
+        effect_tests: test every canonical effect the model lacks at the solution.
     """
 
     model: Model = param(
         Model(("time_offset",)), "the measurement model: base plus effects joined by '+', "
-        "e.g. base+time_offset+accel_delay; effects (docs/conventions.md gives each one's "
-        "form): " + ", ".join(EFFECTS),
+        "e.g. base+time_offset+accel_delay, or auto (the effects the session shows, chosen by "
+        "the diagnosis' tests); effects (docs/conventions.md gives each one's form): "
+        + ", ".join(EFFECTS),
         parse=Model.parse, metavar="MODEL")
     gravity: float = param(GRAVITY, "the |g| the calibration assumes", unit="m/s^2", lo=5.0,
                            hi=15.0)
@@ -68,6 +71,7 @@ class CalibrationOptions:
     max_mocap_rate: float = 120.0
     adapt_noise: bool = True
     sensitivity: bool = True
+    effect_tests: bool = True
 
     def validate(self) -> None:
         check_options(self)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from mocap_calib.core.diagnosis.auto import calibrate_auto
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import (
@@ -80,7 +81,10 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
                               else load_plausible(request.plausible)))
     recordings = [Recording(s.imu, s.mocap, *_names(spec))
                   for s, spec in zip(sessions, request.inputs.takes(), strict=True)]
-    result = calibrate_takes(recordings, opts, progress=progress, on_iteration=on_iteration)
+    if opts.model.auto:
+        result = calibrate_auto(recordings, opts, progress=progress, on_iteration=on_iteration)
+    else:
+        result = calibrate_takes(recordings, opts, progress=progress, on_iteration=on_iteration)
     result.session["inputs"] = [n for s in sessions for n in s.notes]
     return result, first
 

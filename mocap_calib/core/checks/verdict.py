@@ -152,4 +152,4 @@ def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency, sens: Se
     if sens.shift:
         r.notes.append("sigmas include the shifts under other noise models (IMU densities x3 "
                        "and x1/3, correlated mocap noise) beyond chance and cover their moves "
-                       "(see 'uncertainty')")
+                       "(the uncertainty section lists every term)")

@@ -249,7 +249,7 @@ def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
     # The starting fit only seeds the diagnosis: no segment or noise checks, and a model that
     # misses an effect may well look implausible (that is what the diagnosis is for).
     cal_opts = replace(opts.calibration, model=model, adapt_noise=False, segments=0,
-                       sensitivity=False, accept_implausible=True)
+                       sensitivity=False, accept_implausible=True, effect_tests=False)
     say(f"fitting the starting model {model}")
     try:
         start = calibrate(imu, mocap, cal_opts)

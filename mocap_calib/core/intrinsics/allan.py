@@ -84,14 +84,24 @@ def _check_rate(imu: ImuSamples, rate_hz: float | None) -> float:
     if rate_hz is not None and abs(rate_hz - rate) > 0.05 * rate:
         raise InputError(f"{imu.source}: rate_hz={rate_hz:g} but the timestamps give "
                          f"{rate:.4g} Hz; pass the true rate or leave it out")
-    # Gaps are handled (the log is split at them); the rest must be uniform.
-    steady = dt <= GAP_FACTOR * med
-    irregular = float(np.mean(np.abs(dt[steady] - med) > 0.1 * med))
-    if irregular > MAX_JITTER_FRACTION:
-        raise InputError(f"{imu.source}: {100 * irregular:.1f} % of the sample periods differ "
-                         f"from {1e3 * med:.3g} ms by more than 10 %; Allan deviation needs "
-                         "uniform sampling: fix dropped samples or resample the log")
+    # Gaps are handled (the log is split at them); single dropped samples (periods of two
+    # steps) are not, and stamps that jitter are resampled (see uniform()).
+    jitter, dropped = _irregular(dt, med)
+    if dropped > 0.01 or jitter > MAX_JITTER_FRACTION:
+        what = (f"{100 * dropped:.1f} % of the sample periods are two steps long (dropped "
+                "samples)" if dropped > 0.01 else f"{100 * jitter:.1f} % of the sample "
+                f"periods differ from {1e3 * med:.3g} ms by more than 10 %")
+        raise InputError(f"{imu.source}: {what}; Allan deviation needs uniform sampling: fix "
+                         "dropped samples or resample the log")
     return rate
+
+
+def _irregular(dt: Array, med: float) -> tuple[float, float]:
+    """Of the periods that are not gaps: the fraction off by more than 10 % from a whole
+    number of steps (jitter), and the fraction of two steps (a dropped sample)."""
+    r = dt[dt <= GAP_FACTOR * med] / med
+    return (float(np.mean(np.abs(r - np.round(r)) > 0.1)),
+            float(np.mean((np.round(r) >= 2) & (np.abs(r - np.round(r)) <= 0.1))))
 
 
 def uniform(imu: ImuSamples, rate: float) -> tuple[ImuSamples, bool]:
@@ -99,9 +109,7 @@ def uniform(imu: ImuSamples, rate: float) -> tuple[ImuSamples, bool]:
     1 % of the periods off by 10 %: flight-controller logs); linear interpolation. Returns the
     samples and whether they were resampled."""
     dt = np.diff(imu.t)
-    med = float(np.median(dt))
-    steady = dt <= GAP_FACTOR * med
-    if float(np.mean(np.abs(dt[steady] - med) > 0.1 * med)) <= 0.01:
+    if _irregular(dt, float(np.median(dt)))[0] <= 0.01:
         return imu, False
     ts, gs, acs = [], [], []
     for sg in segments_of(imu.t):

@@ -202,13 +202,18 @@ CANONICAL_EFFECTS: tuple[str, ...] = tuple(EFFECTS)
 
 @dataclass(frozen=True)
 class Model:
-    """A rung of the ladder: the base model plus a set of effects (order kept for reports)."""
+    """A rung of the ladder: the base model plus a set of effects (order kept for reports).
+    ``auto``: the effects are to be chosen from the session (the diagnosis' tests)."""
 
     effects: tuple[str, ...] = ()
+    auto: bool = False
 
     @classmethod
     def parse(cls, spec: str) -> Model:
-        """Parse ``base+time_offset+gyro_scale_misalignment`` (``base`` is implied)."""
+        """Parse ``base+time_offset+gyro_scale_misalignment`` (``base`` is implied), or
+        ``auto``."""
+        if spec.strip() == "auto":
+            return cls(auto=True)
         names = [n.strip() for n in spec.replace(",", "+").split("+") if n.strip()]
         out: list[str] = []
         for n in names:
@@ -233,5 +238,9 @@ class Model:
     def units(self) -> list[Effect]:
         return [EFFECTS[n] for n in self.effects]
 
+    def has_kind(self, kind: str) -> bool:
+        """Whether an effect of this kind (``Effect.acts_on``) is in the model."""
+        return any(e.acts_on == kind for e in self.units)
+
     def __str__(self) -> str:
-        return "+".join(("base", *self.effects))
+        return "auto" if self.auto else "+".join(("base", *self.effects))

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.checks.degenerate import mark_single_axis, mark_undetermined
+from mocap_calib.core.checks.effect_scores import ALPHA, effect_scores
 from mocap_calib.core.checks.verdict import judge
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS
@@ -31,6 +32,7 @@ from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.calibration import CalibrationResult, Diagnostics
 from mocap_calib.core.result.state import CalibrationTrace, ModelState
 from mocap_calib.core.stages.figures import StageStats
+from mocap_calib.errors import CalibrationError, Interrupted
 
 Array = NDArray[np.float64]
 
@@ -91,9 +93,17 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
     fits: list[FirstFits] = []
     for k, rec in enumerate(recordings):
-        if len(recordings) > 1:
-            say(f"take {k + 1} of {len(recordings)}: {rec.imu_name or rec.imu.source}")
-        fits.append(first_fits(rec.imu, rec.mocap, opts, effects0, on_iteration, say))
+        if len(recordings) == 1:
+            fits.append(first_fits(rec.imu, rec.mocap, opts, effects0, on_iteration, say))
+            continue
+        name = f"take {k + 1} ({rec.imu_name or rec.imu.source})"
+        say(f"{name} of {len(recordings)}")
+        try:
+            fits.append(first_fits(rec.imu, rec.mocap, opts, effects0, on_iteration, say))
+        except Interrupted:
+            raise
+        except CalibrationError as err:  # which take it was, in the one line
+            raise type(err)(f"{name}: {err}") from None
     say("stage 3/3: position factors (all parameters jointly)")
     # The shared parameters start from the take with the most windows (its stages 1-2 saw
     # the most data); every take starts its own from its own stages.
@@ -121,10 +131,30 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
         result.imu_gaps = f.s.imu_gaps.to_dict()
     if len(fits) > 1:
         _with_takes(result, pos, fits, recordings)
+    if opts.effect_tests:
+        _effect_tests(result, pos, opts, say)
     mark_single_axis(result, f.s, pos.delta)
     judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits], say)
     mark_undetermined(result)
     return result
+
+
+def _effect_tests(r: CalibrationResult, pos: PositionResult, opts: CalibrationOptions,
+                  say: ProgressFn) -> None:
+    """Score tests of the effects the model lacks; those the data show are named (in place)."""
+    say("effects the model lacks: score tests at the solution")
+    scores = effect_scores(pos, opts.model, opts.plausible)
+    if not scores:
+        return
+    shown = [s for s in scores if s.shown]
+    r.effect_tests = {"alpha": ALPHA, "candidates": [s.to_dict() for s in scores],
+                      "shown": [s.effect for s in shown]}
+    if shown:
+        line = ("effects the data show (not in the model): "
+                + ", ".join(f"{s.effect} (log10 p {s.log10_p:.1f})" for s in shown)
+                + f"; --model auto adds them, or --model {opts.model}+{shown[0].effect}")
+        say(line)
+        r.notes.append(line)
 
 
 def _with_takes(r: CalibrationResult, pos: PositionResult, fits: list[FirstFits],
@@ -153,8 +183,8 @@ def _with_takes(r: CalibrationResult, pos: PositionResult, fits: list[FirstFits]
     r.sigma_gyro_bias = r.sigma_accel_bias = None
     r.sigma_time_offset = None
     r.notes.append(f"{len(fits)} takes calibrated together: T_marker_imu, gravity_in_mocap and "
-                   "the effects are shared; each take's clock offset and biases are under "
-                   "'takes'")
+                   "the effects are shared; each take's clock offset and biases are listed "
+                   "under takes")
 
 
 def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,

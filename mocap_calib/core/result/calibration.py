@@ -91,6 +91,8 @@ class CalibrationResult:
     sensitivity: dict[str, Any] = field(default_factory=dict)  # under scaled noise densities
     plausibility: dict[str, Any] = field(default_factory=dict)  # the physical checks
     uncertainty: dict[str, Any] = field(default_factory=dict)  # every sigma's terms
+    effect_tests: dict[str, Any] = field(default_factory=dict)  # the effects the data show
+    model_selection: dict[str, Any] = field(default_factory=dict)  # --model auto: why
     version: int = RESULT_VERSION
     diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
 
@@ -164,6 +166,8 @@ class CalibrationResult:
             "sensitivity": self.sensitivity,
             "plausibility": self.plausibility,
             "uncertainty": self.uncertainty,
+            "effect_tests": self.effect_tests,
+            **({"model_selection": self.model_selection} if self.model_selection else {}),
             "notes": list(self.notes),
         }
 
@@ -217,5 +221,7 @@ class CalibrationResult:
             sensitivity=dict(d.get("sensitivity") or {}),
             plausibility=dict(d.get("plausibility") or {}),
             uncertainty=dict(d.get("uncertainty") or {}),
+            effect_tests=dict(d.get("effect_tests") or {}),
+            model_selection=dict(d.get("model_selection") or {}),
             version=version,
         )

@@ -1,0 +1,185 @@
+"""The effects the data show, tested cheaply at the solution: one evaluation of the window
+factors with every canonical effect the model lacks added at zero, and a score (Lagrange
+multiplier) test per effect.
+
+For effect ``e`` (its parameters ``theta_e``, the others fixed at zero) the score is the
+cost's gradient along ``theta_e`` with the model's own parameters re-optimised to first order:
+``g_e = d_e - H_en H_nn^-1 d_n``, ``d`` the whitened ``J^T r`` and ``H`` the Gauss-Newton
+information. Its variance is the information's Schur complement (model-based) or the spread of
+the windows' own scores mapped the same way (a sandwich, windows as blocks: real residuals are
+correlated and the noise model only approximately right); the smaller statistic of the two
+counts. ``T = g^T V^-1 g`` is chi-square with ``dim(e)`` degrees of freedom under "no effect";
+``V^-1 g`` is the effect's one-step estimate, judged by the plausibility limits the diagnosis
+uses. An effect is listed as shown when it is significant at ``alpha`` (Bonferroni over the
+candidates) and plausible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats as sps
+
+from mocap_calib.core.graph import information_matrix
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
+from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
+from mocap_calib.core.position.graph import (
+    PositionInit,
+    Take,
+    TakeStart,
+    build_position_graph,
+    key_knot,
+)
+from mocap_calib.core.position.stage import PositionResult
+
+Array = NDArray[np.float64]
+
+#: Family-wise false-alarm rate over the candidates (Bonferroni).
+ALPHA = 0.01
+
+
+@dataclass
+class EffectScore:
+    """One candidate's test."""
+
+    effect: str
+    statistic: float
+    dof: int
+    log10_p: float
+    estimate: object  # the one-step estimate in the result file's form
+    problem: str | None  # why it is implausible (None: plausible)
+    significant: bool
+
+    @property
+    def shown(self) -> bool:
+        return self.significant and self.problem is None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"effect": self.effect, "statistic": round(self.statistic, 2), "dof": self.dof,
+                "log10_p": round(self.log10_p, 2), "one_step_estimate": self.estimate,
+                "significant": self.significant, "plausible": self.problem is None,
+                **({"implausible": self.problem} if self.problem else {})}
+
+
+def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | None = None,
+                  candidates: tuple[str, ...] | None = None,
+                  alpha: float = ALPHA) -> list[EffectScore]:
+    """Score tests of every canonical effect the model lacks (or ``candidates``): the
+    effects shown in order of evidence (each tested with those before it free), then the
+    rest (tested with the shown ones free)."""
+    cands = [c for c in (candidates or CANONICAL_EFFECTS) if not model.has(c)]
+    if not cands:
+        return []
+    ext = Model((*model.effects, *cands))
+    takes = [Take(t.s, t.windows) for t in pos.takes]
+    effects0 = {**pos.effects, **{e.name: e.zero() for e in ext.units
+                                  if e.in_effects and e.name in cands}}
+    init = PositionInit(pos.R_MI, pos.p_MI, pos.g_dir, pos.g_mag,
+                        [TakeStart(t.delta, t.gyro_bias_mean, t.accel_bias_mean, t.knots)
+                         for t in pos.takes], effects0)
+    pg = build_position_graph(takes, ext, pos.noise, init)
+    pg.set_weights([t.weights for t in pos.takes])
+    for pp in pg.problems:
+        pp.collect_scores = True
+    H, offsets, n = information_matrix(pg.graph, pg.values)
+    grad = pg.graph.linearize(pg.values).gradientAtZero()
+    d = np.zeros(n)
+    for key, o in offsets.items():
+        v = np.asarray(grad.at(key), dtype=float)
+        d[o:o + len(v)] = -v  # gradientAtZero is that of 0.5 |A x - b|^2 at x = 0: -A^T b
+    rows = _window_scores(pg, offsets, n)
+    H = H.toarray()
+    rows_of = {c: _rows(pg, offsets, c) for c in cands}
+    alpha_each = alpha / len(cands)
+    # In order of evidence, as the diagnosis adds effects: the strongest significant one is
+    # then free (a nuisance) while the rest are tested again, so that a candidate that only
+    # stands in for a stronger one is not listed.
+    out: list[EffectScore] = []
+    free: list[str] = []
+    todo = list(cands)
+    while todo:
+        tests = []
+        for c in todo:
+            fixed = np.concatenate([rows_of[o] for o in todo])
+            keep = np.setdiff1d(np.arange(n), np.setdiff1d(fixed, rows_of[c]))
+            keep = np.setdiff1d(keep, rows_of[c])
+            tests.append(_test(c, rows_of[c], keep, H, d, rows, alpha_each, limits))
+        tests.sort(key=lambda t: t.log10_p)
+        best = next((t for t in tests if t.shown), None)
+        if best is None:
+            out += tests
+            break
+        out.append(best)
+        free.append(best.effect)
+        todo.remove(best.effect)
+    return out
+
+
+def _rows(pg: Any, offsets: dict[int, int], name: str) -> NDArray[np.int64]:
+    """The information matrix rows of a candidate's parameters (a clock offset: every
+    take's)."""
+    rows = []
+    for k in range(len(pg.takes)):
+        key = pg.block_keys(k)[name]
+        dim = EFFECTS[name].dim
+        r = offsets[key] + np.arange(dim)
+        if k == 0 or EFFECTS[name].acts_on == "clock":
+            rows.append(r)
+    return np.concatenate(rows)
+
+
+def _window_scores(pg: Any, offsets: dict[int, int], n: int) -> Array:
+    """Every window's whitened score ``J^T r`` in the graph's coordinates (W, n)."""
+    layout = pg.problem.layout
+    rows = []
+    for k, out in enumerate(pg.evals[-1]):
+        keys = pg.block_keys(k)
+        glob = np.concatenate([offsets[keys[name]] + np.arange(dim)
+                               for name, dim in layout.blocks if name != "knot"])
+        for w, s in enumerate(out.scores.sum(axis=1)):
+            row = np.zeros(n)
+            idx = np.concatenate([glob, offsets[key_knot(pg.knot0[k] + w)] + np.arange(6)])
+            np.add.at(row, idx, s)
+            rows.append(row)
+    return np.array(rows)
+
+
+def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d: Array,
+          rows: Array, alpha: float, limits: PlausibleLimits | None) -> EffectScore:
+    eff = EFFECTS[name]
+    Hnn = H[np.ix_(n_idx, n_idx)]
+    Hen = H[np.ix_(e, n_idx)]
+    A = np.linalg.solve(Hnn, Hen.T).T  # H_en H_nn^-1
+    g = d[e] - A @ d[n_idx]
+    V_model = H[np.ix_(e, e)] - A @ Hen.T
+    s = rows[:, e] - rows[:, n_idx] @ A.T
+    s = s - s.mean(axis=0)
+    V_rob = s.T @ s * len(s) / max(len(s) - 1, 1)
+    stats = []
+    for V in (V_model, V_rob):
+        try:
+            stats.append(float(g @ np.linalg.solve(V, g)))
+        except np.linalg.LinAlgError:
+            continue
+    T = min(stats) if stats else 0.0
+    k = len(e)
+    log10_p = float(sps.chi2.logsf(T, k)) / np.log(10.0)
+    if not np.isfinite(log10_p):
+        log10_p = -300.0
+    step = np.linalg.solve(V_model, g)
+    value = eff.report_value(step[:eff.dim] if eff.acts_on == "clock" else step)
+    problem = effect_problem(name, value, limits or PlausibleLimits())
+    return EffectScore(name, float(T), k, float(log10_p), _plain(value), problem,
+                       bool(log10_p < np.log10(alpha)))
+
+
+def _plain(value: object) -> object:
+    """Numbers as plain floats (for the result file)."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return np.asarray(value, dtype=float).tolist()
+    return float(value)  # type: ignore[arg-type]
