@@ -67,10 +67,13 @@ def test_fast_motion_reaches_5_hz_and_leaves_the_other_draws_alone() -> None:
             simulate_flight(SimConfig(**cfg, **bad))  # type: ignore[arg-type]
 
 
-#: About three times what seed 700 achieves (0.0040 deg, 0.26 mm, 7.8e-5 rad/s, 8.0e-4 m/s^2,
-#: 0.0041 deg, 8.3 us), in the units of test_calibrate.TARGETS.
-FAST_TARGETS = {"rotation_deg": 0.012, "translation_m": 0.75e-3, "gyro_bias": 2.4e-4,
-                "accel_bias": 2.4e-3, "gravity_deg": 0.012, "time_offset_s": 0.025e-3}
+#: About three times what seed 700 achieves (0.0120 deg, 0.29 mm, 2.7e-4 rad/s, 5.4e-4 m/s^2,
+#: 0.0055 deg, 1.0 us), in the units of test_calibrate.TARGETS. (The point estimate takes the
+#: mocap noise as white: this simulator's AR(1) noise, which the estimator used to model
+#: exactly, costs it a factor 1-3.5 here; real mocap noise is not AR(1), and on EuRoC V2_03 the
+#: white estimate lands 1.4 mm from the ground truth's lever arm, against 8.6 mm.)
+FAST_TARGETS = {"rotation_deg": 0.036, "translation_m": 0.9e-3, "gyro_bias": 8e-4,
+                "accel_bias": 2.4e-3, "gravity_deg": 0.017, "time_offset_s": 0.025e-3}
 
 
 def test_calibration_with_fast_motion_and_mismatched_noise() -> None:

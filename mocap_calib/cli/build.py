@@ -73,7 +73,8 @@ def _parameter(leaf: Leaf) -> inspect.Parameter:
     elif leaf.repeatable:
         default = None
     elif info.parse is not None and default is not None:
-        default = str(default)
+        # Shown and parsed back as the user would write it (effect names joined by '+').
+        default = "+".join(default) if isinstance(default, tuple) else str(default)
     return inspect.Parameter(leaf.name, inspect.Parameter.KEYWORD_ONLY, default=default,
                              annotation=Annotated[_cli_type(leaf), marker])
 

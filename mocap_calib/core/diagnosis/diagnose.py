@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy import special
@@ -48,6 +49,7 @@ from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import (
     PositionResult,
@@ -57,6 +59,7 @@ from mocap_calib.core.position.stage import (
 )
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.state import ModelState
+from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
 from mocap_calib.errors import CalibrationError, InputError
 
 Array = NDArray[np.float64]
@@ -166,7 +169,17 @@ class _Session:
         return run_position_stage([Take(self.s, self.windows)], m, nz, init, robust=False,
                                   adapt_noise=adapt, weights=[self.weights],
                                   max_iterations=self.opts.calibration.max_iterations,
-                                  covariance=covariance)
+                                  covariance=covariance, window_blocks=False)
+
+    def correlated(self, pos: PositionResult, m: Model) -> NoiseModel:
+        """The mocap noise model (AR(1) and level) the windows' likelihood prefers at ``pos``:
+        the tests compare likelihoods, and a white noise model would count correlated
+        residuals as independent evidence."""
+        pp = PositionProblem(self.s, m, pos.noise, self.windows, split=False)
+        pp.weights = self.weights
+        th = Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(), pos.g_mag,
+                   pos.delta, dict(pos.effects), pos.knots, self.t_mid)
+        return fit_mocap_correlation(pp, th).noise
 
     def residuals(self, pos: PositionResult, m: Model, nz: NoiseModel) -> Residuals:
         return Residuals.of(analyse_residuals(self.s, ModelState.from_position(pos, m, self.t_mid),
@@ -227,8 +240,9 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
         model = model.with_effect(best.effect)
         # The noise model again from the residuals left: its correlated part may have been
         # absorbing the effect just added.
-        current = ds.fit(model, f, replace(noise, mocap_noise_corr_time=0.0,
-                                           mocap_noise_corr_fraction=0.0), adapt=True)
+        white = ds.fit(model, f, replace(noise, mocap_noise_corr_time=0.0,
+                                         mocap_noise_corr_fraction=0.0), adapt=True)
+        current = ds.fit(model, white, ds.correlated(white, model), adapt=True)
         if current.noise != noise:
             noise = current.noise
             cur_res = ds.residuals(current, model, noise)
@@ -269,10 +283,12 @@ def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
         [TakeStart(st0.delta, st0.bias[:, 0:3].mean(axis=0), st0.bias[:, 3:6].mean(axis=0),
                    st0.bias)], dict(st0.effects))
     # Every step first re-estimates the mocap noise with the current model (a missing effect
-    # inflates it, so it is redone after each effect is added); the candidates of the step are
-    # then fitted with it frozen.
-    current = run_position_stage([Take(ds.s, ds.windows)], model, tr.noise_used, init0,
-                                 robust=False, adapt_noise=True, weights=[ds.weights])
+    # inflates it, so it is redone after each effect is added): its level, then its
+    # correlation (the diagnosis models it; calibrate keeps it as a check only); the
+    # candidates of the step are then fitted with it frozen.
+    white = run_position_stage([Take(ds.s, ds.windows)], model, tr.noise_used, init0,
+                               robust=False, adapt_noise=True, weights=[ds.weights])
+    current = ds.fit(model, white, ds.correlated(white, model), adapt=True)
     return ds, model, current
 
 
@@ -372,14 +388,16 @@ def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
     say(f"final calibration with {model}")
     final = calibrate(imu, mocap, replace(opts.calibration, model=model, accept_implausible=True))
     fx = final.diagnostics.trace
-    final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, fx.noise_used,
+    # The noise floor is the diagnosis' noise model's (correlated mocap noise): the final
+    # calibration's own is white, its level fitted to the innovations.
+    final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, current.noise,
                                                cutoff_hz=opts.cutoff_hz))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
     unexplained = None
     # The final calibration (clock search, noise model chosen from the session) is what the
     # user gets; the gap it leaves, not the search's last step, decides what is unexplained.
-    why = _why_unexplained(final_res, fx.noise_used, opts)
+    why = _why_unexplained(final_res, current.noise, opts)
     if why and final_res.analysis is not None:
         say("describing the residual no candidate explains")
         if fx.position is not None:

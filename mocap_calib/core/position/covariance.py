@@ -6,7 +6,8 @@ the noise model is. The sandwich ``H^-1 B H^-1`` takes the spread of the data's 
 instead: ``B`` sums, over the windows, the outer products of each window's whitened score
 ``J^T r``, plus the information of the factors that are not data (bias random walk, priors).
 A window is a block of at least five seconds: longer than the correlation of real mocap noise
-(vibration, marker-body flex), and its diffuse start makes windows nearly independent. When
+(vibration, marker-body flex), and its diffuse start makes windows nearly independent (a
+session of fewer than :data:`MIN_BLOCKS` windows uses their one-second parts instead). When
 the model is right, ``B`` estimates ``H`` and both agree; when the residuals hold structure the
 model lacks, the windows' scores scatter more than the model says and the sandwich grows with
 them. The statistical sigma of every component is the larger of the two.
@@ -30,6 +31,9 @@ Array = NDArray[np.float64]
 
 #: Per-take blocks: the clock offset and the session-mean biases.
 TAKE_BLOCKS = ("time_offset", "gyro_bias", "accel_bias")
+#: Fewest blocks of the sandwich: with fewer windows (a short session) the windows' one-second
+#: sub-blocks are the blocks instead, or the meat would rest on a handful of outer products.
+MIN_BLOCKS = 10
 
 
 @dataclass
@@ -97,6 +101,8 @@ class CovarianceInputs:
         knots: every take's (W, 6) knots.
         timed: the model estimates each take's clock offset.
         scores: every take's (W, B, p) per-window-and-block whitened scores, or None.
+        window_blocks: the sandwich's blocks are whole windows when there are enough of them
+            (see MIN_BLOCKS); False: always their one-second parts.
     """
 
     shared_keys: dict[str, int]
@@ -106,6 +112,7 @@ class CovarianceInputs:
     knots: list[Array]
     timed: bool
     scores: list[Array] | None = None
+    window_blocks: bool = True
 
 
 def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
@@ -156,64 +163,72 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
     for i in range(n_windows, graph.size()):
         other.add(graph.at(i))
     H_other, _, _ = information_matrix(other, sol, offsets, n)
-    # Targets: the shared blocks' components, then per take its clock offset and mean bias.
-    dims = dict(inp.blocks)
-    cols: list[tuple[str, int | None, int, Array]] = []  # (name, take, dim, rows of H)
-    for name, key in inp.shared_keys.items():
-        cols.append((name, None, dims[name], offsets[key] + np.arange(dims[name])))
-    E_parts = []
-    for _, _, d, rows in cols:
-        e = np.zeros((n, d))
-        e[rows, np.arange(d)] = 1.0
-        E_parts.append(e)
-    for k in range(len(inp.windows)):
-        if inp.timed:
-            e = np.zeros((n, 1))
-            e[offsets[key_time(k)], 0] = 1.0
-            E_parts.append(e)
-        e = np.zeros((n, 6))
-        for key, Ck in combos[k].items():
-            e[offsets[key]:offsets[key] + 6] = Ck.T
-        E_parts.append(e)
-    E = np.concatenate(E_parts, axis=1)
+    E, dims = _targets(inp, offsets, n, combos)
     Z = lu.solve(E)
     meat = Z.T @ (H_other @ Z)
-    rows = []
-    for k, (sc, k0) in enumerate(zip(inp.scores, inp.knot0, strict=True)):
-        keys = {**inp.shared_keys, **({"time_offset": key_time(k)} if inp.timed else {})}
-        glob = np.concatenate([offsets[keys[name]] + np.arange(d) for name, d in inp.blocks])
-        per_window = sc.sum(axis=1)  # a window is one block (see the module doc)
-        for w in range(per_window.shape[0]):
-            idx = np.concatenate([glob, offsets[key_knot(k0 + w)] + np.arange(6)])
-            rows.append(per_window[w] @ Z[idx])
-    T = np.array(rows)
-    T = T[np.any(T != 0.0, axis=1)]
+    T = _score_rows(inp, offsets, Z, whole=inp.window_blocks and n_windows >= MIN_BLOCKS)
     if len(T) > 1:  # centred: a refit near (not at) its optimum keeps its mean out of B
         T = (T - T.mean(axis=0)) * np.sqrt(len(T) / (len(T) - 1.0))
     meat += T.T @ T
     o = 0
     robust: dict[str, Array] = {}
-    for name, _, d, _ in cols:
+    for name, d in dims:
         robust[name] = meat[o:o + d, o:o + d]
         o += d
-    take_robust = []
-    for _ in inp.windows:
+    unc.cov, unc.robust_ratio = _larger(unc.cov, robust)
+    for k, tu in enumerate(unc.takes):
         r = {}
         if inp.timed:
             r["time_offset"] = meat[o:o + 1, o:o + 1]
             o += 1
-        r["gyro_bias"] = meat[o:o + 3, o:o + 3]
-        r["accel_bias"] = meat[o + 3:o + 6, o + 3:o + 6]
-        o += 6
-        take_robust.append(r)
-    unc.cov, unc.robust_ratio = _larger(unc.cov, robust)
-    for k, (tu, r) in enumerate(zip(unc.takes, take_robust, strict=True)):
         bridge = _bridge(inp.windows[k], noise)
-        r["gyro_bias"] = r["gyro_bias"] + np.diag(bridge[0:3])
-        r["accel_bias"] = r["accel_bias"] + np.diag(bridge[3:6])
+        r["gyro_bias"] = meat[o:o + 3, o:o + 3] + np.diag(bridge[0:3])
+        r["accel_bias"] = meat[o + 3:o + 6, o + 3:o + 6] + np.diag(bridge[3:6])
+        o += 6
         tu.cov, ratio = _larger(tu.cov, r)
         if k == 0:
             unc.robust_ratio.update(ratio)
+
+
+def _targets(inp: CovarianceInputs, offsets: dict[int, int], n: int,
+             combos: list[dict[int, Array]]) -> tuple[Array, list[tuple[str, int]]]:
+    """The columns the sandwich is wanted for: every shared block's components, then per take
+    its clock offset and mean bias. Returns them and the shared blocks' (name, dim)."""
+    dims = dict(inp.blocks)
+    shared = [(name, dims[name]) for name in inp.shared_keys]
+    parts = []
+    for name, d in shared:
+        e = np.zeros((n, d))
+        e[offsets[inp.shared_keys[name]] + np.arange(d), np.arange(d)] = 1.0
+        parts.append(e)
+    for k in range(len(inp.windows)):
+        if inp.timed:
+            e = np.zeros((n, 1))
+            e[offsets[key_time(k)], 0] = 1.0
+            parts.append(e)
+        e = np.zeros((n, 6))
+        for key, Ck in combos[k].items():
+            e[offsets[key]:offsets[key] + 6] = Ck.T
+        parts.append(e)
+    return np.concatenate(parts, axis=1), shared
+
+
+def _score_rows(inp: CovarianceInputs, offsets: dict[int, int], Z: Array,
+                whole: bool) -> Array:
+    """Every block's whitened score mapped to the targets: a block is a window (``whole``) or
+    one of its one-second parts."""
+    rows = []
+    for k, (sc, k0) in enumerate(zip(inp.scores or [], inp.knot0, strict=True)):
+        keys = {**inp.shared_keys, **({"time_offset": key_time(k)} if inp.timed else {})}
+        glob = np.concatenate([offsets[keys[name]] + np.arange(d) for name, d in inp.blocks])
+        for w in range(sc.shape[0]):
+            idx = np.concatenate([glob, offsets[key_knot(k0 + w)] + np.arange(6)])
+            if whole:
+                rows.append(sc[w].sum(axis=0) @ Z[idx])
+            else:
+                rows.extend(sc[w] @ Z[idx])
+    T = np.array(rows)
+    return T[np.any(T != 0.0, axis=1)]  # padding blocks of short windows hold no samples
 
 
 def _larger(model: dict[str, Array], robust: dict[str, Array]

@@ -180,6 +180,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
                        covariance: bool = True, one_step: bool | int = False,
+                       window_blocks: bool = True,
                        reweight: bool = False,
                        settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
     """Refine all parameters on the window factors of every take.
@@ -196,6 +197,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
         progress: called with a short message as the stage advances.
         covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
+        window_blocks: the sandwich's blocks are the windows (else their one-second parts:
+            the diagnosis' tests, calibrated with those).
         one_step: Gauss-Newton steps from ``init`` instead of LM rounds (``True``: one; an
             int: that many): for refits from a nearby solution (segments, other noise
             models). Between steps the mocap levels (with ``adapt_noise``) and the weights
@@ -217,17 +220,17 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
     else:
         fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
                             robust, adapt_noise, history, progress)
-    sol, outs = fit.values, pg.evals[-1]
-    thetas = pg.thetas(sol)
+    outs = pg.evals[-1]
+    thetas = pg.thetas(fit.values)
     # A Gauss-Newton refit keeps the linearisation it last stepped from: its covariance is
     # that of the nearby point (no further evaluation).
-    at = fit.linearized_at if one_step else sol
+    at = fit.linearized_at if one_step else fit.values
     blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
 
     def covariances() -> PositionUncertainty:
         inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes], pg.knot0,
                                [th.knots for th in thetas], model.has("time_offset"),
-                               [o.scores for o in outs])
+                               [o.scores for o in outs], window_blocks)
         return position_covariances(pg.graph, at, inp, pg.problem.noise)
 
     if covariance:
@@ -236,7 +239,19 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         unc = PositionUncertainty({}, [TakeUncertainty(
             {}, np.zeros((t.windows.count, 6)), _mean_bias(t.windows, th))
             for t, th in zip(takes, thetas, strict=True)])
-    stats, series, chi2, dof = _figures(pg, fit, outs, time.perf_counter() - t_start)
+    res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, one_step)
+    res.covariances = None if covariance else covariances
+    if not covariance:
+        res.cov = {}
+    return res
+
+
+def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUncertainty,
+            seconds: float, history: _History, one_step: bool | int) -> PositionResult:
+    """The stage's result from its fit and covariances."""
+    takes = pg.takes
+    outs = pg.evals[-1]
+    stats, series, chi2, dof = _figures(pg, fit, outs, seconds)
     solver = {"position_batch_seconds": round(pg.batch.seconds, 3),
               "position_evaluations": pg.batch.evaluations,
               "windows": sum(t.windows.count for t in takes),
@@ -251,12 +266,12 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
     th0 = thetas[0]
     return PositionResult(
         R_MI=th0.R_MI, p_MI=th0.p_MI, g_dir=th0.g_dir, g_mag=th0.g_mag, effects=th0.effects,
-        takes=fits, cov={**unc.cov, **unc.takes[0].cov} if covariance else {},
+        takes=fits, cov={**unc.cov, **unc.takes[0].cov},
         unobservable=unobservable_blocks(unc.cov_model), stats=stats, chi2_per_dof=chi2,
         noise=pg.problem.noise,
         # (a Gauss-Newton refit's cost would cost an evaluation at the new values: not needed)
-        cost=float("nan") if one_step else 2.0 * pg.graph.error(sol), dof=int(dof),
-        solver=solver, history=history.records, covariances=None if covariance else covariances)
+        cost=float("nan") if one_step else 2.0 * pg.graph.error(fit.values), dof=int(dof),
+        solver=solver, history=history.records)
 
 
 class _History:
@@ -380,9 +395,10 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
                   adapt_noise: bool, hook: _History,
                   progress: Callable[[str], None] | None) -> _Fit:
     """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
-    are re-estimated from the innovations and the robust weights updated. Settling rounds are
-    short; once nothing changes (or the cost moves by less than :data:`COST_SETTLED`) one LM
-    run goes to convergence."""
+    are re-estimated from the innovations and the robust weights updated. The first run goes
+    to convergence from the start values; the settling rounds after it are short; once nothing
+    changes (or the cost moves by less than :data:`COST_SETTLED`) one LM run goes to
+    convergence."""
     graph, batch = pg.graph, pg.batch
     iterations, sol, out0 = 0, pg.values, None
     noise_scale = np.ones(2)
@@ -397,7 +413,10 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
                      f"({n} windows)")
         pg.for_each("freeze_whitening", True)
         batch.invalidate()
-        sol, rep = run_lm(graph, sol, max_iterations if final else SETTLING_ITERATIONS, hook)
+        # The first run converges (from stages 1-2, unit weights); later ones only settle the
+        # levels and weights, until the last.
+        limit = max_iterations if (final or rnd == 1) else SETTLING_ITERATIONS
+        sol, rep = run_lm(graph, sol, limit, hook)
         out0 = hook.first_eval if out0 is None else out0
         iterations += rep.iterations
         outs = _evaluate_at(pg, sol)
