@@ -46,7 +46,8 @@ from mocap_calib.io.formats.imu_tk import read_imu_tk_pair
 from mocap_calib.io.formats.layout import WHITESPACE, sniff_layout
 from mocap_calib.io.formats.mocap_exports import ExportOptions, read_export, sniff_export
 from mocap_calib.io.formats.tum import read_tum
-from mocap_calib.io.formats.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
+from mocap_calib.io.formats.ulog import read_ulog_imu, read_ulog_mocap
+from mocap_calib.io.formats.ulog_file import is_ulog
 
 #: Human-readable names of the formats :func:`sniff_format` returns.
 FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
