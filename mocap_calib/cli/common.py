@@ -31,14 +31,16 @@ ACCEL_UNIT = Annotated[str | None, typer.Option(help="m/s^2 or g.", show_default
 QUAT_ORDER = Annotated[str | None, typer.Option(help="wxyz or xyzw.", show_default=False)]
 POSITION_UNIT = Annotated[str | None, typer.Option(help="m, cm or mm.", show_default=False)]
 IMU_TOPIC = Annotated[str | None, typer.Option(
-    help="Bag/ULog IMU topic (sensor_msgs/Imu; ULog: sensor_combined). Default: the only one.",
+    help="Bag/ULog IMU topic (sensor_msgs/Imu; ULog: sensor_combined, or one IMU of several as "
+    "sensor_gyro:N or sensor_accel:N). Default: the only one (ULog: sensor_combined).",
     show_default=False)]
 MOCAP_TOPIC = Annotated[str | None, typer.Option(
     help="Bag/ULog pose topic (PoseStamped, TransformStamped, PoseWithCovarianceStamped, "
     "Odometry, or /tf with --mocap-frame; ULog: vehicle_mocap_odometry or "
     "vehicle_visual_odometry). Default: the only one.", show_default=False)]
 MOCAP_FRAME = Annotated[str | None, typer.Option(
-    help="Child frame of the marker body in a tf2_msgs/TFMessage topic.", show_default=False)]
+    help="Marker body's frame in a tf2_msgs/TFMessage topic: CHILD (its pose in the root of its "
+    "TF tree, /tf_static included) or PARENT:CHILD (in PARENT).", show_default=False)]
 STAMP = Annotated[str, typer.Option(
     help="Bag stamps: header (message header.stamp) or receive (the bag's record time).")]
 MOCAP_FORMAT = Annotated[str | None, typer.Option(

@@ -370,7 +370,7 @@ def load_imu_file(path: Path | str | None, *, columns: str | None = None,
         accel_file: imu_tk's accelerometer file.
         gyro_file: imu_tk's gyroscope file.
         topic: bags and ULogs: the IMU topic (None: the only ``sensor_msgs/Imu`` topic, or
-            ``sensor_combined``).
+            ``sensor_combined``; ``sensor_gyro:N`` for one of several PX4 IMUs).
         stamp: bags: ``header`` or ``receive``.
 
     Returns:

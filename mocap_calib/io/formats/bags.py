@@ -4,11 +4,18 @@ No ROS installation is needed: ``rosbags`` parses the containers and the message
 the bags carry. The IMU comes from a ``sensor_msgs/Imu`` topic; the mocap from a
 ``geometry_msgs/PoseStamped``, ``TransformStamped``, ``PoseWithCovarianceStamped``,
 ``nav_msgs/Odometry`` or ``tf2_msgs/TFMessage`` topic (``/tf`` with ``mocap_frame`` naming the
-child frame). A topic left unnamed is taken when exactly one topic of a usable type exists.
+marker body's frame, ``CHILD`` or ``PARENT:CHILD``: the chain of transforms between them is
+composed, ``/tf_static`` included; :mod:`.ros.tf`). A topic left unnamed is taken when exactly
+one topic of a usable type exists (``/tf_static`` is never the pose stream).
+
+Reading is in bulk: the container hands over each topic's serialised messages and
+:mod:`.ros.wire` decodes them all at once with numpy from the known layouts (one message at a
+time only for definitions that differ from the standard ones).
 
 Stamps come from ``header.stamp`` (``stamp="header"``) or from the bag's record time
 (``stamp="receive"``). Messages whose header stamps arrive out of order are sorted (and counted
-in the notes); repeated stamps stay an error, as in the CSV readers.
+in the notes); repeated stamps stay an error, as in the CSV readers. Dropped IMU messages are
+gaps in the stream, noted, not refused: the calibration handles them.
 """
 
 from __future__ import annotations
@@ -54,9 +61,11 @@ class RecordingOptions:
     """How to read bags and logs: topics, the TF child frame and the stamp source.
 
     Attributes:
-        imu_topic: IMU topic (None: the only ``sensor_msgs/Imu`` topic).
+        imu_topic: IMU topic (None: the only ``sensor_msgs/Imu`` topic; ULog:
+            ``sensor_combined``, or ``sensor_gyro:N`` / ``sensor_accel:N`` for one IMU).
         mocap_topic: pose topic (None: the only pose topic, ``/tf`` last).
-        mocap_frame: child frame of the marker body in a ``TFMessage`` topic.
+        mocap_frame: the marker body's frame in a ``TFMessage`` topic: ``CHILD`` (posed in the
+            root of its TF tree) or ``PARENT:CHILD``.
         stamp: ``header`` (message header stamps) or ``receive`` (the bag's record time).
     """
 
