@@ -107,7 +107,7 @@ def chain(tree: dict[str, Link], parent: str | None, child: str, topic: str, sou
     common = next((f for f in up_c if f in up_p), None)
     if common is None:
         frames = sorted(set(tree) | {lk.parent for lk in tree.values()})
-        where = ("is not on it" if parent not in frames else
+        where = (" is in no transform" if parent not in frames else
                  f"'s chain ends at '{up_p[-1]}' ({' <- '.join(up_p)})")
         raise input_error(f"no TF chain links '{parent}' to '{child}' on {topic} and /tf_static: "
                           f"{child}'s chain ends at '{up_c[-1]}' ({' <- '.join(up_c)}), "
