@@ -34,13 +34,8 @@ from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError, input_error
 from mocap_calib.io.checks import Lines, imu_gap_note, validate_imu, validate_mocap
 from mocap_calib.io.formats.ros.tf import chain, compose, frame, links, parse_frames
-from mocap_calib.io.formats.ros.wire import (
-    Transforms,
-    deserialise_fixed,
-    deserialise_tf,
-    read_fixed,
-    read_tf,
-)
+from mocap_calib.io.formats.ros.tf_wire import Transforms, deserialise_tf, read_tf
+from mocap_calib.io.formats.ros.wire import deserialise_fixed, read_fixed
 
 IMU_TYPES = ("sensor_msgs/msg/Imu",)
 #: Pose message types -> where the pose sits in the message.
@@ -349,8 +344,10 @@ def _tf_poses(bag: _Bag, topic: str, opts: RecordingOptions, notes: list[str]
     statics = [t for t, ty in bag.topics.items() if t != topic and _is_static(t, ty)]
     static = _tf(bag, statics[0])[1] if statics else None
     children: dict[str, int] = {}
-    for c in tf.child + (static.child if static is not None else []):
-        children[frame(c)] = children.get(frame(c), 0) + 1
+    for tr in (tf, static) if static is not None else (tf,):
+        codes, counts = np.unique(tr.child, return_counts=True)
+        for c, n in zip(codes.tolist(), counts.tolist(), strict=True):
+            children[frame(tr.names[c])] = children.get(frame(tr.names[c]), 0) + n
     listed = ", ".join(f"{c} ({n})" for c, n in sorted(children.items())) or "none"
     if opts.mocap_frame is None:
         raise input_error(f"{topic} is a TF topic; say which child frame is the marker body "

@@ -24,7 +24,7 @@ from mocap_calib.core.model.so3 import quat_multiply
 from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import input_error
 from mocap_calib.io.checks import QUAT_NORM_TOL
-from mocap_calib.io.formats.ros.wire import Transforms
+from mocap_calib.io.formats.ros.tf_wire import Transforms
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -63,25 +63,28 @@ def links(tf: Transforms, stamps: IntArray, static: Transforms | None, topic: st
           source: str) -> dict[str, Link]:
     """Every child frame's link, from the TF topic's rows (stamped ``stamps``) and the static
     rows. A frame with two parents is an error naming them."""
-    rows: dict[str, list[tuple[str, int, NDArray[np.float64]]]] = {}
-    for tr, st in ((tf, stamps), (static, None if static is None else static.stamp)):
-        if tr is None or st is None:
-            continue
-        xyzw = tr.value
-        wxyz = np.concatenate([xyzw[:, :3], xyzw[:, [6, 3, 4, 5]]], axis=1)
-        for i, (p, c) in enumerate(zip(tr.parent, tr.child, strict=True)):
-            rows.setdefault(frame(c), []).append((frame(p), int(st[i]), wxyz[i]))
+    parts = [(tf, stamps)] + ([(static, static.stamp)] if static is not None else [])
+    ids: dict[str, int] = {}
+    parent, child, st, val = [], [], [], []
+    for tr, stamp in parts:  # frame ids as normalised names' codes, shared by both topics
+        code = np.array([ids.setdefault(frame(n), len(ids)) for n in tr.names] or [0])
+        parent.append(code[tr.parent])
+        child.append(code[tr.child])
+        st.append(stamp)
+        val.append(np.concatenate([tr.value[:, :3], tr.value[:, [6, 3, 4, 5]]], axis=1))
+    names = list(ids)
+    p_all, c_all, s_all, v_all = (np.concatenate(x) for x in (parent, child, st, val))
     out: dict[str, Link] = {}
-    for child, rs in rows.items():
-        parents = sorted({p for p, _, _ in rs})
+    for c in np.unique(c_all).tolist():
+        rows = np.flatnonzero(c_all == c)
+        parents = sorted(names[i] for i in np.unique(p_all[rows]).tolist())
         if len(parents) > 1:
-            raise input_error(f"frame '{child}' has {len(parents)} parents on {topic} and "
+            raise input_error(f"frame '{names[c]}' has {len(parents)} parents on {topic} and "
                               f"/tf_static: {', '.join(parents)} (a TF tree gives each frame "
                               "one)", "record one TF tree, or pass the mocap's own pose topic "
                               "with --mocap-topic", source)
-        st = np.array([s for _, s, _ in rs], dtype=np.int64)
-        order = np.argsort(st, kind="stable")
-        out[child] = Link(parents[0], child, st[order], np.array([v for _, _, v in rs])[order])
+        order = rows[np.argsort(s_all[rows], kind="stable")]
+        out[names[c]] = Link(parents[0], names[c], s_all[order], v_all[order])
     return out
 
 
