@@ -9,6 +9,7 @@ reader under test (``pyulog``).
 from __future__ import annotations
 
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -83,14 +84,7 @@ def write_bag(path: Path, kind: str, imu: ImuSamples | None, mocap: MocapPoses |
     Record times are the stamps plus ``receive_delay_ns``; ``extra_topics`` (topic -> type)
     adds one message each of further topics (to test topic selection).
     """
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS1_NOETIC if kind == "rosbag1" else Stores.ROS2_HUMBLE)
-    if "tf2_msgs/msg/TFMessage" not in ts.types:  # not in rosbags' ROS 1 store
-        from rosbags.typesys import get_types_from_msg
-
-        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
-                                       "tf2_msgs/msg/TFMessage"))
+    ts = _store(kind)
     msgs: list[tuple[int, str, object]] = []
     if imu is not None:
         for ns, w, a in zip(imu.stamps_ns().tolist(), imu.gyro.tolist(), imu.accel.tolist(),
@@ -107,6 +101,24 @@ def write_bag(path: Path, kind: str, imu: ImuSamples | None, mocap: MocapPoses |
         else:
             msgs.append((first + i, topic, pose_msg(ts, msgtype, first + i, (1, 0, 0, 0),
                                                     (0, 0, 0))))
+    return _write(path, kind, ts, msgs, receive_delay_ns)
+
+
+def _store(kind: str):
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC if kind == "rosbag1" else Stores.ROS2_HUMBLE)
+    if "tf2_msgs/msg/TFMessage" not in ts.types:  # not in rosbags' ROS 1 store
+        from rosbags.typesys import get_types_from_msg
+
+        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
+                                       "tf2_msgs/msg/TFMessage"))
+    return ts
+
+
+def _write(path: Path, kind: str, ts, msgs: list[tuple[int, str, object]],
+           receive_delay_ns: int) -> Path:
+    """Write time-ordered messages with ``rosbags`` (record time = stamp + delay)."""
     msgs.sort(key=lambda m: m[0])
     types = {topic: type(m).__msgtype__ for _, topic, m in msgs}
     if kind == "rosbag1":
@@ -136,6 +148,33 @@ def write_bag(path: Path, kind: str, imu: ImuSamples | None, mocap: MocapPoses |
     return path
 
 
+def transform_msg(ts, ns: int, parent: str, child: str, p, q_wxyz):
+    T = ts.types
+    V3 = T["geometry_msgs/msg/Vector3"]
+    Q = T["geometry_msgs/msg/Quaternion"](x=q_wxyz[1], y=q_wxyz[2], z=q_wxyz[3], w=q_wxyz[0])
+    return T["geometry_msgs/msg/TransformStamped"](
+        header=_header(ts, ns, parent), child_frame_id=child,
+        transform=T["geometry_msgs/msg/Transform"](translation=V3(x=p[0], y=p[1], z=p[2]),
+                                                   rotation=Q))
+
+
+def write_tf_bag(path: Path, kind: str, imu: ImuSamples | None,
+                 tf: list[tuple[int, str, list[tuple[str, str, object, object]]]]) -> Path:
+    """A bag whose poses are TF messages: ``tf`` holds (stamp ns, topic, [(parent, child,
+    position, quaternion wxyz), ...]) per message, each message stamped (and recorded) at its
+    stamp."""
+    ts = _store(kind)
+    msgs: list[tuple[int, str, object]] = []
+    if imu is not None:
+        for ns, w, a in zip(imu.stamps_ns().tolist(), imu.gyro.tolist(), imu.accel.tolist(),
+                            strict=True):
+            msgs.append((ns, "/imu0", imu_msg(ts, ns, w, a)))
+    for ns, topic, items in tf:
+        trs = [transform_msg(ts, ns, pa, ch, p, q) for pa, ch, p, q in items]
+        msgs.append((ns, topic, ts.types["tf2_msgs/msg/TFMessage"](transforms=trs)))
+    return _write(path, kind, ts, msgs, 0)
+
+
 # --- ULog (PX4's published format spec) ------------------------------------------------------
 
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
@@ -161,45 +200,129 @@ def _info(key: str, value: bytes) -> bytes:
     return _msg(b"I", struct.pack("<B", len(k)) + k + value)
 
 
-def write_ulog(path: Path, imu: ImuSamples, mocap: MocapPoses | None, *,
+SENSOR_GYRO = ("sensor_gyro:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;"
+               "float x;float y;float z;float temperature;uint32_t error_count;")
+SENSOR_ACCEL = SENSOR_GYRO.replace("sensor_gyro:", "sensor_accel:")
+SENSOR_SELECTION = ("sensor_selection:uint64_t timestamp;uint32_t accel_device_id;uint32_t "
+                    "gyro_device_id;")
+
+
+@dataclass
+class RawImuLog:
+    """One IMU's ``sensor_gyro`` / ``sensor_accel`` instances: stamps in us (``timestamp_sample``;
+    ``timestamp`` is 200 us later) and values (rad/s, m/s^2), written as float32."""
+
+    gyro_instance: int
+    accel_instance: int
+    device_id: int
+    t_gyro_us: np.ndarray
+    gyro: np.ndarray
+    t_accel_us: np.ndarray
+    accel: np.ndarray
+    accel_device_id: int | None = None  # None: the gyro's
+
+
+class _ULogWriter:
+    """Definitions, subscriptions and time-ordered data, dropout and other messages."""
+
+    def __init__(self, t0_us: int) -> None:
+        self.head = bytearray(_ULOG_MAGIC + b"\x01" + struct.pack("<Q", t0_us))
+        self.head += _msg(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
+        self.defs = bytearray()
+        self.subs = bytearray()
+        self.events: list[tuple[int, int, bytes]] = []
+        self.next_id = 0
+
+    def define(self, fmt: str) -> None:
+        self.defs += _msg(b"F", fmt.encode())
+
+    def subscribe(self, name: str, multi_id: int = 0) -> int:
+        self.subs += _msg(b"A", struct.pack("<BH", multi_id, self.next_id) + name.encode())
+        self.next_id += 1
+        return self.next_id - 1
+
+    def data(self, msg_id: int, t_us: int, body: bytes) -> None:
+        self.events.append((t_us, 0, _msg(b"D", struct.pack("<H", msg_id) + body)))
+
+    def dropout(self, t_us: int, ms: int) -> None:
+        """A dropout record right after the data up to ``t_us``."""
+        self.events.append((t_us, 1, _msg(b"O", struct.pack("<H", ms))))
+
+    def write(self, path: Path) -> Path:
+        out = self.head + self.defs + _info("char[8] sys_name", b"mc-calib") \
+            + _info("char[7] ver_hw", b"SIMTEST") + self.subs
+        for _, _, m in sorted(self.events, key=lambda e: (e[0], e[1])):
+            out += m
+        path.write_bytes(bytes(out))
+        return path
+
+
+def write_ulog(path: Path, imu: ImuSamples | None, mocap: MocapPoses | None, *,
                odometry_name: str = "vehicle_mocap_odometry", accel_relative_us: int = 0,
-               pose_frame: int = 1) -> Path:
-    """Write a ULog with ``sensor_combined`` and, if given, a mocap odometry topic.
+               pose_frame: int = 1, raw: tuple[RawImuLog, ...] = (),
+               dropouts: tuple[tuple[int, int], ...] = (),
+               selection: tuple[tuple[int, int, int], ...] = ()) -> Path:
+    """Write a ULog with ``sensor_combined`` (if ``imu``) and, if given, a mocap odometry topic.
 
     IMU stamps become microseconds (they must be whole microseconds), values float32 as PX4
     logs them. Mocap poses are written as given (NED world, FRD body) in ``position``/``q``,
-    stamped in ``timestamp_sample``; ``timestamp`` is 1 ms later (publication).
+    stamped in ``timestamp_sample``; ``timestamp`` is 1 ms later (publication). ``raw`` adds
+    ``sensor_gyro``/``sensor_accel`` instances, ``dropouts`` the logger's dropout records
+    (time in us, length in ms), ``selection`` ``sensor_selection`` messages (time in us, gyro
+    and accel device ids).
     """
+    starts = [int(imu.stamps_ns()[0] // 1000)] if imu is not None else []
+    starts += [int(r.t_gyro_us[0]) for r in raw]
+    w = _ULogWriter(min(starts))
+    for fmt in (SENSOR_COMBINED, VEHICLE_ODOMETRY.replace("vehicle_odometry:",
+                                                          f"{odometry_name}:"),
+                SENSOR_GYRO, SENSOR_ACCEL, SENSOR_SELECTION):
+        w.define(fmt)
+    if imu is not None:
+        _combined(w, imu, accel_relative_us)
+    if mocap is not None:
+        _odometry(w, mocap, odometry_name, pose_frame)
+    for r in raw:
+        _raw(w, r)
+    if selection:
+        sid = w.subscribe("sensor_selection")
+        for t, gyro_id, accel_id in selection:
+            w.data(sid, t, struct.pack("<QII", t, accel_id, gyro_id))
+    for t, ms in dropouts:
+        w.dropout(t, ms)
+    return w.write(path)
+
+
+def _combined(w: _ULogWriter, imu: ImuSamples, accel_relative_us: int) -> None:
     imu_us = imu.stamps_ns() // 1000
     assert np.all(imu_us * 1000 == imu.stamps_ns()), "IMU stamps must be whole microseconds"
-    out = bytearray(_ULOG_MAGIC + b"\x01" + struct.pack("<Q", int(imu_us[0])))
-    out += _msg(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
-    out += _msg(b"F", SENSOR_COMBINED.encode())
-    out += _msg(b"F", VEHICLE_ODOMETRY.encode().replace(b"vehicle_odometry:",
-                                                        f"{odometry_name}:".encode()))
-    out += _info("char[8] sys_name", b"mc-calib")
-    out += _info("char[7] ver_hw", b"SIMTEST")
-    out += _msg(b"A", struct.pack("<BH", 0, 0) + b"sensor_combined")
-    if mocap is not None:
-        out += _msg(b"A", struct.pack("<BH", 0, 1) + odometry_name.encode())
-    events: list[tuple[int, bytes]] = []
+    sid = w.subscribe("sensor_combined")
     g = imu.gyro.astype(np.float32)
     a = imu.accel.astype(np.float32)
     for i, t in enumerate(imu_us.tolist()):
-        body = struct.pack("<Q3fIi3fIBBBB", t, *g[i], 5000, accel_relative_us, *a[i], 5000,
-                           0, 0, 1, 1)
-        events.append((t, _msg(b"D", struct.pack("<H", 0) + body)))
-    if mocap is not None:
-        moc_us = mocap.stamps_ns() // 1000
-        q = mocap.quat_wxyz.astype(np.float32)
-        p = mocap.position.astype(np.float32)
-        nan3 = (float("nan"),) * 3
-        for i, t in enumerate(moc_us.tolist()):
-            body = struct.pack("<QQ3f4f3f3f3f3f3fBBBb", t + 1000, t, *p[i], *q[i], *nan3, *nan3,
-                               *nan3, *nan3, *nan3, pose_frame, 0, 0, 100)
-            events.append((t + 1000, _msg(b"D", struct.pack("<H", 1) + body)))
-    events.sort(key=lambda e: e[0])
-    for _, m in events:
-        out += m
-    path.write_bytes(bytes(out))
-    return path
+        w.data(sid, t, struct.pack("<Q3fIi3fIBBBB", t, *g[i], 5000, accel_relative_us, *a[i],
+                                   5000, 0, 0, 1, 1))
+
+
+def _odometry(w: _ULogWriter, mocap: MocapPoses, name: str, pose_frame: int) -> None:
+    sid = w.subscribe(name)
+    moc_us = mocap.stamps_ns() // 1000
+    q = mocap.quat_wxyz.astype(np.float32)
+    p = mocap.position.astype(np.float32)
+    nan3 = (float("nan"),) * 3
+    for i, t in enumerate(moc_us.tolist()):
+        w.data(sid, t + 1000, struct.pack("<QQ3f4f3f3f3f3f3fBBBb", t + 1000, t, *p[i], *q[i],
+                                          *nan3, *nan3, *nan3, *nan3, *nan3, pose_frame, 0, 0,
+                                          100))
+
+
+def _raw(w: _ULogWriter, r: RawImuLog) -> None:
+    accel_id = r.device_id if r.accel_device_id is None else r.accel_device_id
+    for name, inst, dev, ts, vals in (("sensor_gyro", r.gyro_instance, r.device_id, r.t_gyro_us,
+                                       r.gyro),
+                                      ("sensor_accel", r.accel_instance, accel_id, r.t_accel_us,
+                                       r.accel)):
+        sid = w.subscribe(name, inst)
+        v = np.asarray(vals).astype(np.float32)
+        for i, t in enumerate(np.asarray(ts).tolist()):
+            w.data(sid, t + 200, struct.pack("<QQI3ffI", t + 200, t, dev, *v[i], 25.0, 0))

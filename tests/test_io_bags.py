@@ -162,10 +162,11 @@ def test_ulog_accel_logged_apart_from_the_gyro_is_interpolated(px4_session, tmp_
     notes: list[str] = []
     got = read_ulog_imu(shifted, None, notes)
     # Accel sample k is now at t_k + 2.5 ms: interpolated back onto t_k it is the mean of
-    # samples k-1 and k.
-    np.testing.assert_allclose(got.accel[1:], 0.5 * (imu.accel[1:] + imu.accel[:-1]),
-                               atol=1e-6)
-    assert any("interpolated" in n for n in notes)
+    # samples k-1 and k. The first gyro sample has no accel sample before it: left out, not
+    # extrapolated.
+    assert np.array_equal(got.stamps_ns(), imu.stamps_ns()[1:])
+    np.testing.assert_allclose(got.accel, 0.5 * (imu.accel[1:] + imu.accel[:-1]), atol=1e-6)
+    assert any("interpolated" in n and "1 gyro samples" in n for n in notes)
 
 
 # --- bad input: one line naming the file and the fix, no traceback ---------------------------

@@ -5,8 +5,10 @@ checks are vectorised (files can hold millions of rows); only when a check fails
 scanned again, in Python, to turn the offending data row into its line number (:class:`Lines`).
 
 Readers call :func:`validate_imu` / :func:`validate_mocap` with arrays already converted to SI
-units; :func:`check_overlap` is separate because only the calibrator knows whether a clock
-offset will be searched.
+units. Gaps in the IMU stamps are not refused here: the calibration bridges or splits them by
+the rule in :mod:`mocap_calib.core.policy`; recording readers note them (:func:`imu_gap_note`).
+:func:`check_overlap` is separate because only the calibrator knows whether a clock offset will
+be searched.
 """
 
 from __future__ import annotations
@@ -17,7 +19,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.core.policy import POSITION_UNITS, TIME_UNITS_NS
+from mocap_calib.core.policy import (
+    GAP_FACTOR,
+    IMU_TRIM_START_S,
+    POSITION_UNITS,
+    TIME_UNITS_NS,
+    gap_threshold,
+)
 from mocap_calib.errors import InputError, input_error
 
 Array = NDArray[np.float64]
@@ -252,6 +260,31 @@ def check_time_unit(ns: IntArray, unit: str, kind: str, lines: Lines) -> None:
     else:
         fix = "check the time column and --time-unit (s, ms, us or ns)"
     raise lines.error(what, fix)
+
+
+def imu_gaps(t: Array) -> tuple[IntArray, Array]:
+    """Gaps of an IMU stream by the one gap rule (:func:`~mocap_calib.core.policy.gap_threshold`):
+    the index ``i`` of the sample before each gap (the gap is ``t[i]..t[i+1]``) and its length
+    (s). The readers report gaps; what is done with them is the calibration's business."""
+    if len(t) < 3:
+        return np.zeros(0, np.int64), np.zeros(0)
+    d = np.diff(t)
+    i = np.flatnonzero(d > gap_threshold(t))
+    return i, d[i]
+
+
+def imu_gap_note(t: Array, source: str) -> str | None:
+    """One line on the gaps in the IMU stamps ``t`` (s from the IMU start), None if none."""
+    i, length = imu_gaps(t)
+    if len(i) == 0:
+        return None
+    k = int(np.argmax(length))
+    step = float(np.median(np.diff(t)))
+    start = (f"; the first at {t[i[0]]:.3f} s, at the logger start" if t[i[0]] - t[0]
+             <= IMU_TRIM_START_S else "")
+    return (f"{source}: {len(i)} gap{'s' if len(i) > 1 else ''} in the IMU stamps (steps over "
+            f"{GAP_FACTOR:g}x the median {step * 1e3:.3g} ms): longest {length[k]:.3f} s at "
+            f"{t[i[k]]:.3f} s from the IMU start, {float(length.sum()):.3f} s in all{start}")
 
 
 def _integral(x: Array) -> bool:

@@ -46,7 +46,8 @@ from mocap_calib.io.formats.imu_tk import read_imu_tk_pair
 from mocap_calib.io.formats.layout import WHITESPACE, sniff_layout
 from mocap_calib.io.formats.mocap_exports import ExportOptions, read_export, sniff_export
 from mocap_calib.io.formats.tum import read_tum
-from mocap_calib.io.formats.ulog import is_ulog, read_ulog_imu, read_ulog_mocap
+from mocap_calib.io.formats.ulog import read_ulog_imu, read_ulog_mocap
+from mocap_calib.io.formats.ulog_file import is_ulog
 
 #: Human-readable names of the formats :func:`sniff_format` returns.
 FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
@@ -369,7 +370,7 @@ def load_imu_file(path: Path | str | None, *, columns: str | None = None,
         accel_file: imu_tk's accelerometer file.
         gyro_file: imu_tk's gyroscope file.
         topic: bags and ULogs: the IMU topic (None: the only ``sensor_msgs/Imu`` topic, or
-            ``sensor_combined``).
+            ``sensor_combined``; ``sensor_gyro:N`` for one of several PX4 IMUs).
         stamp: bags: ``header`` or ``receive``.
 
     Returns:

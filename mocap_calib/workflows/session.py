@@ -27,8 +27,9 @@ TIME_UNITS = ("s", "ms", "us", "ns")
 GYRO_UNITS = ("rad/s", "deg/s")
 ACCEL_UNITS = ("m/s^2", "g")
 STAMPS = ("header", "receive")
-IMU_TOPIC_HELP = ("IMU topic of a bag or ULog (sensor_msgs/Imu; ULog: sensor_combined, or "
-                  "sensor_gyro/sensor_accel); default: the only one")
+IMU_TOPIC_HELP = ("IMU topic of a bag or ULog (sensor_msgs/Imu; ULog: sensor_combined, or one "
+                  "IMU of several as sensor_gyro:N or sensor_accel:N); default: the only one "
+                  "(ULog: sensor_combined)")
 
 
 @dataclass
@@ -44,8 +45,9 @@ class MocapFormat:
         "PoseWithCovarianceStamped, Odometry, or /tf with --mocap-frame; ULog: "
         "vehicle_mocap_odometry or vehicle_visual_odometry); default: the only one",
         show_default=False)
-    mocap_frame: str | None = param(None, "child frame of the marker body in a "
-                                    "tf2_msgs/TFMessage topic", show_default=False)
+    mocap_frame: str | None = param(
+        None, "the marker body's frame in a tf2_msgs/TFMessage topic: CHILD (its pose in the root "
+        "of its TF tree, /tf_static included) or PARENT:CHILD (in PARENT)", show_default=False)
     mocap_format: str | None = param(
         None, "mocap export format (default: detected from the header)",
         choices=("motive", "vicon-nexus", "vicon-tracker"), show_default=False)

@@ -4,18 +4,25 @@ No ROS installation is needed: ``rosbags`` parses the containers and the message
 the bags carry. The IMU comes from a ``sensor_msgs/Imu`` topic; the mocap from a
 ``geometry_msgs/PoseStamped``, ``TransformStamped``, ``PoseWithCovarianceStamped``,
 ``nav_msgs/Odometry`` or ``tf2_msgs/TFMessage`` topic (``/tf`` with ``mocap_frame`` naming the
-child frame). A topic left unnamed is taken when exactly one topic of a usable type exists.
+marker body's frame, ``CHILD`` or ``PARENT:CHILD``: the chain of transforms between them is
+composed, ``/tf_static`` included; :mod:`.ros.tf`). A topic left unnamed is taken when exactly
+one topic of a usable type exists (``/tf_static`` is never the pose stream).
+
+Reading is in bulk: the container hands over each topic's serialised messages and
+:mod:`.ros.wire` decodes them all at once with numpy from the known layouts (one message at a
+time only for definitions that differ from the standard ones).
 
 Stamps come from ``header.stamp`` (``stamp="header"``) or from the bag's record time
 (``stamp="receive"``). Messages whose header stamps arrive out of order are sorted (and counted
-in the notes); repeated stamps stay an error, as in the CSV readers.
+in the notes); repeated stamps stay an error, as in the CSV readers. Dropped IMU messages are
+gaps in the stream, noted, not refused: the calibration handles them.
 """
 
 from __future__ import annotations
 
 import sqlite3
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +32,10 @@ import numpy as np
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError, input_error
-from mocap_calib.io.checks import Lines, validate_imu, validate_mocap
+from mocap_calib.io.checks import Lines, imu_gap_note, validate_imu, validate_mocap
+from mocap_calib.io.formats.ros.tf import chain, compose, frame, links, parse_frames
+from mocap_calib.io.formats.ros.tf_wire import Transforms, deserialise_tf, read_tf
+from mocap_calib.io.formats.ros.wire import deserialise_fixed, read_fixed
 
 IMU_TYPES = ("sensor_msgs/msg/Imu",)
 #: Pose message types -> where the pose sits in the message.
@@ -46,9 +56,11 @@ class RecordingOptions:
     """How to read bags and logs: topics, the TF child frame and the stamp source.
 
     Attributes:
-        imu_topic: IMU topic (None: the only ``sensor_msgs/Imu`` topic).
+        imu_topic: IMU topic (None: the only ``sensor_msgs/Imu`` topic; ULog:
+            ``sensor_combined``, or ``sensor_gyro:N`` / ``sensor_accel:N`` for one IMU).
         mocap_topic: pose topic (None: the only pose topic, ``/tf`` last).
-        mocap_frame: child frame of the marker body in a ``TFMessage`` topic.
+        mocap_frame: the marker body's frame in a ``TFMessage`` topic: ``CHILD`` (posed in the
+            root of its TF tree) or ``PARENT:CHILD``.
         stamp: ``header`` (message header stamps) or ``receive`` (the bag's record time).
     """
 
@@ -124,15 +136,30 @@ class _Bag:
         else:
             self._any.close()
 
-    def messages(self, topic: str) -> Iterator[tuple[int, Any]]:
-        """(record time in ns, deserialized message) of every message on ``topic``."""
+    @property
+    def ros1(self) -> bool:
+        return self.kind == "rosbag1"
+
+    def raw(self, topic: str) -> tuple[np.ndarray, list[bytes]]:
+        """Record times (ns) and serialised bytes of every message on ``topic``, in one pass
+        (the container's reader yields one message at a time; nothing else is done per
+        message here)."""
         conns = [c for c in self.connections if c.topic == topic]
+        it = (self._mcap.messages(conns) if self.kind == "mcap"
+              else self._any.messages(connections=conns))
+        times: list[int] = []
+        raws: list[bytes] = []
+        add_t, add_r = times.append, raws.append
+        for _, t_ns, data in it:
+            add_t(t_ns)
+            add_r(data)
+        return np.array(times, dtype=np.int64), raws
+
+    def deserialiser(self, msgtype: str) -> Callable[[bytes], Any]:
+        """Bytes -> message of ``msgtype`` (ROS 1 messages come out with ROS 2 field names)."""
         if self.kind == "mcap":
-            for conn, t_ns, raw in self._mcap.messages(conns):
-                yield t_ns, self.typestore.deserialize_cdr(raw, conn.msgtype)
-        else:
-            for conn, t_ns, raw in self._any.messages(connections=conns):
-                yield t_ns, self._any.deserialize(raw, conn.msgtype)
+            return lambda raw: self.typestore.deserialize_cdr(raw, msgtype)
+        return lambda raw: self._any.deserialize(raw, msgtype)
 
 
 def _typestore(connections: list) -> Any:
@@ -213,7 +240,8 @@ def pick_topic(bag: _Bag, wanted: str | None, types: tuple[str, ...] | dict[str,
         raise input_error("the bag holds no messages (an empty recording)",
                           "pass the bag that holds the session", src)
     names = ", ".join(t.replace("/msg/", "/") for t in types)
-    candidates = sorted(t for t, ty in bag.topics.items() if ty in types)
+    candidates = sorted(t for t, ty in bag.topics.items() if ty in types
+                        and not (what == "mocap" and _is_static(t, ty)))
     listed = ", ".join(candidates) if candidates else "none"
     if wanted is not None:
         topic = wanted if wanted in bag.topics else (
@@ -241,11 +269,6 @@ def pick_topic(bag: _Bag, wanted: str | None, types: tuple[str, ...] | dict[str,
                       f"choose one with {option}", src)
 
 
-def _stamp_ns(msg: Any) -> int:
-    st = msg.header.stamp
-    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
-
-
 def _sorted(ns: np.ndarray, notes: list[str], label: str) -> np.ndarray:
     """Stable order by stamp (header stamps can arrive out of order)."""
     order = np.argsort(ns, kind="stable")
@@ -255,85 +278,100 @@ def _sorted(ns: np.ndarray, notes: list[str], label: str) -> np.ndarray:
     return order
 
 
+def _fields(bag: _Bag, topic: str, label: str, what: str
+            ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Record times, header stamps and the float64 fields of every message on ``topic``:
+    in bulk from the bytes, or message by message if the bulk reading does not apply."""
+    t_rec, raws = bag.raw(topic)
+    if not raws:
+        raise input_error("the topic has no messages", f"pass a topic that holds the {what}",
+                          label)
+    msgtype = bag.topics[topic]
+    deserialise = bag.deserialiser(msgtype)
+    got = read_fixed(raws, msgtype, bag.ros1, deserialise)
+    stamps, fields = got if got is not None else deserialise_fixed(raws, msgtype, deserialise)
+    return t_rec, stamps, fields
+
+
 def read_bag_imu(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> ImuSamples:
-    """The IMU samples of a ``sensor_msgs/Imu`` topic."""
+    """The IMU samples of a ``sensor_msgs/Imu`` topic. Dropped messages (gaps) are kept as
+    gaps, with a note: the calibration handles them."""
     _check_stamp(opts.stamp)
     topic = pick_topic(bag, opts.imu_topic, IMU_TYPES, "IMU", "--imu-topic")
-    ns, gyro, accel = [], [], []
-    for t_rec, m in bag.messages(topic):
-        ns.append(t_rec if opts.stamp == "receive" else _stamp_ns(m))
-        w, a = m.angular_velocity, m.linear_acceleration
-        gyro.append((w.x, w.y, w.z))
-        accel.append((a.x, a.y, a.z))
     label = f"{bag.path} [{topic}]"
-    stamps = np.asarray(ns, dtype=np.int64)
+    t_rec, stamps, f = _fields(bag, topic, label, "IMU stream")
+    if opts.stamp == "receive":
+        stamps = t_rec
     order = _sorted(stamps, notes, label)
-    lines = Lines(label)
-    if len(stamps) == 0:
-        raise lines.error("the topic has no messages", "pass a topic that holds the IMU stream")
-    return validate_imu(stamps[order], np.asarray(gyro, dtype=float)[order],
-                        np.asarray(accel, dtype=float)[order], lines)
-
-
-def _pose_of(m: Any, where: str) -> tuple[Any, Any]:
-    """(position-like, quaternion-like) of a pose message."""
-    if where == "transform":
-        return m.transform.translation, m.transform.rotation
-    pose = m.pose.pose if where == "pose.pose" else m.pose
-    return pose.position, pose.orientation
-
-
-def _frame(name: str) -> str:
-    return name.lstrip("/")
+    imu = validate_imu(stamps[order], f["gyro"][order], f["accel"][order], Lines(label))
+    gaps = imu_gap_note(imu.t, label)
+    if gaps is not None:
+        notes.append(gaps)
+    return imu
 
 
 def read_bag_mocap(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> MocapPoses:
-    """The marker poses ``T_WM`` of a pose topic (or of one child frame of a TF topic)."""
+    """The marker poses ``T_WM`` of a pose topic, or composed along a TF chain."""
     _check_stamp(opts.stamp)
     topic = pick_topic(bag, opts.mocap_topic, POSE_TYPES, "mocap", "--mocap-topic")
-    where = POSE_TYPES[bag.topics[topic]]
     label = f"{bag.path} [{topic}]"
-    rows: list[tuple[float, ...]] = []
-    ns: list[int] = []
-    children: dict[str, int] = {}
-    for t_rec, m in bag.messages(topic):
-        items = m.transforms if where == "tf" else [m]
-        for tr in items:
-            if where == "tf":
-                child = _frame(tr.child_frame_id)
-                children[child] = children.get(child, 0) + 1
-                if opts.mocap_frame is None or child != _frame(opts.mocap_frame):
-                    continue
-                p, q = tr.transform.translation, tr.transform.rotation
-                stamp = _stamp_ns(tr)
-            else:
-                p, q = _pose_of(tr, where)
-                stamp = _stamp_ns(tr)
-            ns.append(t_rec if opts.stamp == "receive" else stamp)
-            rows.append((q.w, q.x, q.y, q.z, p.x, p.y, p.z))
-    if where == "tf":
-        _check_tf_frame(bag, topic, opts.mocap_frame, children)
-    elif opts.mocap_frame is not None:
-        notes.append(f"ignored --mocap-frame: {topic} is not a TF topic")
-    lines = Lines(label)
-    if not ns:
-        raise lines.error("the topic has no messages", "pass a topic that holds the mocap poses")
-    stamps = np.asarray(ns, dtype=np.int64)
+    if POSE_TYPES[bag.topics[topic]] == "tf":
+        stamps, q, p = _tf_poses(bag, topic, opts, notes)
+    else:
+        if opts.mocap_frame is not None:
+            notes.append(f"ignored --mocap-frame: {topic} is not a TF topic")
+        t_rec, stamps, f = _fields(bag, topic, label, "mocap poses")
+        if opts.stamp == "receive":
+            stamps = t_rec
+        p, q = f["position"], f["orientation"][:, [3, 0, 1, 2]]
     order = _sorted(stamps, notes, label)
-    data = np.asarray(rows, dtype=float)[order]
-    return validate_mocap(stamps[order], np.ascontiguousarray(data[:, :4]),
-                          np.ascontiguousarray(data[:, 4:]), lines)
+    return validate_mocap(stamps[order], np.ascontiguousarray(q[order]),
+                          np.ascontiguousarray(p[order]), Lines(label))
 
 
-def _check_tf_frame(bag: _Bag, topic: str, frame: str | None, children: dict[str, int]) -> None:
+def _tf(bag: _Bag, topic: str) -> tuple[np.ndarray, Transforms]:
+    t_rec, raws = bag.raw(topic)
+    deserialise = bag.deserialiser(bag.topics[topic])
+    tf = read_tf(raws, bag.ros1, deserialise)
+    return t_rec, tf if tf is not None else deserialise_tf(raws, deserialise)
+
+
+def _tf_poses(bag: _Bag, topic: str, opts: RecordingOptions, notes: list[str]
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Poses of the TF chain ``--mocap-frame`` names (see :mod:`.ros.tf`)."""
+    src = str(bag.path)
+    t_rec, tf = _tf(bag, topic)
+    statics = [t for t, ty in bag.topics.items() if t != topic and _is_static(t, ty)]
+    static = _tf(bag, statics[0])[1] if statics else None
+    children: dict[str, int] = {}
+    for tr in (tf, static) if static is not None else (tf,):
+        codes, counts = np.unique(tr.child, return_counts=True)
+        for c, n in zip(codes.tolist(), counts.tolist(), strict=True):
+            children[frame(tr.names[c])] = children.get(frame(tr.names[c]), 0) + n
     listed = ", ".join(f"{c} ({n})" for c, n in sorted(children.items())) or "none"
-    if frame is None:
+    if opts.mocap_frame is None:
         raise input_error(f"{topic} is a TF topic; say which child frame is the marker body "
-                          f"(child frames: {listed})", "pass --mocap-frame CHILD",
-                          str(bag.path))
-    if _frame(frame) not in children:
-        raise input_error(f"no transform with child frame '{frame}' on {topic} (child frames: "
-                          f"{listed})", "pass --mocap-frame with one of those", str(bag.path))
+                          f"(child frames: {listed})", "pass --mocap-frame CHILD (or "
+                          "PARENT:CHILD)", src)
+    parent, child = parse_frames(opts.mocap_frame)
+    if child not in children:
+        raise input_error(f"no transform with child frame '{child}' on {topic} (child frames: "
+                          f"{listed})", "pass --mocap-frame with one of those", src)
+    stamps = t_rec[tf.message] if opts.stamp == "receive" else tf.stamp
+    tree = links(tf, stamps, static, topic, src)
+    down_c, down_p, parent = chain(tree, parent, child, topic, src)
+    t, q, p, more = compose(down_c, down_p, src)
+    notes.extend(more)
+    if len(down_c) + len(down_p) > 1:
+        path = (" <- ".join([parent, *[lk.parent for lk in reversed(down_p)]])
+                + "".join(f" -> {lk.child}" for lk in down_c))
+        notes.append(f"{src} [{topic}]: poses of {child} in {parent}, composed along {path}"
+                     f"{' (with /tf_static)' if static is not None else ''}")
+    return t, q, p
+
+
+def _is_static(topic: str, msgtype: str) -> bool:
+    return msgtype == "tf2_msgs/msg/TFMessage" and topic.rstrip("/").endswith("tf_static")
 
 
 def _check_stamp(stamp: str) -> None:

@@ -1,26 +1,42 @@
 """PX4 ULog files (``.ulg``), read with ``pyulog``.
 
-- IMU: ``sensor_combined`` (``gyro_rad``, ``accelerometer_m_s2``, both in PX4's body frame FRD:
-  x forward, y right, z down), stamped with ``timestamp`` (us, the autopilot's clock). PX4 logs
-  the accelerometer at ``timestamp + accelerometer_timestamp_relative``; when that is not zero
-  the accel is interpolated onto the gyro stamps (and a note says so).
-- Mocap: ``vehicle_mocap_odometry`` (or ``vehicle_visual_odometry``): ``position`` and ``q``
-  (FRD body to the local NED frame, or to an FRD world), stamped with ``timestamp_sample``,
-  the time of the measurement on the autopilot's clock. Older logs' ``x, y, z`` fields work too.
+IMU (``--imu-topic``; see :mod:`~mocap_calib.io.formats.ulog_file` for ``TOPIC:N``):
+
+- ``sensor_combined`` (the default when logged): the IMU PX4 selected (``sensor_selection``),
+  as PX4 corrects it with its own calibration, in PX4's body frame FRD (x forward, y right,
+  z down): ``gyro_rad`` at ``timestamp`` (us, the autopilot's clock) and
+  ``accelerometer_m_s2`` at ``timestamp + accelerometer_timestamp_relative``. A log in which
+  PX4 switched to another IMU mid-flight is refused (the stream would mix two sensors).
+- ``sensor_gyro:N`` / ``sensor_accel:N``: one IMU as its driver published it (``x, y, z``),
+  stamped with ``timestamp_sample`` (when the sensor sampled) where logged. Naming either
+  topic reads that IMU: the gyro and accelerometer instances of the same device
+  (``device_id``: recent PX4 gives both halves of a chip one id) are paired, else those of the
+  same instance number (with a note: older PX4 versions, separate chips).
+  Without ``--imu-topic`` and without ``sensor_combined`` the only instance is read; with
+  several, one line lists them.
+- Accelerometer stamps equal to the gyro's are taken as they are; otherwise the accelerometer
+  is interpolated linearly onto the gyro stamps, and gyro samples with no accelerometer sample
+  on either side within the gap rule's step are left out (never extrapolated), with a note.
+
+Gaps are not refused here (the calibration handles them, :mod:`mocap_calib.core.policy`):
+the notes say how many gaps the stamps show and what the logger's own dropout records say.
+
+Mocap: ``vehicle_mocap_odometry`` (or ``vehicle_visual_odometry``): ``position`` and ``q``
+(FRD body to the local NED frame, or to an FRD world), stamped with ``timestamp_sample``,
+the time of the measurement on the autopilot's clock. Older logs' ``x, y, z`` fields work too.
 
 Frames: the world is turned from z-down (NED, or FRD) to z-up, as mavros does (x and y swapped,
 z negated: NED becomes ENU), so gravity points along -z like in every other input. The body
-frames are kept as PX4 logs them: the IMU frame ``I`` is PX4's FRD body frame of
-``sensor_combined`` and the marker frame ``M`` is the FRD body frame the odometry reports, so
-``T_MI`` and the ``px4`` export stay in PX4's frames.
+frames are kept as PX4 logs them: the IMU frame ``I`` is PX4's FRD body frame and the marker
+frame ``M`` is the FRD body frame the odometry reports, so ``T_MI`` and the ``px4`` export stay
+in PX4's frames.
 
-``pyulog`` stops quietly where a file is cut; this reader walks the message headers first and
-refuses a file that ends inside a message (a truncated copy) instead of calibrating part of it.
+``pyulog`` stops quietly where a file is cut; :func:`~ulog_file.check_complete` walks the
+message headers first and refuses a file that ends inside a message (a truncated copy).
 """
 
 from __future__ import annotations
 
-import struct
 from pathlib import Path
 from typing import Any
 
@@ -28,132 +44,222 @@ import numpy as np
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
+from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import Lines, validate_imu, validate_mocap
+from mocap_calib.io.checks import (
+    Lines,
+    check_increasing,
+    imu_gap_note,
+    validate_imu,
+    validate_mocap,
+)
+from mocap_calib.io.formats.ulog_file import (
+    Instance,
+    dropout_note,
+    instances,
+    logged_topics,
+    open_ulog,
+    parse_spec,
+    pick_instance,
+    stamps_us,
+    vector,
+)
 
-ULOG_MAGIC = b"ULog\x01\x12\x35"
-IMU_TOPICS = ("sensor_combined",)
+IMU_TOPICS = ("sensor_combined", "sensor_gyro", "sensor_accel")
 MOCAP_TOPICS = ("vehicle_mocap_odometry", "vehicle_visual_odometry")
 #: ``accelerometer_timestamp_relative`` value meaning "no accel sample in this message".
 _RELATIVE_INVALID = 0x7FFFFFFF
 #: z-down world (NED, FRD) -> z-up world (ENU): swap x and y, negate z. A proper rotation.
 R_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-
-
-def is_ulog(path: Path | str) -> bool:
-    path = Path(path)
-    if not path.is_file():
-        return path.suffix == ".ulg"
-    with open(path, "rb") as f:
-        return f.read(7) == ULOG_MAGIC or path.suffix == ".ulg"
-
-
-def check_complete(path: Path) -> None:
-    """Raise if the file is not a ULog or ends inside a message (a truncated copy)."""
-    data = path.read_bytes()
-    if len(data) < 16 or data[:7] != ULOG_MAGIC:
-        raise input_error("not a PX4 ULog file (no ULog header)",
-                          "pass the .ulg file the autopilot wrote", str(path))
-    view = memoryview(data)
-    pos, n = 16, len(data)
-    unpack = struct.Struct("<HB").unpack_from
-    while pos + 3 <= n:
-        size, _ = unpack(view, pos)
-        pos += 3 + size
-    if pos != n:
-        raise input_error(f"the file ends inside a message (byte {n} of a message that needs "
-                          f"{pos}): it is truncated", "copy the complete log from the vehicle "
-                          "again", str(path))
-
-
-def _open(path: Path, names: list[str]) -> Any:
-    from pyulog import ULog
-    from pyulog.core import ULogException
-
-    if not path.is_file():
-        raise input_error("file not found", "check the path", str(path))
-    check_complete(path)
-    try:
-        return ULog(str(path), message_name_filter_list=names)
-    except (ULogException, ValueError, struct.error, IndexError, KeyError) as err:
-        raise input_error(f"cannot parse the ULog ({' '.join(str(err).split())[:120]})",
-                          "copy the complete log from the vehicle again", str(path)) from None
-
-
-def _topics(ulog: Any) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for d in ulog.data_list:
-        counts[d.name] = counts.get(d.name, 0) + len(d.data["timestamp"])
-    return counts
-
-
-def _dataset(ulog: Any, path: Path, wanted: str | None, allowed: tuple[str, ...], what: str,
-             option: str) -> tuple[str, dict[str, np.ndarray]]:
-    present = {d.name for d in ulog.data_list}
-    names = ", ".join(allowed)
-    if wanted is not None and wanted not in allowed:
-        raise input_error(f"'{wanted}' is not a {what} topic of a PX4 log", f"pass {option} "
-                          f"with one of: {names}", str(path))
-    choices = [wanted] if wanted is not None else [n for n in allowed if n in present]
-    if not choices or choices[0] not in present:
-        logged = ", ".join(f"{k} ({v})" for k, v in sorted(_topics(ulog).items())) or "none"
-        raise input_error(f"no {names if wanted is None else wanted} data in the log (logged "
-                          f"topics read: {logged})", f"log the {what} topic ({names}) on the "
-                          "vehicle (SDLOG_PROFILE), or pass the file that holds it", str(path))
-    name = choices[0]
-    return name, ulog.get_dataset(name, 0).data
-
-
-def _vector(data: dict[str, np.ndarray], base: str, n: int, alt: tuple[str, ...] = ()
-            ) -> np.ndarray | None:
-    keys = [f"{base}[{i}]" for i in range(n)]
-    if all(k in data for k in keys):
-        return np.stack([data[k].astype(np.float64) for k in keys], axis=1)
-    if alt and all(k in data for k in alt):
-        return np.stack([data[k].astype(np.float64) for k in alt], axis=1)
-    return None
+_OPT = "--imu-topic"
+_XYZ = ("x", "y", "z")
 
 
 def read_ulog_imu(path: Path | str, topic: str | None, notes: list[str]) -> ImuSamples:
-    """IMU samples of ``sensor_combined`` (FRD body frame, autopilot clock)."""
+    """IMU samples of ``sensor_combined`` or of one ``sensor_gyro``/``sensor_accel`` pair."""
     path = Path(path)
-    ulog = _open(path, list(IMU_TOPICS))
-    name, data = _dataset(ulog, path, topic, IMU_TOPICS, "IMU", "--imu-topic")
-    label = f"{path} [{name}]"
-    ns = data["timestamp"].astype(np.int64) * 1000
-    gyro = _vector(data, "gyro_rad", 3)
-    accel = _vector(data, "accelerometer_m_s2", 3)
+    ulog = open_ulog(path, [*IMU_TOPICS, "sensor_selection"])
+    chosen = _choose_imu(ulog, path, topic, notes)
+    if chosen[0].name == "sensor_combined":
+        label = f"{path} [sensor_combined]"
+        us, gyro, accel = _combined(chosen[0].data, label, notes)
+        _refuse_switch(ulog, int(us[0]), label)
+    else:
+        g, a = chosen
+        label = f"{path} [{g.spec}, {a.spec}]"
+        us, gyro, accel = _raw_pair(g, a, label, notes)
+    imu = validate_imu(us * 1000, gyro, accel, Lines(label))
+    notes.extend(n for n in (imu_gap_note(imu.t, label), dropout_note(ulog, int(us[0]), str(path)))
+                 if n is not None)
+    return imu
+
+
+def _choose_imu(ulog: Any, path: Path, topic: str | None, notes: list[str]) -> list[Instance]:
+    """``[sensor_combined]`` or ``[gyro, accel]`` instances to read."""
+    src = str(path)
+    found = {n: instances(ulog, n) for n in IMU_TOPICS}
+    gyros, accels = found["sensor_gyro"], found["sensor_accel"]
+    if topic is None:
+        if found["sensor_combined"]:
+            also = (f"; the log also holds {', '.join(i.spec for i in gyros)} ({_OPT} "
+                    "sensor_gyro:N reads one IMU as its driver published it)" if gyros else "")
+            notes.append(f"{src}: IMU from sensor_combined, the IMU PX4 selected, as PX4 "
+                         f"corrects it with its own calibration{also}")
+            return [found["sensor_combined"][0]]
+        if gyros and accels:
+            g = pick_instance(gyros, "sensor_gyro", None, _OPT, src)
+            return [g, _partner(g, accels, src, notes)]
+        raise input_error(f"no IMU data in the log: neither sensor_combined nor sensor_gyro with "
+                          f"sensor_accel (logged topics read: {logged_topics(ulog)})",
+                          "log sensor_combined (PX4's default profile) or sensor_gyro and "
+                          "sensor_accel (SDLOG_PROFILE), or pass the file that holds them", src)
+    name, wanted = parse_spec(topic)
+    if name not in IMU_TOPICS:
+        present = [i.spec for n in IMU_TOPICS for i in found[n]]
+        raise input_error(f"'{topic}' is not an IMU topic of a PX4 log (IMU topics: "
+                          "sensor_combined, sensor_gyro:N, sensor_accel:N)",
+                          f"pass {_OPT} with one of: {', '.join(present) or 'none logged'}", src)
+    if not found[name]:
+        raise input_error(f"no {name} data in the log (logged topics read: "
+                          f"{logged_topics(ulog)})", f"pass {_OPT} with a logged IMU topic, or "
+                          f"log {name} on the vehicle (SDLOG_PROFILE)", src)
+    chosen = pick_instance(found[name], name, wanted, _OPT, src)
+    if name == "sensor_combined":
+        return [chosen]
+    if name == "sensor_gyro":
+        return [chosen, _partner(chosen, accels, src, notes)]
+    return [_partner(chosen, gyros, src, notes), chosen]
+
+
+def _partner(inst: Instance, others: list[Instance], src: str, notes: list[str]) -> Instance:
+    """The instance of the other raw IMU topic from the same device as ``inst``."""
+    other = "sensor_accel" if inst.name == "sensor_gyro" else "sensor_gyro"
+    if not others:
+        raise input_error(f"{inst.spec} is logged but {other} is not", f"log both sensor_gyro "
+                          f"and sensor_accel, or pass {_OPT} sensor_combined", src)
+    dev = inst.device_id
+    same = [o for o in others if dev is not None and o.device_id == dev]
+    if same:
+        return same[0]
+    by_number = [o for o in others if o.multi_id == inst.multi_id]
+    if not by_number:
+        raise input_error(f"no {other} instance from the device of {inst.describe()} "
+                          f"({other}: {', '.join(o.describe() for o in others)})",
+                          f"pass {_OPT} with an IMU logged in both sensor_gyro and "
+                          "sensor_accel", src)
+    why = "no device ids logged" if dev is None else f"no {other} has device 0x{dev:06X}"
+    notes.append(f"{src}: {inst.spec} paired with {by_number[0].spec} by instance number "
+                 f"({why}: separate gyro and accelerometer chips?)")
+    return by_number[0]
+
+
+def _combined(data: dict[str, np.ndarray], label: str, notes: list[str]
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    us = data["timestamp"].astype(np.int64)
+    gyro = vector(data, "gyro_rad", 3)
+    accel = vector(data, "accelerometer_m_s2", 3)
     if gyro is None or accel is None:
-        raise input_error(f"{name} has no gyro_rad/accelerometer_m_s2 fields",
+        raise input_error("sensor_combined has no gyro_rad/accelerometer_m_s2 fields",
                           "pass a log of a PX4 version that logs them", label)
     rel = data.get("accelerometer_timestamp_relative")
-    if rel is not None and np.any(rel != 0):
-        ok = rel != _RELATIVE_INVALID
-        t_acc = ns[ok] + rel[ok].astype(np.int64) * 1000
-        if ok.sum() < 2 or np.any(np.diff(t_acc) <= 0):
-            raise input_error("the accelerometer stamps are not increasing",
-                              "pass a log whose sensor_combined is intact", label)
-        # Relative to the first stamp: float64 cannot hold epoch nanoseconds exactly.
-        x, xp = (ns - ns[0]).astype(float), (t_acc - ns[0]).astype(float)
-        accel = np.stack([np.interp(x, xp, accel[ok, k]) for k in range(3)], axis=1)
-        notes.append(f"{label}: accelerometer samples are logged "
-                     f"{np.median(rel[ok]):.0f} us from the gyro's; interpolated onto the gyro "
-                     "stamps")
-    return validate_imu(ns, gyro, accel, Lines(label))
+    if rel is None or not np.any(rel != 0):
+        return us, gyro, accel
+    ok = rel != _RELATIVE_INVALID
+    if ok.sum() < 2:
+        raise input_error("sensor_combined holds fewer than two accelerometer samples",
+                          "pass a log whose sensor_combined is intact", label)
+    return _pair(us, gyro, us[ok] + rel[ok].astype(np.int64), accel[ok], label, notes)
+
+
+def _raw_pair(g: Instance, a: Instance, label: str, notes: list[str]
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    tg, field_g = stamps_us(g.data)
+    ta, field_a = stamps_us(a.data)
+    gyro, accel = vector(g.data, "xyz", 3, _XYZ), vector(a.data, "xyz", 3, _XYZ)
+    if gyro is None or accel is None:
+        raise input_error(f"{g.name}/{a.name} have no x, y, z fields", "pass a log of a PX4 "
+                          "version that logs them", label)
+    if field_g != "timestamp_sample" or field_a != "timestamp_sample":
+        notes.append(f"{label}: no timestamp_sample logged; stamped with the publication "
+                     "time (timestamp)")
+    return _pair(tg, gyro, ta, accel, label, notes)
+
+
+def _pair(tg: np.ndarray, gyro: np.ndarray, ta: np.ndarray, accel: np.ndarray, label: str,
+          notes: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gyro and accelerometer samples on the gyro's stamps (integer us)."""
+    if len(tg) == len(ta) and np.array_equal(tg, ta):
+        return tg, gyro, accel
+    check_increasing(ta * 1000, "accelerometer", Lines(label))
+    check_increasing(tg * 1000, "gyro", Lines(label))
+    j = np.searchsorted(ta, tg, side="right")  # ta[j-1] <= tg < ta[j]
+    inside = (j > 0) & ((j < len(ta)) | (tg == ta[-1]))
+    jc = np.clip(j, 1, len(ta) - 1)
+    # Relative to the first stamp: float64 cannot hold epoch microseconds' sums exactly.
+    span = (ta[jc] - ta[jc - 1]).astype(float)
+    keep = inside & ((span <= gap_threshold(ta.astype(float))) | (tg == ta[jc - 1]))
+    x, xp = (tg[keep] - ta[0]).astype(float), (ta - ta[0]).astype(float)
+    acc = np.stack([np.interp(x, xp, accel[:, k]) for k in range(3)], axis=1)
+    left = int(len(tg) - keep.sum())
+    apart = float(np.median(np.minimum(np.abs(tg - ta[jc - 1]), np.abs(ta[jc] - tg))))
+    notes.append(f"{label}: accelerometer stamps differ from the gyro's ({len(ta)} and "
+                 f"{len(tg)} samples, median {apart:.0f} us apart); interpolated linearly onto "
+                 "the gyro stamps"
+                 + (f", {left} gyro samples without accelerometer samples around them left out"
+                    if left else ""))
+    return tg[keep], gyro[keep], acc
+
+
+def _refuse_switch(ulog: Any, origin_us: int, label: str) -> None:
+    """Refuse a ``sensor_combined`` in which PX4 switched to another IMU during the log."""
+    for sel in instances(ulog, "sensor_selection"):
+        for kind in ("gyro", "accel"):
+            ids = sel.data.get(f"{kind}_device_id")
+            if ids is None or len(ids) < 2 or np.all(ids == ids[0]):
+                continue
+            k = int(np.flatnonzero(ids != ids[0])[0])
+            at = (int(sel.data["timestamp"][k]) - origin_us) * 1e-6
+            raise input_error(f"PX4 switched its {kind} from device 0x{int(ids[0]):06X} to "
+                              f"0x{int(ids[k]):06X} at {at:.3f} s from the IMU start "
+                              "(sensor_selection): sensor_combined mixes two IMUs",
+                              f"pass {_OPT} sensor_gyro:N to read one IMU, or --end "
+                              f"{max(at, 0.0):.1f} to calibrate the part before the switch",
+                              label)
+
+
+def _mocap_instance(ulog: Any, path: Path, topic: str | None, notes: list[str]) -> Instance:
+    src = str(path)
+    names = ", ".join(MOCAP_TOPICS)
+    if topic is not None:
+        name, wanted = parse_spec(topic)
+        if name not in MOCAP_TOPICS:
+            raise input_error(f"'{topic}' is not a mocap topic of a PX4 log",
+                              f"pass --mocap-topic with one of: {names}", src)
+        candidates = [name]
+    else:
+        wanted, candidates = None, list(MOCAP_TOPICS)
+    for name in candidates:
+        found = instances(ulog, name)
+        if found:
+            if topic is None and name != MOCAP_TOPICS[0]:
+                notes.append(f"{src}: no {MOCAP_TOPICS[0]} in the log; using {name}")
+            return pick_instance(found, name, wanted, "--mocap-topic", src)
+    shown = names if topic is None else candidates[0]
+    raise input_error(f"no {shown} data in the log (logged topics read: {logged_topics(ulog)})",
+                      f"log the mocap topic ({names}) on the vehicle (SDLOG_PROFILE), or pass "
+                      "the file that holds it", src)
 
 
 def read_ulog_mocap(path: Path | str, topic: str | None, notes: list[str]) -> MocapPoses:
     """Marker poses of the mocap (or visual) odometry topic, turned into a z-up world."""
     path = Path(path)
-    ulog = _open(path, list(MOCAP_TOPICS))
-    name, data = _dataset(ulog, path, topic, MOCAP_TOPICS, "mocap", "--mocap-topic")
-    label = f"{path} [{name}]"
-    if topic is None and name != MOCAP_TOPICS[0]:
-        notes.append(f"{label}: no {MOCAP_TOPICS[0]} in the log; using {name}")
-    stamp = "timestamp_sample" if "timestamp_sample" in data else "timestamp"
-    ns = data[stamp].astype(np.int64) * 1000
-    p = _vector(data, "position", 3, ("x", "y", "z"))
-    q = _vector(data, "q", 4)
+    ulog = open_ulog(path, list(MOCAP_TOPICS))
+    inst = _mocap_instance(ulog, path, topic, notes)
+    name, data = inst.name, inst.data
+    label = f"{path} [{name if inst.multi_id == 0 else inst.spec}]"
+    us, _ = stamps_us(data)
+    p = vector(data, "position", 3, ("x", "y", "z"))
+    q = vector(data, "q", 4)
     if p is None or q is None:
         raise input_error(f"{name} has no position/q fields", "pass a log of a PX4 version "
                           "that logs the odometry pose", label)
@@ -169,4 +275,4 @@ def read_ulog_mocap(path: Path | str, topic: str | None, notes: list[str]) -> Mo
     p_enu = p @ R_ENU_NED.T
     notes.append(f"{label}: PX4 z-down world turned into a z-up world (x<->y, z negated); "
                  "the body frames stay FRD")
-    return validate_mocap(ns, q_enu, p_enu, Lines(label))
+    return validate_mocap(us * 1000, q_enu, p_enu, Lines(label))

@@ -1,0 +1,1 @@
+"""ROS messages below the bag reader: bulk decoding of serialised messages, /tf chains."""
