@@ -171,6 +171,12 @@ class EvalOut:
             ``sum J_w^T r_w`` (only when the problem collects them, for the sandwich
             covariance).
         raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
+        whitened: (W, m+1, 6, p+1) whitened ``[J | r]`` rows (only when ``store``).
+        extras: the filter's state-space model (only when ``store``).
+        e_white: (W, m+1, 6) whitened innovations (zero at padding): each component's typical
+            size tells whether the mocap noise of that axis is as modelled (the first three are
+            the attitude axes in the IMU frame, the last three the position axes in the world
+            frame, each conditioned on the ones before).
     """
 
     gram: Array
@@ -185,3 +191,4 @@ class EvalOut:
     raw_J: Array | None = None
     whitened: Array | None = None
     extras: dict[str, Array] = field(default_factory=dict)
+    e_white: Array | None = None
