@@ -183,6 +183,7 @@ def _integrate_kernel(w, f, hs, out):  # pragma: no cover  (compiled)
     k = np.empty((4, 46))
     c = (0.0, 0.5, 0.5, 1.0)
     at = (0, 1, 1, 2)
+    k[:, :] = 0.0
     for s in range(S):
         y[:] = 0.0
         y[0] = 1.0
@@ -191,10 +192,12 @@ def _integrate_kernel(w, f, hs, out):  # pragma: no cover  (compiled)
             if h == 0.0:
                 continue  # padding: the identity
             for st in range(4):
-                ch = c[st] * h
-                prev = max(st - 1, 0)
-                for a in range(46):
-                    ys[a] = y[a] + ch * k[prev, a]
+                if st == 0:
+                    ys[:] = y
+                else:
+                    ch = c[st] * h
+                    for a in range(46):
+                        ys[a] = y[a] + ch * k[st - 1, a]
                 node = 2 * i + at[st]
                 _rk_stage(ys, w[s, node], f[s, node], k[st])
             h6 = h / 6.0
