@@ -1,5 +1,5 @@
 """The window filter's Python side: its noise parameters, the pass over a chunk of windows (the
-loops are compiled: :mod:`mocap_calib.core.position.passes`), the likelihood-only pass and the
+loops are compiled: :mod:`mocap_calib.core.position.kernels`), the likelihood-only pass and the
 state-space model written out (see :mod:`mocap_calib.core.position.engine`)."""
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position import kernels as kn
-from mocap_calib.core.position import passes
 from mocap_calib.core.position.kernels import DIFFUSE  # noqa: F401  (re-exported)
 from mocap_calib.core.position.windows import EvalOut
 
@@ -106,7 +105,7 @@ def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, op: Whitening
     scores = np.zeros((W, n_blocks, p))
     raw_J = np.zeros((W, m1, 6, p) if store else (0, 0, 6, p))
     whitened = np.zeros((W, m1, 6, p + 1) if store else (0, 0, 6, p + 1))
-    passes.filter_windows(
+    kn.filter_windows(
         _c(h), np.ascontiguousarray(mask), _c(now.weights), _c(now.inc), _c(now.Rbar),
         _c(op.inc), _c(op.Rbar), _c(op.weights), frozen, _c(dwf), _c(dg),
         np.asarray(gcols, dtype=np.int64), _c(rows.r), _c(rows.Jinv), _c(rows.Pm_rot),
@@ -141,7 +140,7 @@ def state_space(h: Array, wh: Whitening, R_WM: Array) -> dict[str, Array]:
     F, q_diag, q_pv = np.zeros((W, m, 15, 15)), np.zeros((W, m, 15)), np.zeros((W, m))
     Rn = np.zeros((W, m + 1, 6, 6))
     Fm, Qm, Pm0 = np.zeros((W, m, 6, 6)), np.zeros((W, m, 6, 6)), np.zeros((W, 6, 6))
-    passes.state_space(_c(wh.inc), _c(wh.Rbar), _c(h), _c(R_WM), _c(wh.M), _c(wh.par), F, q_diag,
+    kn.state_space(_c(wh.inc), _c(wh.Rbar), _c(h), _c(R_WM), _c(wh.M), _c(wh.par), F, q_diag,
                    q_pv, Rn, Fm, Qm, Pm0)
     out = {"F": F, "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn, "weights": wh.weights.copy()}
     if corr:
