@@ -51,10 +51,12 @@ from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.kalman import (
     Rows,
     Whitening,
+    empty_output,
     filter_pass,
     lever_matrix,
     likelihood_pass,
     noise_params,
+    output_slice,
     signals_at,
     step_mean,
 )
@@ -111,57 +113,64 @@ class PositionProblem:
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
+        """Every window's whitened system and statistics at ``th`` (with ``store``: also the
+        raw residuals and Jacobians and the filter's model, for tests). Chunks write their
+        windows' slices of one set of arrays: an evaluation holds nothing twice."""
+        W, m1 = self.win.mask.shape
+        n_blocks = int(self._score_blocks(m1 - 1)[-1]) + 1 if self.collect_scores else None
+        out = empty_output(W, m1, self.layout.dim, n_blocks, store)
         pool = chunk_pool()
-        if len(self.chunks) > 1 and pool is not None:
-            outs = list(pool.map(lambda ic: self._evaluate_chunk(th, ic[1], store, ic[0]),
-                                    enumerate(self.chunks)))
+        jobs = list(enumerate(self.chunks))
+        if len(jobs) > 1 and pool is not None:
+            parts = list(pool.map(lambda job: self._evaluate_chunk(th, job[1], out, job[0]),
+                                  jobs))
         else:
-            outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
-        cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
-                   else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
-                                        "logdet", "scores", "raw_r", "raw_J", "whitened",
-                                        "e_white")}
-        extras = {k: np.concatenate([o.extras[k] for o in outs]) for k in outs[0].extras}
-        return EvalOut(**cat, extras=extras)
+            parts = [self._evaluate_chunk(th, c, out, ci) for ci, c in jobs]
+        if store:
+            out.extras.update({k: np.concatenate([x[k] for x in parts]) for k in parts[0]})
+        return out
 
     def freeze_whitening(self, on: bool) -> None:
         """With ``on``, the next evaluation records its whitening operator (filter transition,
         gains, whitening factors) and later ones reuse it, so the cost is a fixed weighted
         least squares (what Gauss-Newton assumes) until this is called again. The record is
-        what the operator is built from (the steps' increments and attitudes, noise, weights):
-        a replay runs the filter on it again."""
+        what the operator is built from (the steps' increments, the start attitudes, noise,
+        weights): a replay runs the filter on it again."""
         self.freeze = on
         self._ops = {}
 
-    def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool,
-                        ci: int = 0) -> EvalOut:
+    def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], out: EvalOut,
+                        ci: int = 0) -> dict[str, Array]:
+        """Windows ``c`` (consecutive) into their slice of ``out``; returns the filter's model
+        when ``out`` stores it."""
         win = self.win
         tau, R_WM = win.tau[c], win.R_WM[c]
         h = np.diff(tau, axis=1)  # padded steps have h = 0
         inc, _, dwf = self._imu_steps(th, c, tau, h)
         # Nominal trajectory; the start velocity is a fixed guess (a diffuse nuisance).
-        Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
-                                win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+        R0 = R_WM[:, 0] @ th.R_MI
+        Rbar, pbar, _ = compose(inc, h, R0, win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
                                 th.g_mag * th.g_dir)
         rows = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
-        now = self._whitening(th, c, inc.pack(), Rbar)
+        now = self._whitening(th, c, inc.pack(), R0)
         # A frozen whitening (see freeze_whitening) is the recorded one; the first evaluation
-        # after freezing records its own (the arrays it made anyway: nothing is copied).
+        # after freezing records its own (arrays it made anyway: nothing is copied).
         op = self._ops.get(ci) if self.freeze else None
         if self.freeze and op is None:
             self._ops[ci] = now
         L = self.layout
         gcols, dg = self._gravity_inputs(th)
         blocks = self._score_blocks(win.steps) if self.collect_scores else None
-        return filter_pass(h, win.mask[c], now, op, rows, dwf, dg, gcols,
-                           L.slice("rotation").start, L.slice("translation").start, blocks,
-                           store)
+        part = output_slice(out, slice(int(c[0]), int(c[-1]) + 1))
+        filter_pass(h, win.mask[c], now, Rbar, op, rows, dwf, dg, gcols,
+                    L.slice("rotation").start, L.slice("translation").start, blocks, part)
+        return part.extras
 
-    def _whitening(self, th: Theta, c: NDArray[np.int64], inc: Array, Rbar: Array,
+    def _whitening(self, th: Theta, c: NDArray[np.int64], inc: Array, R0: Array,
                    noise: NoiseModel | None = None) -> Whitening:
         """The filter of windows ``c`` at ``th`` (under ``noise``, default the problem's)."""
         par = noise_params(self.noise if noise is None else noise, self.mocap_axis_scale)
-        return Whitening(inc, Rbar, par, lever_matrix(th.R_MI, th.p_MI), self.weights[c])
+        return Whitening(inc, R0, par, lever_matrix(th.R_MI, th.p_MI), self.weights[c])
 
     def likelihoods(self, th: Theta, noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
         """Per noise model, every window's chi2 and log det of its innovations (-2 log L is
@@ -173,14 +182,14 @@ class PositionProblem:
             tau, R_WM = win.tau[c], win.R_WM[c]
             h = np.diff(tau, axis=1)
             inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
-            Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
-                                    win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
-                                    th.g_mag * th.g_dir)
+            R0 = R_WM[:, 0] @ th.R_MI
+            Rbar, pbar, _ = compose(inc, h, R0, win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI,
+                                    win.v0[c], th.g_mag * th.g_dir)
             r = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar).r
             packed = inc.pack()
             for i, nz in enumerate(noises):
-                wh = self._whitening(th, c, packed, Rbar, nz)
-                out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, r, R_WM)
+                wh = self._whitening(th, c, packed, R0, nz)
+                out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, Rbar, r, R_WM)
         return out
 
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,

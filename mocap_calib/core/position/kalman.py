@@ -64,12 +64,12 @@ def lever_matrix(R_MI: Array, p_MI: Array) -> Array:
 @dataclass(frozen=True)
 class Whitening:
     """What the filter of a chunk of windows is made of, apart from the residuals: the steps'
-    increments and nominal attitudes (for the transitions), the noise parameters, the lever-arm
-    matrix and the robust weights. A frozen whitening keeps the one of its recording; these
-    arrays (60 numbers a step) are all it holds."""
+    increments and the nominal start attitudes (the transitions; the kernel chains the
+    attitudes as ``compose`` does), the noise parameters, the lever-arm matrix and the robust
+    weights. A frozen whitening keeps the one of its recording: 51 numbers a step."""
 
     inc: Array  # (W, m, 51) packed step increments
-    Rbar: Array  # (W, m+1, 3, 3) nominal attitudes
+    R0: Array  # (W, 3, 3) nominal attitude at each window's start
     par: Array  # (N_PAR,) noise parameters
     M: Array  # (3, 3) lever-arm matrix
     weights: Array  # (W, m+1) robust weights
@@ -89,49 +89,65 @@ def _c(x: Array) -> Array:
     return np.ascontiguousarray(x, dtype=float)
 
 
-def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, op: Whitening | None,
-                rows: Rows, dwf: Array, dg: Array, gcols: list[int], rs: int, ts: int,
-                blocks: NDArray[np.int64] | None, store: bool) -> EvalOut:
-    """One filter pass over a chunk of windows: ``now`` gives the sensitivities' transitions
-    (and, without ``op``, the whitening); ``op`` a frozen whitening to reuse."""
-    W, m1 = mask.shape
+def empty_output(W: int, m1: int, p: int, n_blocks: int | None, store: bool) -> EvalOut:
+    """Zeroed outputs of a filter pass over ``W`` windows (chunks write their slices)."""
+    return EvalOut(np.zeros((W, p + 1, p + 1)), np.zeros((W, m1, 6)), np.zeros((W, m1)),
+                   np.zeros(W), np.zeros(W), np.zeros((W, m1, 6)),
+                   None if n_blocks is None else np.zeros((W, n_blocks, p)),
+                   np.zeros((W, m1, 6)) if store else None,
+                   np.zeros((W, m1, 6, p)) if store else None,
+                   np.zeros((W, m1, 6, p + 1)) if store else None)
+
+
+def output_slice(out: EvalOut, sl: slice) -> EvalOut:
+    """The windows ``sl`` of ``out`` (views: writing them writes ``out``)."""
+    def cut(x: Array | None) -> Array | None:
+        return None if x is None else x[sl]
+    return EvalOut(out.gram[sl], out.innovation[sl], out.d_raw[sl], out.chi2[sl],
+                   out.logdet[sl], out.e_white[sl], cut(out.scores), cut(out.raw_r),
+                   cut(out.raw_J), cut(out.whitened))
+
+
+def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, Rbar: Array,
+                op: Whitening | None, rows: Rows, dwf: Array, dg: Array, gcols: list[int],
+                rs: int, ts: int, blocks: NDArray[np.int64] | None, out: EvalOut) -> None:
+    """One filter pass over a chunk of windows, into ``out`` (zeroed, the chunk's windows):
+    ``now`` and the nominal attitudes ``Rbar`` give the sensitivities' transitions (and,
+    without ``op``, the whitening); ``op`` is a frozen whitening to reuse."""
+    W = mask.shape[0]
     p = dwf.shape[-1]
     frozen = op is not None
     op = now if op is None else op
-    gram = np.zeros((W, p + 1, p + 1))
-    innov, e_white = np.zeros((W, m1, 6)), np.zeros((W, m1, 6))
-    d_raw, logdet = np.zeros((W, m1)), np.zeros(W)
-    n_blocks = int(blocks[-1]) + 1 if blocks is not None else 0
-    scores = np.zeros((W, n_blocks, p))
-    raw_J = np.zeros((W, m1, 6, p) if store else (0, 0, 6, p))
-    whitened = np.zeros((W, m1, 6, p + 1) if store else (0, 0, 6, p + 1))
+    store = out.raw_J is not None
     kn.filter_windows(
-        _c(h), np.ascontiguousarray(mask), _c(now.weights), _c(now.inc), _c(now.Rbar),
-        _c(op.inc), _c(op.Rbar), _c(op.weights), frozen, _c(dwf), _c(dg),
+        _c(h), np.ascontiguousarray(mask), _c(now.weights), _c(now.inc), _c(Rbar),
+        _c(op.inc), _c(op.R0), _c(op.weights), frozen, _c(dwf), _c(dg),
         np.asarray(gcols, dtype=np.int64), _c(rows.r), _c(rows.Jinv), _c(rows.Pm_rot),
         _c(rows.R_WM), _c(op.M), _c(op.par), rs, ts,
         np.zeros(mask.shape[1], np.int64) if blocks is None else blocks,
-        gram, innov, e_white, d_raw, logdet, scores, raw_J, whitened)
-    e2 = e_white**2
-    extras = state_space(h, now, rows.R_WM) if store else {}
-    return EvalOut(gram, innov, d_raw, e2.sum(axis=(1, 2)), e2[..., 0:3].sum(axis=2),
-                   e2[..., 3:6].sum(axis=2), logdet, scores if blocks is not None else None,
-                   rows.r if store else None, raw_J if store else None,
-                   whitened if store else None, extras, e_white)
+        out.gram, out.innovation, out.e_white, out.d_raw, out.logdet,
+        np.zeros((W, 0, p)) if out.scores is None else out.scores,
+        out.raw_J if store else np.zeros((0, 0, 6, p)),
+        out.whitened if store else np.zeros((0, 0, 6, p + 1)))
+    out.chi2[:] = np.einsum("wki,wki->w", out.e_white, out.e_white)
+    if store:
+        out.raw_r[:] = rows.r
+        out.extras.update(state_space(h, now, Rbar, rows.R_WM))
 
 
-def likelihood_pass(h: Array, mask: NDArray[np.bool_], wh: Whitening, r: Array,
+def likelihood_pass(h: Array, mask: NDArray[np.bool_], wh: Whitening, Rbar: Array, r: Array,
                     R_WM: Array) -> tuple[Array, Array]:
     """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (the filter pass
     without Jacobian columns)."""
     W, m1 = mask.shape
     none = np.zeros((W, m1 - 1, 6, 0))
     rows = Rows(r, R_WM, R_WM, R_WM)  # no Jacobian columns: the Jacobian parts are not read
-    out = filter_pass(h, mask, wh, None, rows, none, np.zeros((3, 0)), [], -1, -1, None, False)
+    out = empty_output(W, m1, 0, None, False)
+    filter_pass(h, mask, wh, Rbar, None, rows, none, np.zeros((3, 0)), [], -1, -1, None, out)
     return out.chi2, out.logdet
 
 
-def state_space(h: Array, wh: Whitening, R_WM: Array) -> dict[str, Array]:
+def state_space(h: Array, wh: Whitening, Rbar: Array, R_WM: Array) -> dict[str, Array]:
     """The filter's state-space model written out (tests against a dense likelihood):
     transitions ``F``, process noise ``q_diag``/``q_pv``, white mocap noise ``Rn``, the
     weights, and with correlated mocap noise its ``Fm``, ``Qm`` and ``Pm0``."""
@@ -140,7 +156,7 @@ def state_space(h: Array, wh: Whitening, R_WM: Array) -> dict[str, Array]:
     F, q_diag, q_pv = np.zeros((W, m, 15, 15)), np.zeros((W, m, 15)), np.zeros((W, m))
     Rn = np.zeros((W, m + 1, 6, 6))
     Fm, Qm, Pm0 = np.zeros((W, m, 6, 6)), np.zeros((W, m, 6, 6)), np.zeros((W, 6, 6))
-    kn.state_space(_c(wh.inc), _c(wh.Rbar), _c(h), _c(R_WM), _c(wh.M), _c(wh.par), F, q_diag,
+    kn.state_space(_c(wh.inc), _c(Rbar), _c(h), _c(R_WM), _c(wh.M), _c(wh.par), F, q_diag,
                    q_pv, Rn, Fm, Qm, Pm0)
     out = {"F": F, "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn, "weights": wh.weights.copy()}
     if corr:

@@ -315,13 +315,23 @@ def step_lever(R, M_op, Lk, Lprev, dL, hk, ns, par):  # pragma: no cover  (compi
 
 
 @kernel
-def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_Rbar, op_wts, frozen, dwf, dg, gcols,
+def chain(R, inc, Rnext):  # pragma: no cover  (compiled)
+    """``R <- R dR`` (the next nominal attitude), with ``compose``'s arithmetic."""
+    for i in range(3):
+        for j in range(3):
+            Rnext[i, j] = R[i, 0] * inc[j] + R[i, 1] * inc[3 + j] + R[i, 2] * inc[6 + j]
+    R[:, :] = Rnext
+
+
+@kernel
+def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, dg, gcols,
                    r, Jinv, Pm_rot, R_WM, M_op, par, rs, ts, blocks, gram, innov, e_white,
                    d_raw, logdet, scores, raw_J, whitened):  # pragma: no cover  (compiled)
     """The filter pass over every window (outputs zeroed by the caller). With ``frozen`` the
     filter (mean transition, covariance, gains, whitening) runs on the whitening's own
-    increments ``op_inc``, ``op_Rbar``, noise ``par``/``M_op`` and weights ``op_wts`` while the
-    sensitivities follow the current ones, so the cost is a fixed weighted least squares."""
+    increments ``op_inc`` (its attitudes chained from ``op_R0`` as ``compose`` does), noise
+    ``par``/``M_op`` and weights ``op_wts`` while the sensitivities follow the current ones, so
+    the cost is a fixed weighted least squares."""
     W, m = h.shape
     p = dwf.shape[3]
     ns = 21 if (par[RHO] > 0.0 and par[T_CORR] > 0.0) else 15
@@ -334,12 +344,14 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_Rbar, op_wts, frozen, dwf
     HPHt, Sk, Lc, Li, cov = (np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)),
                              np.zeros((6, 6)), np.zeros((6, 6)))
     Lk, Lprev, dL = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    Rop, Rnext = np.zeros((3, 3)), np.zeros((3, 3))
     for w in range(W):
         last = -1
         for k in range(m + 1):
             if mask[w, k]:
                 last = k
         start_window(Y, X, P, p, ns, rs, ts, R_WM[w, 0], M_op, Lk, par, cov)
+        Rop[:, :] = op_R0[w]
         ld = 0.0
         for k in range(last + 1):
             if k > 0:
@@ -348,7 +360,8 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_Rbar, op_wts, frozen, dwf
                 a = step_lever(R_WM[w, k], M_op, Lk, Lprev, dL, hk, ns, par)
                 transition_blocks(inc[w, j], Rbar[w, j], Fc)
                 if frozen:
-                    transition_blocks(op_inc[w, j], op_Rbar[w, j], Fo)
+                    transition_blocks(op_inc[w, j], Rop, Fo)
+                    chain(Rop, op_inc[w, j], Rnext)
                 else:
                     Fo[:, :, :] = Fc
                 propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf[w, j], dg, gcols, a, dL, Lk, par,
