@@ -188,7 +188,7 @@ def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, dL, Lk, par, tmp,
         for i in range(6):
             for c in range(p):
                 Y[9 + i, c] = -dwf[i, c]
-        phi_rows(Y, p, Fc, hk, 15, 0.0, dL, tmp)
+        phi_rows(Y, p, Fc, hk, min(ns, 15), 0.0, dL, tmp)  # (no literal: one compile)
         for g in range(gcols.shape[0]):
             col = gcols[g]
             for i in range(3):
@@ -406,7 +406,9 @@ def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, 
             for j in range(6):
                 Sk[i, j] = HPHt[i, j] + cov[i, j]
         cholesky6(Sk, Li)
-        forward(Li, N[:, p:], 1, Sk)
+        for i in range(6):  # the innovation column into a C array: forward compiles once
+            cov[i, 0] = N[i, p]
+        forward(Li, cov, N.shape[1] - p, Sk)
         q = 0.0
         for i in range(6):
             q += Sk[i, 0] * Sk[i, 0]
