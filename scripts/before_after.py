@@ -89,10 +89,11 @@ def _flat(d: dict) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
             out[k] = (np.atleast_1d(np.asarray(d[k], float)),
                       None if s is None else np.atleast_1d(np.asarray(s, float)))
     T = d.get("T_marker_imu") or {}
-    for k, key in (("rotation", "rotation_wxyz"), ("translation", "translation")):
-        if T.get(key) is not None:
+    for k, tk in (("rotation", "rotation_wxyz"), ("translation", "translation")):
+        v = T.get(tk, T.get(k))  # the result files write the rotation as rotation_wxyz
+        if v is not None:
             s = sig.get(k)
-            out[k] = (np.asarray(T[key], float), None if s is None else np.asarray(s, float))
+            out[k] = (np.asarray(v, float), None if s is None else np.asarray(s, float))
     for name, e in (d.get("effects") or {}).items():
         for pk, v in e.items():
             if pk in ("sigma", "ppm") or v is None or isinstance(v, dict):
@@ -121,12 +122,11 @@ def compare(before: Path, after: Path, limit: float) -> int:
                 continue
             vb, _ = b[k]
             va, sa = a[k]
-            if k == "rotation":  # quaternions: the angle between them
-                dq = abs(float(np.dot(vb, va)) / (np.linalg.norm(vb) * np.linalg.norm(va)))
-                diff = np.array([2.0 * np.arccos(min(1.0, dq))])
-                z = diff / max(float(np.min(sa)), 1e-300) if sa is not None else None
-            elif k == "gravity_in_mocap":  # a unit vector, sigmas in its tangent plane
-                diff = np.array([np.arccos(min(1.0, float(np.dot(va, vb))))])
+            if k == "rotation":  # quaternions: the angle between them (atan2: exact near 0)
+                qa, qb = va / np.linalg.norm(va), vb / np.linalg.norm(vb)
+                w = float(np.dot(qa, qb))
+                vec = qb[0] * qa[1:] - qa[0] * qb[1:] - np.cross(qb[1:], qa[1:])
+                diff = np.array([2.0 * np.arctan2(np.linalg.norm(vec), abs(w))])
                 z = diff / max(float(np.min(sa)), 1e-300) if sa is not None else None
             else:
                 diff = np.abs(va - vb)

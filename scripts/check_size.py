@@ -22,9 +22,6 @@ ALLOWED: dict[str, str] = {
         "one solve with its relinearisation loop over a closure's state",
     "mocap_calib/core/stages/velocity.py:run_velocity_stage":
         "one solve with its relinearisation loop over a closure's state",
-    "mocap_calib/core/position/engine.py:_filter":
-        "the filter's sequential pass: one loop over the steps, split it and the state "
-        "passes through a dozen arguments",
 }
 
 

@@ -139,14 +139,24 @@ def describe(key: str, r: dict, ref: tuple[np.ndarray, np.ndarray | None]) -> di
     return out
 
 
-def study(key: str, thirds: bool, sensitivity: bool) -> dict:
+def study(key: str, thirds: bool, sensitivity: bool, fulls: dict | None = None) -> dict:
     label, spec = RECORDINGS[key]
     session = load_session(spec)
     noise = NoiseSpec().resolve(session.sensor_noise)
     opts = CalibrationOptions(noise=noise)
     full = run(session, opts)
+    if fulls is not None:
+        fulls[key] = full
     ref = reference(key)
     rep: dict = {"recording": label, "full": describe(key, full, ref)}
+    if full["exit"] == 0:  # the result's own checks: thirds, noise models, effects shown
+        r = full["result"]
+        rep["own"] = {"thirds_max_z": r.consistency.get("max_pairwise_z"),
+                      "moved_sigmas": r.sensitivity.get("moved_sigmas"),
+                      "mocap_model": r.sensitivity.get("mocap_noise_model"),
+                      "effects_shown": r.effect_tests.get("shown"),
+                      "consistency_factor": {k: v["consistency_factor"]
+                                             for k, v in r.uncertainty.items()}}
     dur = session.imu.duration
     if thirds:
         parts = [run(session, opts, k * dur / 3, (k + 1) * dur / 3)
@@ -156,6 +166,12 @@ def study(key: str, thirds: bool, sensitivity: bool) -> dict:
         zs = [z_pair(a, b) for a, b in itertools.combinations(ok, 2)]
         rep["thirds_max_z"] = {k: round(max(z[k] for z in zs), 2)
                                for k in ("R_MI", "p_MI", "t_d") if zs and all(k in z for z in zs)}
+        if len(ok) > 1:  # the thirds' largest differences in units (the C++ peer's measure)
+            rep["thirds_max_diff"] = {
+                "R_MI_deg": round(max(float(np.degrees(np.linalg.norm(so3.log(a["R"].T @ b["R"]))))
+                                      for a, b in itertools.combinations(ok, 2)), 3),
+                "p_MI_mm": round(max(float(1e3 * np.linalg.norm(a["p"] - b["p"]))
+                                     for a, b in itertools.combinations(ok, 2)), 2)}
     if sensitivity and full["exit"] == 0:
         sens = {}
         for f in (3.0, 1.0 / 3.0):
@@ -164,6 +180,17 @@ def study(key: str, thirds: bool, sensitivity: bool) -> dict:
                                  if o["exit"] == 0 else {"exit": o["exit"], "error": o["error"]})
         rep["noise_sensitivity_sigmas"] = sens
     return rep
+
+
+def trials_agree(fulls: dict[str, dict]) -> dict[str, dict[str, float]]:
+    """The BROAD trials are one IMU on one rigid body: R_MI and p_MI of every pair, largest
+    |difference| / combined sigma."""
+    out = {}
+    for a, b in itertools.combinations(sorted(fulls), 2):
+        if fulls[a]["exit"] == 0 and fulls[b]["exit"] == 0:
+            z = z_pair(fulls[a], fulls[b])
+            out[f"{a}-{b}"] = {k: round(v, 2) for k, v in z.items() if k != "t_d"}
+    return out
 
 
 def summary(reports: list[dict]) -> str:
@@ -195,11 +222,17 @@ def main() -> None:
     ap.add_argument("--no-sensitivity", action="store_true")
     a = ap.parse_args()
     reports = []
+    fulls: dict[str, dict] = {}
     for key in a.only.split(","):
-        rep = study(key, not a.no_thirds, not a.no_sensitivity)
+        rep = study(key, not a.no_thirds, not a.no_sensitivity, fulls)
         print(json.dumps(rep, indent=1), flush=True)
         reports.append(rep)
     print(summary(reports))
+    broad = {k: v for k, v in fulls.items() if k.startswith("broad")}
+    if len(broad) > 1:
+        pairs = trials_agree(broad)
+        print("BROAD trials pairwise max z (R_MI, p_MI):", json.dumps(pairs))
+        reports.append({"broad_pairs_max_z": pairs})
     if a.json:
         a.json.write_text(json.dumps(reports, indent=1))
 

@@ -85,54 +85,96 @@ def test_jacobians_match_numerical_derivatives(short_session):
             assert err < 2e-3 * scale + 1e-6, f"{name}[{i}]: error {err:.3g} vs scale {scale:.3g}"
 
 
-@pytest.mark.parametrize("noise", [
-    NoiseModel(),
+def _mocap_noise(th: Theta, R_WM: np.ndarray, noise: NoiseModel, axes: np.ndarray) -> np.ndarray:
+    """(n, 6, 6) covariance of the residuals' mocap noise, written out: independent attitude
+    noise per IMU-frame axis and position noise per world axis; the attitude noise moves the
+    measured IMU position through the lever arm p_MI."""
+    var = np.r_[np.full(3, noise.mocap_rotation_sigma**2),
+                np.full(3, noise.mocap_position_sigma**2)]
+    out = np.zeros((len(R_WM), 6, 6))
+    for k, R in enumerate(R_WM):
+        # Marker attitude noise R_MI n: R_WM Exp(R_MI n) R_MI = R_WM R_MI Exp(n), and the IMU
+        # position p_WM + R_WM Exp(R_MI n) p_MI moves by R_WM [R_MI n]x p_MI
+        # = -R_WM [p_MI]x R_MI n.
+        J = np.eye(6)
+        J[3:6, 0:3] = -R @ so3.hat(th.p_MI) @ th.R_MI
+        out[k] = J @ np.diag(var * axes) @ J.T
+    return out
+
+
+def _dense_cov(ex: dict, w: int, m1: int, noise: NoiseModel, full: np.ndarray, rho: float,
+               Rn: np.ndarray, wt: np.ndarray) -> np.ndarray:
+    """Dense covariance of all residuals of window ``w`` from the filter's state-space model
+    (``ex``, the engine's extras) and the mocap noise written out (``full``, ``Rn``)."""
+    F, qd, qpv = ex["F"][w], ex["q_diag"][w], ex["q_pv"][w]
+    P = np.diag(np.r_[np.full(3, 1.0), np.full(3, 1.0), np.full(3, 0.25), np.zeros(6)])
+    Ps = [P]
+    for k in range(m1 - 1):
+        Q = np.diag(qd[k])
+        Q[3:6, 6:9] += qpv[k] * np.eye(3)
+        Q[6:9, 3:6] += qpv[k] * np.eye(3)
+        P = F[k] @ P @ F[k].T + Q
+        Ps.append(P)
+    # The correlated mocap noise, written out as its own Gauss-Markov sequence.
+    if noise.mocap_correlated:
+        Fm, Qm, Pm = ex["Fm"][w], ex["Qm"][w], [ex["Pm0"][w]]
+        np.testing.assert_allclose(Pm[0], rho * full[0], rtol=1e-12, atol=1e-20)
+        for k in range(m1 - 1):
+            Pm.append(Fm[k] @ Pm[-1] @ Fm[k].T + Qm[k])
+            # The AR(1) part stays stationary: at every sample, rho times the noise there.
+            np.testing.assert_allclose(Pm[-1], rho * full[k + 1], rtol=1e-9,
+                                       atol=1e-12 * np.abs(full[k + 1]).max())
+    n = 6 * m1
+    C = np.zeros((n, n))
+    for k in range(m1):
+        Phi = np.eye(15)
+        Phm = np.eye(6)
+        for j in range(k, m1):
+            if j > k:
+                Phi = F[j - 1] @ Phi
+                Phm = ex["Fm"][w][j - 1] @ Phm if noise.mocap_correlated else Phm
+            block = (Phi @ Ps[k])[0:6, 0:6]
+            if noise.mocap_correlated:
+                block = block + Phm @ Pm[k]
+            C[6 * j:6 * j + 6, 6 * k:6 * k + 6] = block
+            C[6 * k:6 * k + 6, 6 * j:6 * j + 6] = block.T
+        C[6 * k:6 * k + 6, 6 * k:6 * k + 6] += Rn[k] / wt[k]
+    return C
+
+
+@pytest.mark.parametrize("noise, axes", [
+    (NoiseModel(), np.ones(6)),
+    # Per-axis mocap noise: each attitude (IMU frame) and position (world) axis its own level.
+    (NoiseModel(), np.array([0.3, 1.0, 4.0, 2.0, 0.5, 1.5])),
     # Mocap noise correlated over 50 ms (70 % of its variance): six more filter states.
-    NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
-               mocap_noise_corr_fraction=0.7)], ids=["white", "correlated"])
-def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session, noise):
+    (NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+                mocap_noise_corr_fraction=0.7), np.ones(6)),
+    (NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+                mocap_noise_corr_fraction=0.7), np.array([2.0, 0.5, 1.0, 0.25, 3.0, 1.0]))],
+    ids=["white", "white-axes", "correlated", "correlated-axes"])
+def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session, noise, axes):
     sim, s, v = short_session
     model = Model.parse("base+time_offset")
     win = make_windows(s, s.clock_shift + 0.003, 0.15, 200.0, v, min_samples=10)
     pp = PositionProblem(s, model, noise, win)
+    pp.mocap_axis_scale = axes
     pp.weights[0, 5] = 0.3  # a robust weight must enter as an inflated (white) noise
     tr = sim.truth
     knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1)) + 1e-3
-    out = pp.evaluate(_theta(sim, s, win.count, None, eff={}, knots=knots), store=True)
+    th = _theta(sim, s, win.count, None, eff={}, knots=knots)
+    out = pp.evaluate(th, store=True)
     ex = out.extras
+    rho = noise.mocap_noise_corr_fraction if noise.mocap_correlated else 0.0
     for w in range(3):
         m1 = int(win.mask[w].sum())
-        F, qd, qpv, Rn, wt = (ex["F"][w], ex["q_diag"][w], ex["q_pv"][w], ex["Rn"][w],
-                              ex["weights"][w])
-        # Dense covariance of all residuals of the window, from the state-space model.
-        P = np.diag(np.r_[np.full(3, 1.0), np.full(3, 1.0), np.full(3, 0.25), np.zeros(6)])
-        Ps = [P]
-        for k in range(m1 - 1):
-            Q = np.diag(qd[k])
-            Q[3:6, 6:9] += qpv[k] * np.eye(3)
-            Q[6:9, 3:6] += qpv[k] * np.eye(3)
-            P = F[k] @ P @ F[k].T + Q
-            Ps.append(P)
-        # The correlated mocap noise, written out as its own Gauss-Markov sequence.
-        if noise.mocap_correlated:
-            Fm, Qm, Pm = ex["Fm"][w], ex["Qm"][w], [ex["Pm0"][w]]
-            for k in range(m1 - 1):
-                Pm.append(Fm[k] @ Pm[-1] @ Fm[k].T + Qm[k])
+        wt = ex["weights"][w]
+        # The mocap noise from its definition, not from the engine: white part here, the
+        # correlated part's stationary covariance below.
+        full = _mocap_noise(th, win.R_WM[w], noise, axes)
+        Rn = (1.0 - rho) * full
+        np.testing.assert_allclose(ex["Rn"][w][:m1], Rn[:m1], rtol=1e-12, atol=1e-20)
+        C = _dense_cov(ex, w, m1, noise, full, rho, Rn, wt)
         n = 6 * m1
-        C = np.zeros((n, n))
-        for k in range(m1):
-            Phi = np.eye(15)
-            Phm = np.eye(6)
-            for j in range(k, m1):
-                if j > k:
-                    Phi = F[j - 1] @ Phi
-                    Phm = ex["Fm"][w][j - 1] @ Phm if noise.mocap_correlated else Phm
-                block = (Phi @ Ps[k])[0:6, 0:6]
-                if noise.mocap_correlated:
-                    block = block + Phm @ Pm[k]
-                C[6 * j:6 * j + 6, 6 * k:6 * k + 6] = block
-                C[6 * k:6 * k + 6, 6 * j:6 * j + 6] = block.T
-            C[6 * k:6 * k + 6, 6 * k:6 * k + 6] += Rn[k] / wt[k]
         r = out.raw_r[w, :m1].reshape(-1)
         J = out.raw_J[w, :m1].reshape(n, -1)
         A = np.concatenate([J, r[:, None]], axis=1)
@@ -141,6 +183,78 @@ def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session, noise)
                                    atol=1e-9 * np.abs(dense).max())
         assert out.chi2[w] == pytest.approx(r @ np.linalg.solve(C, r), rel=1e-6)
         assert out.logdet[w] == pytest.approx(np.linalg.slogdet(C)[1], rel=1e-9, abs=1e-6)
+        # The whitened innovations are the dense Cholesky whitening of the residuals, component
+        # by component (what the per-axis noise estimate reads).
+        e_dense = np.linalg.solve(np.linalg.cholesky(C), r).reshape(m1, 6)
+        np.testing.assert_allclose(out.e_white[w, :m1], e_dense, rtol=1e-6, atol=1e-8)
+
+
+@pytest.mark.parametrize("noise", [
+    NoiseModel(),
+    NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+               mocap_noise_corr_fraction=0.7)], ids=["white", "correlated"])
+def test_frozen_whitening_is_the_recorded_dense_likelihood(short_session, noise):
+    """A frozen whitening (recorded at one point, replayed at another) makes the cost the
+    weighted least squares of the new residuals with the recorded point's dense covariance;
+    the replay keeps only the recorded increments, so this checks it rebuilds the operator."""
+    sim, s, v = short_session
+    win = make_windows(s, s.clock_shift + 0.003, 0.15, 200.0, v, min_samples=10)
+    pp = PositionProblem(s, Model.parse("base+time_offset"), noise, win)
+    pp.weights[1, 4] = 0.3
+    tr = sim.truth
+    knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1))
+    th0 = _theta(sim, s, win.count, None, eff={}, knots=knots + 1e-3)
+    th1 = _theta(sim, s, win.count, None, eff={}, knots=knots + 3e-3, delta=s.clock_shift + 0.004)
+    th1.R_MI = th1.R_MI @ so3.exp(np.radians([0.5, -0.3, 0.2]))
+    th1.p_MI = th1.p_MI + np.array([2e-3, -1e-3, 1e-3])
+    pp.freeze_whitening(True)
+    rec = pp.evaluate(th0, store=True)
+    frozen = pp.evaluate(th1, store=True)
+    pp.freeze_whitening(False)
+    fresh = pp.evaluate(th1)
+    rho = noise.mocap_noise_corr_fraction if noise.mocap_correlated else 0.0
+    for w in range(3):
+        m1 = int(win.mask[w].sum())
+        full = _mocap_noise(th0, win.R_WM[w], noise, np.ones(6))
+        C0 = _dense_cov(rec.extras, w, m1, noise, full, rho, (1.0 - rho) * full,
+                        rec.extras["weights"][w])
+        r1 = frozen.raw_r[w, :m1].reshape(-1)
+        A1 = np.concatenate([frozen.raw_J[w, :m1].reshape(6 * m1, -1), r1[:, None]], axis=1)
+        dense = A1.T @ np.linalg.solve(C0, A1)
+        np.testing.assert_allclose(frozen.gram[w], dense, rtol=1e-6,
+                                   atol=1e-9 * np.abs(dense).max())
+        e_dense = np.linalg.solve(np.linalg.cholesky(C0), r1).reshape(m1, 6)
+        np.testing.assert_allclose(frozen.e_white[w, :m1], e_dense, rtol=1e-6, atol=1e-8)
+        # ... which is not the whitening at the new point (the test can tell them apart).
+        assert np.abs(fresh.e_white[w, :m1] - e_dense).max() > 1e-3
+
+
+def test_per_axis_mocap_noise_scale_recovers_a_misscaled_model():
+    """At the true parameters of a simulated flight (isotropic mocap noise), a model whose
+    mocap variances are wrong by a different factor per axis: the per-axis estimate reads the
+    inverse factors off the whitened innovations; with unit factors it reads ones, and the
+    two-level estimate is the same as before (the defaults change nothing)."""
+    sim = simulate_flight(SimConfig(seed=5, duration=60.0))
+    s = prepare(sim.imu, sim.mocap)
+    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
+    win = make_windows(s, s.clock_shift, 2.0, 200.0, v)
+    iu = np.searchsorted(s.u, win.start)
+    knots = np.c_[sim.gyro_bias_true[iu], sim.accel_bias_true[iu]]
+    tr = sim.truth
+    th = Theta(so3.quat_to_rotmat(np.array(tr["T_marker_imu"]["rotation_wxyz"])),
+               np.array(tr["T_marker_imu"]["translation"]), np.array(tr["gravity_in_mocap"]),
+               np.eye(3)[:, :2], 9.81, s.clock_shift, {}, knots, 30.0)
+    pp = PositionProblem(s, Model(), NoiseModel(), win)
+    unit = pp.evaluate(th)
+    np.testing.assert_allclose(pp.mocap_noise_scale_axes(unit), np.ones(6), atol=0.12)
+    for axes in (np.array([0.25, 1.0, 4.0, 4.0, 1.0, 0.25]), np.array([2, 2, 2, 0.5, 0.5, 0.5])):
+        pp.mocap_axis_scale = axes
+        got = pp.mocap_noise_scale_axes(pp.evaluate(th))
+        np.testing.assert_allclose(got, 1.0 / axes, rtol=0.15)
+    pp.mocap_axis_scale = np.ones(6)
+    again = pp.evaluate(th)
+    np.testing.assert_array_equal(again.gram, unit.gram)
+    assert pp.mocap_noise_scale(again) == pp.mocap_noise_scale(unit)
 
 
 def test_compressed_factor_reproduces_the_quadratic_cost():

@@ -101,8 +101,8 @@ def correct(model: Model, params: Intrinsics, gyro_m: Array, accel_m: Array, u: 
             else:
                 rg = rg + params.theta(eff.name)
 
-    f = (accel_m - params.accel_bias - du * ra) @ Ma_inv.T
-    w = (gyro_m - params.gyro_bias - du * rg - f @ G.T) @ Mg_inv.T
+    f = _affine(accel_m - params.accel_bias, du, ra, None, None, Ma_inv, Ea)
+    w = _affine(gyro_m - params.gyro_bias, du, rg, f, G, Mg_inv, Eg)
     dw_du = df_du = None
     if gyro_dot is not None and accel_dot is not None:
         df_du = (accel_dot - ra) @ Ma_inv.T
@@ -115,11 +115,23 @@ def correct(model: Model, params: Intrinsics, gyro_m: Array, accel_m: Array, u: 
         # without the signals' derivatives (the first stages) get the rate terms only.
         A = size_matrix(w, np.zeros_like(w) if dw_du is None else dw_du)
         f = f - _size_terms(A, r_size)
-        w = (gyro_m - params.gyro_bias - du * rg - f @ G.T) @ Mg_inv.T
+        w = _affine(gyro_m - params.gyro_bias, du, rg, f, G, Mg_inv, Eg)
     if not sensitivities:
         return Corrected(w, f, {}, {}, dw_du, df_du)
     dw, df = _sensitivities(model, Ma_inv, Mg_inv, G, w, f, du, A)
     return Corrected(w, f, dw, df, dw_du, df_du)
+
+
+def _affine(x: Array, du: Array, r: Array, f: Array | None, G: Array | None, M_inv: Array,
+            E: Array) -> Array:
+    """``(x - du r - f G^T) M_inv^T``, skipping the terms of effects the model does not have
+    (the same numbers: they would add zeros and multiply by the identity). Called at every
+    node of the position stage's integration, where the full form cost as much as the RK4."""
+    if np.any(r):
+        x = x - du * r
+    if f is not None and np.any(G):
+        x = x - f @ G.T
+    return x @ M_inv.T if np.any(E) else x
 
 
 def imu_times(model: Model, params: Intrinsics, u: Array) -> Array:
@@ -181,8 +193,9 @@ def _sensitivities(model: Model, Ma_inv: Array, Mg_inv: Array, G: Array, w: Arra
             d[..., 1, 0:3] = -A[..., 1, :]
             d[..., 2, 3:6] = -A[..., 2, :]
             df[eff.name] = d
+    MG = Mg_inv @ G
     for name, d in df.items():
-        dw[name] = -np.einsum("ij,jk,...kl->...il", Mg_inv, G, d)
+        dw[name] = -np.einsum("ik,...kl->...il", MG, d) if np.any(G) else np.zeros_like(d)
     dw["gyro_bias"] = np.broadcast_to(-Mg_inv, shape + (3, 3))
     for eff in model.units:
         if eff.sensor != "gyro":

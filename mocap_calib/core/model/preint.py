@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.jit import kernel
 from mocap_calib.core.model import so3
 
 Array = NDArray[np.float64]
@@ -34,45 +35,60 @@ Array = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class Interp:
-    """Cubic Hermite (Catmull-Rom with non-uniform tangents) interpolation weights.
-
-    ``y(u) = sum_j weight[..., j] * y[index[..., j]]`` and likewise ``dy/du`` with ``dweight``.
+    """Cubic Hermite (Catmull-Rom with non-uniform tangents) interpolation of samples at times
+    ``t`` for query times ``u``: ``y(u) = sum_j weight_j(u) y[seg - 1 + j]`` and likewise
+    ``dy/du``. The weights are computed where they are used (compiled), so an interpolant holds
+    only its queries and their segments.
     """
 
-    index: NDArray[np.int64]
-    weight: Array
-    dweight: Array
+    t: Array
+    u: Array
+    seg: NDArray[np.int64]  # first sample of each query's segment (clipped to [1, n - 3])
 
     def __call__(self, y: Array) -> Array:
-        return np.einsum("...j,...jc->...c", self.weight, y[self.index])
+        return self._eval(y, False)
 
     def derivative(self, y: Array) -> Array:
-        return np.einsum("...j,...jc->...c", self.dweight, y[self.index])
+        return self._eval(y, True)
+
+    def _eval(self, y: Array, deriv: bool) -> Array:
+        y = np.ascontiguousarray(y, dtype=float)
+        out = np.empty((self.u.size, y.shape[-1]))
+        _hermite_kernel(self.t, self.u.reshape(-1), self.seg.reshape(-1), y, deriv, out)
+        return out.reshape(self.u.shape + (y.shape[-1],))
 
 
 def hermite(t: Array, u: Array) -> Interp:
-    """Interpolation weights of samples at times ``t`` (sorted) for query times ``u``.
+    """Interpolation of samples at times ``t`` (sorted) for query times ``u``.
 
     Queries must lie within ``[t[1], t[-2]]``; outside it the end segment is extrapolated.
     """
-    n = len(t)
-    i = np.clip(np.searchsorted(t, u, side="right") - 1, 1, n - 3)
-    t0, t1 = t[i], t[i + 1]
-    d = t1 - t0
-    s = (u - t0) / d
-    d1 = t1 - t[i - 1]
-    d2 = t[i + 2] - t0
-    s2, s3 = s * s, s * s * s
-    h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
-    g00, g10, g01, g11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
-    a1, a2 = d / d1, d / d2
-    weight = np.stack([-h10 * a1, h00 - h11 * a2, h01 + h10 * a1, h11 * a2], axis=-1)
-    dweight = np.stack([-g10 * a1, g00 - g11 * a2, g01 + g10 * a1, g11 * a2], axis=-1)
-    dweight /= d[..., None]
-    index = i[..., None] + np.arange(-1, 3)
-    return Interp(index, weight, dweight)
+    t = np.ascontiguousarray(t, dtype=float)
+    u = np.ascontiguousarray(u, dtype=float)
+    seg = np.clip(np.searchsorted(t, u, side="right") - 1, 1, len(t) - 3)
+    return Interp(t, u, seg)
 
 
+@kernel
+def _hermite_kernel(t, u, seg, y, deriv, out):  # pragma: no cover  (compiled)
+    """``out[q] = sum_j weight_j y[seg[q] - 1 + j]`` (or with the derivative's weights)."""
+    nc = y.shape[1]
+    for q in range(u.shape[0]):
+        i = seg[q]
+        t0, t1 = t[i], t[i + 1]
+        d = t1 - t0
+        s = (u[q] - t0) / d
+        a1, a2 = d / (t1 - t[i - 1]), d / (t[i + 2] - t0)
+        s2 = s * s
+        s3 = s2 * s
+        if deriv:
+            h00, h10 = (6 * s2 - 6 * s) / d, (3 * s2 - 4 * s + 1) / d
+            h01, h11 = (-6 * s2 + 6 * s) / d, (3 * s2 - 2 * s) / d
+        else:
+            h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+        w0, w1, w2, w3 = -h10 * a1, h00 - h11 * a2, h01 + h10 * a1, h11 * a2
+        for c in range(nc):
+            out[q, c] = w0 * y[i - 1, c] + w1 * y[i, c] + w2 * y[i + 1, c] + w3 * y[i + 2, c]
 
 
 @dataclass(frozen=True)
@@ -92,80 +108,117 @@ class StepIncrements:
     C: Array
     B: Array
     D: Array
+    packed: Array | None = None  # (..., 51): dR, dv, dp, A, C, B, D flattened, one row a step
 
-
-def _qmul_vec(q: Array, w: Array) -> Array:
-    """``0.5 * q (x) [0, w]`` for quaternion derivative."""
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
-    return 0.5 * np.stack([
-        -qx * wx - qy * wy - qz * wz,
-        qw * wx + qy * wz - qz * wy,
-        qw * wy - qx * wz + qz * wx,
-        qw * wz + qx * wy - qy * wx,
-    ], axis=-1)
-
-
-def _qrot(q: Array) -> Array:
-    """Rotation matrix of a (not necessarily unit) quaternion."""
-    n2 = np.einsum("...i,...i->...", q, q)
-    return so3.quat_to_rotmat(q / np.sqrt(n2)[..., None])
-
-
+    def pack(self) -> Array:
+        """(..., 51) all increments of a step in one row (the compiled filter's input)."""
+        if self.packed is not None:
+            return self.packed
+        lead = self.dv.shape[:-1]
+        return np.concatenate([x.reshape(lead + (-1,)) for x in
+                               (self.dR, self.dv, self.dp, self.A, self.C, self.B, self.D)], -1)
 
 
 def integrate_pieces(w_nodes: Array, f_nodes: Array, hs_all: Array) -> StepIncrements:
     """RK4-integrate each step piece by piece; piece ``i`` runs from node ``2i`` through its
-    midpoint node ``2i + 1`` to node ``2i + 2``.
+    midpoint node ``2i + 1`` to node ``2i + 2`` (compiled: :func:`_integrate_kernel`).
 
     Args:
         w_nodes: (..., 2 n + 1, 3) angular rate at the nodes.
         f_nodes: (..., 2 n + 1, 3) specific force at the nodes.
         hs_all: (..., n) piece durations (zero-length pieces are allowed: padding).
     """
-    n_sub = hs_all.shape[-1]
     lead = hs_all.shape[:-1]
-    q = np.zeros(lead + (4,))
-    q[..., 0] = 1.0
-    v = np.zeros(lead + (3,))
-    p = np.zeros(lead + (3,))
-    A = np.zeros(lead + (3, 3))
-    C = np.zeros(lead + (3, 3))
-    B = np.zeros(lead + (3, 3))
-    D = np.zeros(lead + (3, 3))
+    n_sub = hs_all.shape[-1]
+    S = int(np.prod(lead, dtype=np.int64))
+    w = np.ascontiguousarray(w_nodes, dtype=float).reshape(S, 2 * n_sub + 1, 3)
+    f = np.ascontiguousarray(f_nodes, dtype=float).reshape(S, 2 * n_sub + 1, 3)
+    hs = np.ascontiguousarray(hs_all, dtype=float).reshape(S, n_sub)
+    out = np.empty((S, 51))
+    _integrate_kernel(w, f, hs, out)
+    m3 = lead + (3, 3)
+    return StepIncrements(out[:, 0:9].reshape(m3), out[:, 9:12].reshape(lead + (3,)),
+                          out[:, 12:15].reshape(lead + (3,)), out[:, 15:24].reshape(m3),
+                          out[:, 24:33].reshape(m3), out[:, 33:42].reshape(m3),
+                          out[:, 42:51].reshape(m3), out.reshape(lead + (51,)))
 
-    def deriv(qq: Array, vv: Array, AA: Array, BB: Array, w: Array, f: Array):
-        R = _qrot(qq)
-        Rf = np.einsum("...ij,...j->...i", R, f)
-        return _qmul_vec(qq, w), Rf, vv, R, AA, so3.hat(Rf) @ AA, BB
 
-    for i in range(n_sub):
-        hs = hs_all[..., i, None]
-        hs2 = hs[..., None]
-        w0, wm, w1 = (w_nodes[..., 2 * i + j, :] for j in range(3))
-        f0, fm, f1 = (f_nodes[..., 2 * i + j, :] for j in range(3))
-        k1 = deriv(q, v, A, B, w0, f0)
-        s2 = (q + 0.5 * hs * k1[0], v + 0.5 * hs * k1[1], A + 0.5 * hs2 * k1[3],
-              B + 0.5 * hs2 * k1[5])
-        k2 = deriv(*s2, wm, fm)
-        s3 = (q + 0.5 * hs * k2[0], v + 0.5 * hs * k2[1], A + 0.5 * hs2 * k2[3],
-              B + 0.5 * hs2 * k2[5])
-        k3 = deriv(*s3, wm, fm)
-        s4 = (q + hs * k3[0], v + hs * k3[1], A + hs2 * k3[3], B + hs2 * k3[5])
-        k4 = deriv(*s4, w1, f1)
+@kernel
+def _rk_stage(y, w, f, k):  # pragma: no cover  (compiled)
+    """Derivative ``k`` of the state ``y`` = (q, v, p, A, C, B, D) flattened (46 values):
+    ``q (0, w) / 2``, ``R f``, ``v``, ``R``, ``A``, ``[R f]x A``, ``B``."""
+    n = np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])
+    qw, qx, qy, qz = y[0] / n, y[1] / n, y[2] / n, y[3] / n
+    R0, R1, R2 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
+    R3, R4, R5 = 2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)
+    R6, R7, R8 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
+    f0, f1, f2 = R0 * f[0] + R1 * f[1] + R2 * f[2], R3 * f[0] + R4 * f[1] + R5 * f[2], \
+        R6 * f[0] + R7 * f[1] + R8 * f[2]
+    k[0] = 0.5 * (-y[1] * w[0] - y[2] * w[1] - y[3] * w[2])
+    k[1] = 0.5 * (y[0] * w[0] + y[2] * w[2] - y[3] * w[1])
+    k[2] = 0.5 * (y[0] * w[1] - y[1] * w[2] + y[3] * w[0])
+    k[3] = 0.5 * (y[0] * w[2] + y[1] * w[1] - y[2] * w[0])
+    k[4], k[5], k[6] = f0, f1, f2
+    for a in range(3):
+        k[7 + a] = y[4 + a]
+    k[10], k[11], k[12], k[13], k[14], k[15], k[16], k[17], k[18] = R0, R1, R2, R3, R4, R5, R6, \
+        R7, R8
+    for a in range(9):
+        k[19 + a] = y[10 + a]  # dC = A
+        k[37 + a] = y[28 + a]  # dD = B
+    for j in range(3):  # dB = [Rf]x A, column by column
+        a0, a1, a2 = y[10 + j], y[13 + j], y[16 + j]
+        k[28 + j] = f1 * a2 - f2 * a1
+        k[31 + j] = f2 * a0 - f0 * a2
+        k[34 + j] = f0 * a1 - f1 * a0
 
-        def comb(idx: int, hh: Array, k1=k1, k2=k2, k3=k3, k4=k4) -> Array:
-            return hh / 6.0 * (k1[idx] + 2 * k2[idx] + 2 * k3[idx] + k4[idx])
 
-        q = q + comb(0, hs)
-        q /= np.linalg.norm(q, axis=-1, keepdims=True)
-        v = v + comb(1, hs)
-        p = p + comb(2, hs)
-        A = A + comb(3, hs2)
-        C = C + comb(4, hs2)
-        B = B + comb(5, hs2)
-        D = D + comb(6, hs2)
-    return StepIncrements(so3.quat_to_rotmat(q), v, p, A, C, B, D)
+@kernel
+def _integrate_kernel(w, f, hs, out):  # pragma: no cover  (compiled)
+    """RK4 over the pieces of every step; ``out`` columns: dR, dv, dp, A, C, B, D
+    (flattened). Stage ``st`` is evaluated at the state plus ``c[st] h`` times the previous
+    stage's derivative, at the piece's start, midpoint, midpoint and end node."""
+    S, n_sub = hs.shape
+    y, ys = np.empty(46), np.empty(46)
+    k = np.empty((4, 46))
+    c = (0.0, 0.5, 0.5, 1.0)
+    at = (0, 1, 1, 2)
+    k[:, :] = 0.0
+    for s in range(S):
+        y[:] = 0.0
+        y[0] = 1.0
+        for i in range(n_sub):
+            h = hs[s, i]
+            if h == 0.0:
+                continue  # padding: the identity
+            for st in range(4):
+                if st == 0:
+                    ys[:] = y
+                else:
+                    ch = c[st] * h
+                    for a in range(46):
+                        ys[a] = y[a] + ch * k[st - 1, a]
+                node = 2 * i + at[st]
+                _rk_stage(ys, w[s, node], f[s, node], k[st])
+            h6 = h / 6.0
+            for a in range(46):
+                y[a] += h6 * (k[0, a] + 2.0 * k[1, a] + 2.0 * k[2, a] + k[3, a])
+            n = np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])
+            for a in range(4):
+                y[a] /= n
+        qw, qx, qy, qz = y[0], y[1], y[2], y[3]
+        o = out[s]
+        o[0] = 1 - 2 * (qy * qy + qz * qz)
+        o[1] = 2 * (qx * qy - qw * qz)
+        o[2] = 2 * (qx * qz + qw * qy)
+        o[3] = 2 * (qx * qy + qw * qz)
+        o[4] = 1 - 2 * (qx * qx + qz * qz)
+        o[5] = 2 * (qy * qz - qw * qx)
+        o[6] = 2 * (qx * qz - qw * qy)
+        o[7] = 2 * (qy * qz + qw * qx)
+        o[8] = 1 - 2 * (qx * qx + qy * qy)
+        for a in range(42):
+            o[9 + a] = y[4 + a]
 
 
 _IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -285,7 +338,7 @@ class Pieces:
     Attributes:
         nodes: (..., 2 n + 1) times (mocap clock): piece ends and midpoints.
         hs: (..., n) piece durations (zero for padding).
-        interp: Hermite weights of the IMU samples at the nodes (IMU clock).
+        interp: Hermite interpolation of the IMU samples at the nodes (IMU clock).
     """
 
     nodes: Array
@@ -343,12 +396,32 @@ def compose(inc: StepIncrements, h: Array, R0: Array, p0: Array, v0: Array,
     R = np.empty((S, m + 1, 3, 3))
     p = np.empty((S, m + 1, 3))
     v = np.empty((S, m + 1, 3))
-    R[:, 0], p[:, 0], v[:, 0] = R0, p0, v0
-    for k in range(m):
-        hk = h[:, k, None]
-        Rk = R[:, k]
-        p[:, k + 1] = (p[:, k] + v[:, k] * hk + 0.5 * g_W * hk**2
-                       + np.einsum("sij,sj->si", Rk, inc.dp[:, k]))
-        v[:, k + 1] = v[:, k] + g_W * hk + np.einsum("sij,sj->si", Rk, inc.dv[:, k])
-        R[:, k + 1] = Rk @ inc.dR[:, k]
+    _compose_kernel(np.ascontiguousarray(inc.dR, dtype=float),
+                    np.ascontiguousarray(inc.dv, dtype=float),
+                    np.ascontiguousarray(inc.dp, dtype=float), np.ascontiguousarray(h, dtype=float),
+                    np.ascontiguousarray(R0, dtype=float), np.ascontiguousarray(p0, dtype=float),
+                    np.ascontiguousarray(v0, dtype=float),
+                    np.ascontiguousarray(g_W, dtype=float), R, p, v)
     return R, p, v
+
+
+@kernel
+def _compose_kernel(dR, dv, dp, h, R0, p0, v0, g, R, p, v):  # pragma: no cover  (compiled)
+    S, m = h.shape
+    for s in range(S):
+        R[s, 0] = R0[s]
+        p[s, 0] = p0[s]
+        v[s, 0] = v0[s]
+        for k in range(m):
+            hk = h[s, k]
+            for i in range(3):
+                rdp = R[s, k, i, 0] * dp[s, k, 0] + R[s, k, i, 1] * dp[s, k, 1] \
+                    + R[s, k, i, 2] * dp[s, k, 2]
+                rdv = R[s, k, i, 0] * dv[s, k, 0] + R[s, k, i, 1] * dv[s, k, 1] \
+                    + R[s, k, i, 2] * dv[s, k, 2]
+                p[s, k + 1, i] = p[s, k, i] + v[s, k, i] * hk + 0.5 * g[i] * hk * hk + rdp
+                v[s, k + 1, i] = v[s, k, i] + g[i] * hk + rdv
+                for j in range(3):
+                    R[s, k + 1, i, j] = (R[s, k, i, 0] * dR[s, k, 0, j]
+                                         + R[s, k, i, 1] * dR[s, k, 1, j]
+                                         + R[s, k, i, 2] * dR[s, k, 2, j])

@@ -14,14 +14,17 @@ residual Jacobian gives the whitened Jacobian. This is the exact Gaussian likeli
 window, computed in time linear in its length. Each window's whitened system is compressed to
 its Gram matrix's Cholesky factor, so the factor GTSAM sees has ``p + 1`` rows.
 
-All windows advance in lock-step (arrays of shape windows x steps), so the Python loop runs
-over the steps of one window, not over the session.
+The IMU signals, their correction and the residuals are numpy arrays over a chunk of windows
+(windows x steps); the loops over the samples (RK4 on the pieces, the filter) are compiled and
+release the GIL, so the chunks run on threads (:mod:`mocap_calib.core.position.threads`). Memory
+is bounded by the chunk size, whatever the session's length: a frozen whitening keeps only the
+steps' increments and attitudes it was built from.
 """
 
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,12 +49,14 @@ from mocap_calib.core.model.preint import (
 )
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.kalman import (
-    DIFFUSE,
-    Accumulator,
-    Noise,
-    filter_noise,
+    Rows,
+    Whitening,
+    empty_output,
+    filter_pass,
+    lever_matrix,
     likelihood_pass,
-    predict_covariance,
+    noise_params,
+    output_slice,
     signals_at,
     step_mean,
 )
@@ -75,14 +80,6 @@ ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
 SCORE_BLOCK_S = 1.0
 
 
-@dataclass(frozen=True)
-class _Residuals:
-    r: Array  # (W, m+1, 6) attitude and position residuals
-    Jinv: Array  # (W, m+1, 3, 3) right-Jacobian inverse of the attitude residual
-    Pm_rot: Array  # (W, m+1, 3, 3) d r_rot / d (nominal attitude perturbation)
-    R_WM: Array  # (W, m+1, 3, 3)
-
-
 class PositionProblem:
     """Evaluates the window factors for all windows at once.
 
@@ -91,13 +88,14 @@ class PositionProblem:
         model: active effects.
         noise: noise densities.
         windows: from :func:`make_windows`.
-        chunk_steps: windows are processed in chunks of about this many samples (memory).
+        chunk_steps: windows are processed in chunks of about this many samples: their
+            arrays (a few kB a sample) are what an evaluation holds in memory at a time.
         split: split into two chunks at least (for the threads); off for small problems
             evaluated many times, where one batch costs less than two.
     """
 
     def __init__(self, s: PreparedSession, model: Model, noise: NoiseModel, windows: Windows,
-                 chunk_steps: int = 40_000, split: bool = True) -> None:
+                 chunk_steps: int = 8_000, split: bool = True) -> None:
         self.s = s
         self.model = model
         self.noise = noise
@@ -108,93 +106,90 @@ class PositionProblem:
         self._local = threading.local()  # per-thread work buffers
         self.freeze = False
         self.collect_scores = False  # per-block scores in unfrozen evaluations (sandwich)
-        self._ops: dict[int, dict[str, Array]] = {}
+        # Mocap noise variance multipliers per axis: attitude x, y, z (IMU frame), position
+        # x, y, z (world frame), on top of the noise model's two levels.
+        self.mocap_axis_scale = np.ones(6)
+        self._ops: dict[int, Whitening] = {}
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
+        """Every window's whitened system and statistics at ``th`` (with ``store``: also the
+        raw residuals and Jacobians and the filter's model, for tests). Chunks write their
+        windows' slices of one set of arrays: an evaluation holds nothing twice."""
+        W, m1 = self.win.mask.shape
+        n_blocks = int(self._score_blocks(m1 - 1)[-1]) + 1 if self.collect_scores else None
+        out = empty_output(W, m1, self.layout.dim, n_blocks, store)
         pool = chunk_pool()
-        if len(self.chunks) > 1 and pool is not None:
-            outs = list(pool.map(lambda ic: self._evaluate_chunk(th, ic[1], store, ic[0]),
-                                    enumerate(self.chunks)))
+        jobs = list(enumerate(self.chunks))
+        if len(jobs) > 1 and pool is not None:
+            parts = list(pool.map(lambda job: self._evaluate_chunk(th, job[1], out, job[0]),
+                                  jobs))
         else:
-            outs = [self._evaluate_chunk(th, c, store, ci) for ci, c in enumerate(self.chunks)]
-        cat = {f: (np.concatenate([getattr(o, f) for o in outs]) if getattr(outs[0], f) is not None
-                   else None) for f in ("gram", "innovation", "d_raw", "chi2", "q_rot", "q_pos",
-                                        "logdet", "scores", "raw_r", "raw_J", "whitened")}
-        extras = {k: np.concatenate([o.extras[k] for o in outs]) for k in outs[0].extras}
-        return EvalOut(**cat, extras=extras)
+            parts = [self._evaluate_chunk(th, c, out, ci) for ci, c in jobs]
+        if store:
+            out.extras.update({k: np.concatenate([x[k] for x in parts]) for k in parts[0]})
+        return out
 
     def freeze_whitening(self, on: bool) -> None:
         """With ``on``, the next evaluation records its whitening operator (filter transition,
         gains, whitening factors) and later ones reuse it, so the cost is a fixed weighted
-        least squares (what Gauss-Newton assumes) until this is called again."""
+        least squares (what Gauss-Newton assumes) until this is called again. The record is
+        what the operator is built from (the steps' increments, the start attitudes, noise,
+        weights): a replay runs the filter on it again."""
         self.freeze = on
         self._ops = {}
 
-    def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], store: bool,
-                        ci: int = 0) -> EvalOut:
+    def _evaluate_chunk(self, th: Theta, c: NDArray[np.int64], out: EvalOut,
+                        ci: int = 0) -> dict[str, Array]:
+        """Windows ``c`` (consecutive) into their slice of ``out``; returns the filter's model
+        when ``out`` stores it."""
         win = self.win
         tau, R_WM = win.tau[c], win.R_WM[c]
         h = np.diff(tau, axis=1)  # padded steps have h = 0
-        inc, corr, dwf = self._imu_steps(th, c, tau, h)
+        inc, _, dwf = self._imu_steps(th, c, tau, h)
         # Nominal trajectory; the start velocity is a fixed guess (a diffuse nuisance).
-        Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
-                                win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+        R0 = R_WM[:, 0] @ th.R_MI
+        Rbar, pbar, _ = compose(inc, h, R0, win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
                                 th.g_mag * th.g_dir)
-        res = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
-        F = self._transition(inc, Rbar, h)
-        gcols, g_in = self._gravity_inputs(th, h)
-        # A frozen whitening (see freeze_whitening) needs no noise model here.
-        frozen = self._ops.get(ci) if self.freeze else None
-        noise = self._noise(th, h, R_WM) if (frozen is None or store) else None
-        out = self._filter(th, c, ci, res, F, dwf, gcols, g_in, noise, frozen, store)
-        return out
+        rows = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
+        now = self._whitening(th, c, inc.pack(), R0)
+        # A frozen whitening (see freeze_whitening) is the recorded one; the first evaluation
+        # after freezing records its own (arrays it made anyway: nothing is copied).
+        op = self._ops.get(ci) if self.freeze else None
+        if self.freeze and op is None:
+            self._ops[ci] = now
+        L = self.layout
+        gcols, dg = self._gravity_inputs(th)
+        blocks = self._score_blocks(win.steps) if self.collect_scores else None
+        part = output_slice(out, slice(int(c[0]), int(c[-1]) + 1))
+        filter_pass(h, win.mask[c], now, Rbar, op, rows, dwf, dg, gcols,
+                    L.slice("rotation").start, L.slice("translation").start, blocks, part)
+        return part.extras
+
+    def _whitening(self, th: Theta, c: NDArray[np.int64], inc: Array, R0: Array,
+                   noise: NoiseModel | None = None) -> Whitening:
+        """The filter of windows ``c`` at ``th`` (under ``noise``, default the problem's)."""
+        par = noise_params(self.noise if noise is None else noise, self.mocap_axis_scale)
+        return Whitening(inc, R0, par, lever_matrix(th.R_MI, th.p_MI), self.weights[c])
 
     def likelihoods(self, th: Theta, noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
         """Per noise model, every window's chi2 and log det of its innovations (-2 log L is
         their sum) at the same parameters: the trajectory is integrated once, only the filter
-        runs per model (without the Jacobian columns). Models of one kind (white or
-        correlated mocap noise) run as one batch: the filter's cost is its loop over the
-        samples, nearly the same for a larger batch."""
+        (without the Jacobian columns) runs per model."""
         win = self.win
         out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
-        keep = self.noise
-        try:
-            for c in self.chunks:
-                tau, R_WM = win.tau[c], win.R_WM[c]
-                h = np.diff(tau, axis=1)
-                inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
-                Rbar, pbar, _ = compose(inc, h, R_WM[:, 0] @ th.R_MI,
-                                        win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
-                                        th.g_mag * th.g_dir)
-                r = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar).r
-                F = self._transition(inc, Rbar, h)
-                for corr in (False, True):
-                    group = [i for i, nz in enumerate(noises) if nz.mocap_correlated == corr]
-                    if not group:
-                        continue
-                    stacked = []
-                    for i in group:
-                        self.noise = noises[i]
-                        stacked.append(self._noise(th, h, R_WM))
-                    noise = Noise(*(None if getattr(stacked[0], f) is None else
-                                    np.concatenate([getattr(x, f) for x in stacked])
-                                    for f in Noise.__dataclass_fields__))
-                    K, n = len(group), len(c)
-                    Phi = np.concatenate([F] * K)
-                    if corr:
-                        Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (15, 6))], -1)
-                        Phi = np.concatenate([Phi, np.zeros(Phi.shape[:2] + (6, 21))], -2)
-                        Phi[..., 15:21, 15:21] = noise.Fm
-                    chi2, logdet = likelihood_pass(
-                        np.concatenate([r] * K), Phi, noise,
-                        np.concatenate([self.weights[c]] * K),
-                        np.concatenate([win.mask[c]] * K))
-                    for j, i in enumerate(group):
-                        out[i][0][c] = chi2[j * n:(j + 1) * n]
-                        out[i][1][c] = logdet[j * n:(j + 1) * n]
-        finally:
-            self.noise = keep
+        for c in self.chunks:
+            tau, R_WM = win.tau[c], win.R_WM[c]
+            h = np.diff(tau, axis=1)
+            inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
+            R0 = R_WM[:, 0] @ th.R_MI
+            Rbar, pbar, _ = compose(inc, h, R0, win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI,
+                                    win.v0[c], th.g_mag * th.g_dir)
+            r = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar).r
+            packed = inc.pack()
+            for i, nz in enumerate(noises):
+                wh = self._whitening(th, c, packed, R0, nz)
+                out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, Rbar, r, R_WM)
         return out
 
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
@@ -272,7 +267,7 @@ class PositionProblem:
         return inc, corr, dwf
 
     @staticmethod
-    def _residuals(th: Theta, R_WM: Array, p_WM: Array, Rbar: Array, pbar: Array) -> _Residuals:
+    def _residuals(th: Theta, R_WM: Array, p_WM: Array, Rbar: Array, pbar: Array) -> Rows:
         """Residuals at every sample and the parts of their Jacobians not through S."""
         R_meas = R_WM @ th.R_MI
         p_meas = p_WM + np.einsum("wkij,j->wki", R_WM, th.p_MI)
@@ -281,147 +276,18 @@ class PositionProblem:
         r = np.concatenate([r_rot, p_meas - pbar], axis=-1)  # (W, m+1, 6)
         Jinv = so3.right_jacobian_inv(r_rot)
         Pm_rot = Jinv @ np.swapaxes(E, -1, -2)  # d r_rot / d (nominal attitude perturbation)
-        return _Residuals(r, Jinv, Pm_rot, R_WM)
+        return Rows(r, Jinv, Pm_rot, R_WM)
 
-    def _transition(self, inc: StepIncrements, Rbar: Array, h: Array) -> Array:
-        """Error-state transition per step (world-frame blocks need Rbar_k). The big array is
-        reused between evaluations: its zero blocks never change."""
-        W, m = h.shape
-        Rk = Rbar[:, :-1]
-        F = self._buffer("F", (W, m, 15, 15), identity_blocks=True)
-        dRt = np.swapaxes(inc.dR, -1, -2)
-        F[..., 0:3, 0:3] = dRt
-        F[..., 0:3, 9:12] = -dRt @ inc.A
-        F[..., 3:6, 0:3] = -Rk @ so3.hat(inc.dp)
-        F[..., 3:6, 6:9] = np.eye(3) * h[..., None, None]
-        F[..., 3:6, 9:12] = Rk @ inc.D
-        F[..., 3:6, 12:15] = -Rk @ inc.C
-        F[..., 6:9, 0:3] = -Rk @ so3.hat(inc.dv)
-        F[..., 6:9, 9:12] = Rk @ inc.B
-        F[..., 6:9, 12:15] = -Rk @ inc.A
-        return F
-
-    def _gravity_inputs(self, th: Theta, h: Array) -> tuple[list[int], Array]:
-        """Columns and per-step inputs of the gravity parameters (velocity and position)."""
+    def _gravity_inputs(self, th: Theta) -> tuple[list[int], Array]:
+        """Columns of the gravity parameters and their directions: a step of length ``h`` adds
+        ``h^2/2`` of them to the position and ``h`` to the velocity."""
         L = self.layout
-        W, m = h.shape
-        # Parameter inputs: a parameter acts like a bias of -dw/dtheta, -df/dtheta; gravity
-        # enters the velocity and position directly.
         gcols = list(range(L.slice("gravity").start, L.slice("gravity").stop))
         dg = th.g_mag * th.g_basis  # (3, 2)
         if L.has("gravity_magnitude"):
             gcols.append(L.slice("gravity_magnitude").start)
             dg = np.concatenate([dg, th.g_dir[:, None]], axis=1)
-        g_in = np.empty((W, m, 6, len(gcols)))
-        g_in[..., 0:3, :] = 0.5 * (h**2)[..., None, None] * dg
-        g_in[..., 3:6, :] = h[..., None, None] * dg
-        return gcols, g_in
-
-    def _noise(self, th: Theta, h: Array, R_WM: Array) -> Noise:
-        """Process noise of every step and mocap noise of every sample (see
-        :func:`~mocap_calib.core.position.kalman.filter_noise`)."""
-        # d p_meas / d (attitude noise in the I frame): the lever arm moves the position.
-        return filter_noise(self.noise, R_WM @ so3.hat(th.p_MI) @ th.R_MI, h)
-
-    def _filter(self, th: Theta, c: NDArray[np.int64], ci: int, res: _Residuals, F: Array,
-                dwf: Array, gcols: list[int], g_in: Array, noise: Noise | None,
-                frozen: dict[str, Array] | None, store: bool) -> EvalOut:
-        """Sequential pass over the steps: sensitivities S, Kalman whitening, Gram matrix.
-
-        The filter state is the error state (attitude, position, velocity, bias deviations:
-        15) plus, with correlated mocap noise, its six states; ``X`` carries the filter's
-        estimate of the state for every column of ``[J | r]`` at once.
-        """
-        L, mask = self.layout, self.win.mask[c]
-        W, m, p = len(c), self.win.steps, L.dim
-        r, Jinv, Pm_rot, R_WM = res.r, res.Jinv, res.Pm_rot, res.R_WM
-        corr = self.noise.mocap_correlated
-        ns = 21 if corr else 15
-        wts = self.weights[c]
-        weighted = wts < 1.0
-        rs, ts = L.slice("rotation"), L.slice("translation")
-        S = np.zeros((W, 9, p))
-        S[:, 0:3, rs] = np.eye(3)
-        S[:, 3:6, ts] = R_WM[:, 0]
-        P = np.zeros((W, ns, ns))
-        for i, d in enumerate(DIFFUSE):
-            P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
-        if corr and noise is not None:
-            P[:, 15:, 15:] = noise.Pm0
-        Phi = self._transition_full(F, noise) if frozen is None else frozen["F"]
-        X = np.zeros((W, ns, p + 1))
-        # A frozen whitening operator (transition for the filter mean, gains, whitening) makes
-        # the cost an exact weighted least squares in the parameters while LM runs on it.
-        record = self.freeze and frozen is None
-        if record:
-            rec_Li = np.zeros((W, m + 1, 6, 6))
-            rec_K = np.zeros((W, m + 1, ns, 6))
-        acc = Accumulator(W, m, p, store, self._score_blocks(m) if self.collect_scores else None)
-        N = np.zeros((W, 6, p + 1))
-        for k in range(m + 1):
-            if k > 0:
-                Fk = F[:, k - 1]
-                S = Fk[:, 0:9, 0:9] @ S - Fk[:, 0:9, 9:15] @ dwf[:, k - 1]
-                S[:, 3:9, gcols] += g_in[:, k - 1]
-                X = Phi[:, k - 1] @ X
-                if frozen is None:
-                    P = predict_covariance(P, Phi[:, k - 1], noise, k - 1)
-            # Residual Jacobian: direct part minus the nominal's sensitivity.
-            N[:, 0:3, :p] = -(Pm_rot[:, k] @ S[:, 0:3, :])
-            N[:, 0:3, rs] += Jinv[:, k]
-            N[:, 3:6, :p] = -S[:, 3:6, :]
-            N[:, 3:6, ts] += R_WM[:, k]
-            N[:, :, p] = r[:, k]
-            if store:
-                acc.raw_J[:, k] = N[:, :, :p]
-            N -= X[:, 0:6, :] + X[:, 15:21, :] if corr else X[:, 0:6, :]
-            ok = mask[:, k]
-            if frozen is not None:
-                Li = frozen["Li"][:, k]
-            else:
-                PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]  # (W, ns, 6)
-                HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
-                Sk = HPHt + noise.Rn[:, k] / wts[:, k, None, None]
-                Li = np.linalg.inv(np.linalg.cholesky(Sk))
-            Nw = Li @ N
-            Nw[~ok] = 0.0
-            acc.add(k, N, Nw, Li, ok)
-            wk = weighted[:, k]
-            if frozen is None and np.any(wk):
-                # The robust weight's own test needs the innovation against the unweighted noise.
-                Sraw = HPHt[wk] + noise.Rn[wk, k]
-                acc.d_raw[wk, k] = np.linalg.norm(
-                    np.linalg.solve(np.linalg.cholesky(Sraw), N[wk, :, p:]), axis=(1, 2))
-            if frozen is not None:
-                X += frozen["K"][:, k] @ N
-                continue
-            K = PHt @ (np.swapaxes(Li, 1, 2) @ Li)  # (W, ns, 6)
-            K[~ok] = 0.0
-            X += K @ N
-            P -= K @ np.swapaxes(PHt, 1, 2)
-            P = 0.5 * (P + np.swapaxes(P, 1, 2))
-            if record:
-                rec_Li[:, k] = Li
-                rec_K[:, k] = K
-        if record:
-            self._ops[ci] = {"F": Phi.copy(), "Li": rec_Li, "K": rec_K}
-        extras = {}
-        if store:  # the state-space model itself, for tests against a dense covariance
-            extras = {"F": F.copy(), "q_diag": noise.q_diag, "q_pv": noise.q_pv, "Rn": noise.Rn,
-                      "weights": wts.copy()}
-            if corr:
-                extras.update(Fm=noise.Fm, Qm=noise.Qm, Pm0=noise.Pm0)
-        return acc.result(mask, r if store else None, extras)
-
-    def _transition_full(self, F: Array, noise: Noise | None) -> Array:
-        """The filter's transition: the error state's, and the correlated mocap noise's."""
-        if noise is None or noise.Fm is None:
-            return F
-        W, m = F.shape[:2]
-        Phi = self._buffer("Phi", (W, m, 21, 21))
-        Phi[..., 0:15, 0:15] = F
-        Phi[..., 15:21, 15:21] = noise.Fm
-        return Phi
+        return gcols, dg
 
     def _score_blocks(self, m: int) -> NDArray[np.int64]:
         """Block index of every sample of a window: blocks of about ``SCORE_BLOCK_S``."""
@@ -429,18 +295,14 @@ class PositionProblem:
         per = max(1, int(round(SCORE_BLOCK_S * rate)))
         return np.arange(m + 1) // per
 
-    def _buffer(self, name: str, shape: tuple[int, ...], identity_blocks: bool = False) -> Array:
-        """A reusable array: blocks not written by the caller keep their initial values. Chunks
-        of fewer windows get a leading slice, so that alternating chunk sizes do not allocate
-        (and fill) a new array at every call."""
+    def _buffer(self, name: str, shape: tuple[int, ...]) -> Array:
+        """A reusable array: elements the caller never writes keep their first value, zero.
+        Chunks of fewer windows get a leading slice, so that alternating chunk sizes do not
+        allocate a new array at every call."""
         buffers = self._local.__dict__.setdefault("buffers", {})
         buf = buffers.get(name)
         if buf is None or buf.shape[1:] != shape[1:] or buf.shape[0] < shape[0]:
             buf = np.zeros(shape)
-            if identity_blocks:
-                for a, b in ((3, 3), (6, 6)):
-                    buf[..., a:a + 3, b:b + 3] = np.eye(3)
-                buf[..., 9:15, 9:15] = np.eye(6)
             buffers[name] = buf
         return buf[:shape[0]]
 
@@ -457,6 +319,19 @@ class PositionProblem:
             return 1.0, 1.0
         med = float(sps.chi2.median(3))
         return (float(np.median(out.q_rot[use])) / med, float(np.median(out.q_pos[use])) / med)
+
+    def mocap_noise_scale_axes(self, out: EvalOut, skip: int = 5) -> Array:
+        """Per axis, how much larger (variance) the mocap noise is than modelled: the median of
+        each whitened innovation component squared over the median of chi^2_1, on the samples
+        :meth:`mocap_noise_scale` uses. Order: attitude x, y, z (IMU frame), position x, y, z
+        (world frame), as :attr:`mocap_axis_scale`; each component is conditioned on the ones
+        before it (the innovation covariance's Cholesky order)."""
+        use = self.win.mask & (self.weights >= 1.0)
+        use[:, :skip] = False
+        if use.sum() < 50 or out.e_white is None:
+            return np.ones(6)
+        med = float(sps.chi2.median(1))
+        return np.median(out.e_white[use] ** 2, axis=0) / med
 
     def scale_mocap_noise(self, s_rot: float, s_pos: float) -> None:
         """Multiply the mocap noise variances (attitude, position)."""

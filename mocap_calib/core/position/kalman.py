@@ -1,6 +1,6 @@
-"""The window filter's parts: the mocap noise of a residual, the covariance prediction, the
-likelihood-only pass and the accumulator of a full pass (see
-:mod:`mocap_calib.core.position.engine`)."""
+"""The window filter's Python side: its noise parameters, the pass over a chunk of windows (the
+loops are compiled: :mod:`mocap_calib.core.position.kernels`), the likelihood-only pass and the
+state-space model written out (see :mod:`mocap_calib.core.position.engine`)."""
 
 from __future__ import annotations
 
@@ -10,16 +10,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.position import kernels as kn
+from mocap_calib.core.position.kernels import DIFFUSE  # noqa: F401  (re-exported)
 from mocap_calib.core.position.windows import EvalOut
 
 Array = NDArray[np.float64]
 
-#: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
-DIFFUSE = (1.0, 1.0, 0.5)
+#: Per-axis mocap variance multipliers that leave the noise model as it is.
+UNIT_AXES = np.ones(6)
 
 
 def signals_at(gyro: Array, accel: Array, interp, x: Array,
-                rates: bool) -> tuple[Array, Array, Array, Array | None, Array | None]:
+               rates: bool) -> tuple[Array, Array, Array, Array | None, Array | None]:
     """Raw gyro and accel (and, with ``rates``, their time derivatives) through ``interp`` at
     times ``x``: the arguments of ``correct``."""
     return (interp(gyro), interp(accel), x, interp.derivative(gyro) if rates else None,
@@ -34,159 +36,129 @@ def step_mean(y_nodes: Array, hs: Array, h: Array) -> Array:
     return total / np.where(h > 0, h, 1.0)[..., None]
 
 
-def mocap_cov(L: Array, sr2: float, sp2: float) -> Array:
-    """(..., 6, 6) covariance of a residual's mocap noise: attitude noise ``sr2`` per axis
-    (I frame), position noise ``sp2``, and the position error ``-L`` times the attitude noise."""
-    out = np.empty(L.shape[:-2] + (6, 6))
-    Lt = np.swapaxes(L, -1, -2)
-    out[..., 0:3, 0:3] = sr2 * np.eye(3)
-    out[..., 0:3, 3:6] = -sr2 * Lt
-    out[..., 3:6, 0:3] = -sr2 * L
-    out[..., 3:6, 3:6] = sp2 * np.eye(3) + sr2 * L @ Lt
-    return out
+def noise_params(nz: NoiseModel, axis_scale: Array = UNIT_AXES) -> Array:
+    """The filter's noise parameters (:data:`~mocap_calib.core.position.kernels.N_PAR` values):
+    IMU densities and random walks squared, the correlated fraction and time constant of the
+    mocap noise (zero when white) and the six mocap variances: attitude per axis in the IMU
+    frame, position per axis in the world frame, each times ``axis_scale``."""
+    par = np.zeros(kn.N_PAR)
+    par[kn.Q_GYRO] = nz.gyroscope_noise_density**2
+    par[kn.Q_ACCEL] = nz.accelerometer_noise_density**2
+    par[kn.Q_GYRO_WALK] = nz.gyroscope_random_walk**2
+    par[kn.Q_ACCEL_WALK] = nz.accelerometer_random_walk**2
+    if nz.mocap_correlated:
+        par[kn.RHO] = nz.mocap_noise_corr_fraction
+        par[kn.T_CORR] = nz.mocap_noise_corr_time
+    scale = np.asarray(axis_scale, dtype=float)
+    par[kn.SIG2:kn.SIG2 + 3] = nz.mocap_rotation_sigma**2 * scale[0:3]
+    par[kn.SIG2 + 3:kn.SIG2 + 6] = nz.mocap_position_sigma**2 * scale[3:6]
+    return par
 
 
-def predict_covariance(P: Array, Phi: Array, noise: Noise, k: int) -> Array:
-    """Filter covariance through step ``k``: transition plus process noise."""
-    P = Phi @ P @ np.swapaxes(Phi, 1, 2)
-    i15, i3 = np.arange(15), np.arange(3)
-    P[:, i15, i15] += noise.q_diag[:, k]
-    P[:, 3 + i3, 6 + i3] += noise.q_pv[:, k, None]
-    P[:, 6 + i3, 3 + i3] += noise.q_pv[:, k, None]
-    if noise.Qm is not None:
-        P[:, 15:, 15:] += noise.Qm[:, k]
-    return P
-
-
-def likelihood_pass(r: Array, Phi: Array, noise: Noise, wts: Array,
-                     mask: NDArray[np.bool_]) -> Array:
-    """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (no Jacobian)."""
-    W, m1 = mask.shape
-    ns = Phi.shape[-1]
-    corr = ns == 21
-    P = np.zeros((W, ns, ns))
-    for i, d in enumerate(DIFFUSE):
-        P[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = d**2 * np.eye(3)
-    if corr:
-        P[:, 15:, 15:] = noise.Pm0
-    x = np.zeros((W, ns, 1))
-    chi2 = np.zeros(W)
-    logdet = np.zeros(W)
-    for k in range(m1):
-        if k > 0:
-            x = Phi[:, k - 1] @ x
-            P = predict_covariance(P, Phi[:, k - 1], noise, k - 1)
-        e = r[:, k, :, None] - (x[:, 0:6] + x[:, 15:21] if corr else x[:, 0:6])
-        PHt = P[:, :, 0:6] + P[:, :, 15:21] if corr else P[:, :, 0:6]
-        HPHt = PHt[:, 0:6] + PHt[:, 15:21] if corr else PHt[:, 0:6]
-        Lc = np.linalg.cholesky(HPHt + noise.Rn[:, k] / wts[:, k, None, None])
-        z = np.linalg.solve(Lc, e)
-        ok = mask[:, k]
-        chi2 += np.where(ok, np.sum(z[..., 0] ** 2, axis=1), 0.0)
-        logdet += np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Lc, axis1=1, axis2=2)), axis=1),
-                           0.0)
-        K = np.linalg.solve(np.swapaxes(Lc, 1, 2), np.linalg.solve(Lc, np.swapaxes(PHt, 1, 2)))
-        K = np.swapaxes(K, 1, 2)  # P H^T S^-1
-        K[~ok] = 0.0
-        x += K @ e
-        P -= K @ np.swapaxes(PHt, 1, 2)
-        P = 0.5 * (P + np.swapaxes(P, 1, 2))
-    return chi2, logdet
-
-
-class Accumulator:
-    """What a filter pass collects per sample and window (Gram matrix, innovations, scores).
-
-    The pass only stores each sample's whitened rows; the sums come in :meth:`result`, as a
-    few large products instead of a handful of small ones per sample (the pass's loop is the
-    engine's cost)."""
-
-    def __init__(self, W: int, m: int, p: int, store: bool,
-                 blocks: NDArray[np.int64] | None) -> None:
-        self.p = p
-        self.store = store
-        self.Nw = np.zeros((W, m + 1, 6, p + 1))
-        self.innov = np.zeros((W, m + 1, 6))
-        # The robust test's own innovation norm where a sample is down-weighted (NaN: the
-        # whitened innovation's norm, filled in at the end).
-        self.d_raw = np.full((W, m + 1), np.nan)
-        self.logdet_k = np.zeros((W, m + 1))
-        self.raw_J = np.zeros((W, m + 1, 6, p)) if store else None
-        self.blocks = blocks
-
-    def add(self, k: int, N: Array, Nw: Array, Li: Array, ok: NDArray[np.bool_]) -> None:
-        self.Nw[:, k] = Nw
-        self.innov[:, k] = N[:, :, self.p]
-        self.logdet_k[:, k] = np.where(ok, 2.0 * np.sum(np.log(np.diagonal(Li, axis1=1, axis2=2)),
-                                                        axis=1), 0.0)
-
-    def result(self, mask: NDArray[np.bool_], raw_r: Array | None,
-               extras: dict[str, Array]) -> EvalOut:
-        p = self.p
-        W, m1 = self.Nw.shape[:2]
-        flat = self.Nw.reshape(W, m1 * 6, p + 1)
-        gram = np.swapaxes(flat, 1, 2) @ flat
-        e = self.Nw[..., p]  # (W, m+1, 6) whitened innovations
-        e2 = e**2
-        chi2 = e2.sum(axis=(1, 2))
-        # Li is lower-triangular: the first three whitened components involve only the
-        # attitude innovation and its own covariance block.
-        q_rot = e2[..., 0:3].sum(axis=2)
-        q_pos = e2[..., 3:6].sum(axis=2)
-        d_raw = np.where(np.isnan(self.d_raw), np.sqrt(q_rot + q_pos), self.d_raw)
-        d_raw[~mask] = 0.0
-        self.innov[~mask] = 0.0
-        scores = None
-        if self.blocks is not None:
-            per_sample = np.einsum("wkrp,wkr->wkp", self.Nw[..., :p], e)
-            starts = np.flatnonzero(np.r_[True, np.diff(self.blocks) != 0])
-            scores = np.add.reduceat(per_sample, starts, axis=1)
-        return EvalOut(gram, self.innov, d_raw, chi2, q_rot, q_pos,
-                       -self.logdet_k.sum(axis=1), scores, raw_r, self.raw_J,
-                       self.Nw if self.store else None, extras)
+def lever_matrix(R_MI: Array, p_MI: Array) -> Array:
+    """``[p_MI]x R_MI``: a sample's lever-arm Jacobian is ``R_WM`` times it."""
+    x, y, z = p_MI
+    return np.ascontiguousarray(np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]) @ R_MI)
 
 
 @dataclass(frozen=True)
-class Noise:
-    q_diag: Array  # (W, m, 15) diagonal process noise per step
-    q_pv: Array  # (W, m) position-velocity cross term
-    Rn: Array  # (W, m+1, 6, 6) white mocap noise of each residual
-    # Correlated mocap noise (states 15:21, in residual coordinates), when modelled:
-    Fm: Array | None = None  # (W, m, 6, 6) its transition per step
-    Qm: Array | None = None  # (W, m, 6, 6) its process noise per step
-    Pm0: Array | None = None  # (W, 6, 6) its stationary covariance at the first sample
+class Whitening:
+    """What the filter of a chunk of windows is made of, apart from the residuals: the steps'
+    increments and the nominal start attitudes (the transitions; the kernel chains the
+    attitudes as ``compose`` does), the noise parameters, the lever-arm matrix and the robust
+    weights. A frozen whitening keeps the one of its recording: 51 numbers a step."""
+
+    inc: Array  # (W, m, 51) packed step increments
+    R0: Array  # (W, 3, 3) nominal attitude at each window's start
+    par: Array  # (N_PAR,) noise parameters
+    M: Array  # (3, 3) lever-arm matrix
+    weights: Array  # (W, m+1) robust weights
 
 
-def filter_noise(nz: NoiseModel, L: Array, h: Array) -> Noise:
-    """Process noise of every step and mocap noise of every sample, for windows with steps
-    ``h`` (W, m) and lever-arm Jacobians ``L`` (W, m+1, 3, 3): d p_meas / d attitude noise.
+@dataclass(frozen=True)
+class Rows:
+    """A chunk's residuals and the parts of their Jacobians not through the sensitivities."""
 
-    Mocap noise: per-sample attitude noise (marker frame) and position noise; the attitude
-    noise also moves ``p_meas`` through the lever arm. A fraction of its variance is white,
-    the rest an AR(1) process with time constant ``mocap_noise_corr_time``, carried as six
-    filter states in residual coordinates (``m = H_k n``, so the measurement is simply
-    state + state; ``H_k`` changes with the marker attitude, hence ``Fm``).
-    """
+    r: Array  # (W, m+1, 6)
+    Jinv: Array  # (W, m+1, 3, 3)
+    Pm_rot: Array  # (W, m+1, 3, 3)
+    R_WM: Array  # (W, m+1, 3, 3)
+
+
+def _c(x: Array) -> Array:
+    return np.ascontiguousarray(x, dtype=float)
+
+
+def empty_output(W: int, m1: int, p: int, n_blocks: int | None, store: bool) -> EvalOut:
+    """Zeroed outputs of a filter pass over ``W`` windows (chunks write their slices)."""
+    return EvalOut(np.zeros((W, p + 1, p + 1)), np.zeros((W, m1, 6)), np.zeros((W, m1)),
+                   np.zeros(W), np.zeros(W), np.zeros((W, m1, 6)),
+                   None if n_blocks is None else np.zeros((W, n_blocks, p)),
+                   np.zeros((W, m1, 6)) if store else None,
+                   np.zeros((W, m1, 6, p)) if store else None,
+                   np.zeros((W, m1, 6, p + 1)) if store else None)
+
+
+def output_slice(out: EvalOut, sl: slice) -> EvalOut:
+    """The windows ``sl`` of ``out`` (views: writing them writes ``out``)."""
+    def cut(x: Array | None) -> Array | None:
+        return None if x is None else x[sl]
+    return EvalOut(out.gram[sl], out.innovation[sl], out.d_raw[sl], out.chi2[sl],
+                   out.logdet[sl], out.e_white[sl], cut(out.scores), cut(out.raw_r),
+                   cut(out.raw_J), cut(out.whitened))
+
+
+def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, Rbar: Array,
+                op: Whitening | None, rows: Rows, dwf: Array, dg: Array, gcols: list[int],
+                rs: int, ts: int, blocks: NDArray[np.int64] | None, out: EvalOut) -> None:
+    """One filter pass over a chunk of windows, into ``out`` (zeroed, the chunk's windows):
+    ``now`` and the nominal attitudes ``Rbar`` give the sensitivities' transitions (and,
+    without ``op``, the whitening); ``op`` is a frozen whitening to reuse."""
+    W = mask.shape[0]
+    p = dwf.shape[-1]
+    frozen = op is not None
+    op = now if op is None else op
+    store = out.raw_J is not None
+    kn.filter_windows(
+        _c(h), np.ascontiguousarray(mask), _c(now.weights), _c(now.inc), _c(Rbar),
+        _c(op.inc), _c(op.R0), _c(op.weights), frozen, _c(dwf), _c(dg),
+        np.asarray(gcols, dtype=np.int64), _c(rows.r), _c(rows.Jinv), _c(rows.Pm_rot),
+        _c(rows.R_WM), _c(op.M), _c(op.par), rs, ts,
+        np.zeros(mask.shape[1], np.int64) if blocks is None else blocks,
+        out.gram, out.innovation, out.e_white, out.d_raw, out.logdet,
+        np.zeros((W, 0, p)) if out.scores is None else out.scores,
+        out.raw_J if store else np.zeros((0, 0, 6, p)),
+        out.whitened if store else np.zeros((0, 0, 6, p + 1)))
+    out.chi2[:] = np.einsum("wki,wki->w", out.e_white, out.e_white)
+    if store:
+        out.raw_r[:] = rows.r
+        out.extras.update(state_space(h, now, Rbar, rows.R_WM))
+
+
+def likelihood_pass(h: Array, mask: NDArray[np.bool_], wh: Whitening, Rbar: Array, r: Array,
+                    R_WM: Array) -> tuple[Array, Array]:
+    """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (the filter pass
+    without Jacobian columns)."""
+    W, m1 = mask.shape
+    none = np.zeros((W, m1 - 1, 6, 0))
+    rows = Rows(r, R_WM, R_WM, R_WM)  # no Jacobian columns: the Jacobian parts are not read
+    out = empty_output(W, m1, 0, None, False)
+    filter_pass(h, mask, wh, Rbar, None, rows, none, np.zeros((3, 0)), [], -1, -1, None, out)
+    return out.chi2, out.logdet
+
+
+def state_space(h: Array, wh: Whitening, Rbar: Array, R_WM: Array) -> dict[str, Array]:
+    """The filter's state-space model written out (tests against a dense likelihood):
+    transitions ``F``, process noise ``q_diag``/``q_pv``, white mocap noise ``Rn``, the
+    weights, and with correlated mocap noise its ``Fm``, ``Qm`` and ``Pm0``."""
     W, m = h.shape
-    # Process noise per step (isotropic densities, so frame rotations drop out).
-    sg2 = nz.gyroscope_noise_density**2
-    sa2 = nz.accelerometer_noise_density**2
-    q_diag = np.empty((W, m, 15))
-    q_diag[..., 0:3] = (sg2 * h)[..., None]
-    q_diag[..., 3:6] = (sa2 * h**3 / 3.0)[..., None]
-    q_diag[..., 6:9] = (sa2 * h)[..., None]
-    q_diag[..., 9:12] = (nz.gyroscope_random_walk**2 * h)[..., None]
-    q_diag[..., 12:15] = (nz.accelerometer_random_walk**2 * h)[..., None]
-    q_pv = sa2 * h**2 / 2.0
-    full = mocap_cov(L, nz.mocap_rotation_sigma**2, nz.mocap_position_sigma**2)
-    if not nz.mocap_correlated:
-        return Noise(q_diag, q_pv, full)
-    rho = nz.mocap_noise_corr_fraction
-    a = np.exp(-h / nz.mocap_noise_corr_time)[..., None, None]  # (W, m, 1, 1)
-    Fm = np.zeros((W, m, 6, 6))
-    Fm[..., 0:3, 0:3] = np.eye(3)
-    Fm[..., 3:6, 3:6] = np.eye(3)
-    Fm[..., 3:6, 0:3] = L[:, :-1] - L[:, 1:]  # H_{k+1} H_k^-1
-    Fm *= a
-    Qm = rho * (1.0 - a * a) * full[:, 1:]
-    return Noise(q_diag, q_pv, (1.0 - rho) * full, Fm, Qm, rho * full[:, 0])
+    corr = wh.par[kn.RHO] > 0 and wh.par[kn.T_CORR] > 0
+    F, q_diag, q_pv = np.zeros((W, m, 15, 15)), np.zeros((W, m, 15)), np.zeros((W, m))
+    Rn = np.zeros((W, m + 1, 6, 6))
+    Fm, Qm, Pm0 = np.zeros((W, m, 6, 6)), np.zeros((W, m, 6, 6)), np.zeros((W, 6, 6))
+    kn.state_space(_c(wh.inc), _c(Rbar), _c(h), _c(R_WM), _c(wh.M), _c(wh.par), F, q_diag,
+                   q_pv, Rn, Fm, Qm, Pm0)
+    out = {"F": F, "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn, "weights": wh.weights.copy()}
+    if corr:
+        out.update(Fm=Fm, Qm=Qm, Pm0=Pm0)
+    return out

@@ -172,24 +172,38 @@ class EvalOut:
         innovation: (W, m+1, 6) one-step prediction errors (rad, m) at each sample.
         d_raw: (W, m+1) whitened innovation norm with unit robust weights.
         chi2: (W,) whitened cost per window (with the robust weights used).
-        q_rot, q_pos: (W, m+1) squared whitened attitude / position innovation (3 dof each):
-            their typical size tells whether the mocap noise is as modelled.
         logdet: (W,) sum of log det of the innovation covariances (the likelihood's other part).
+        e_white: (W, m+1, 6) whitened innovations (zero at padding): each component's typical
+            size tells whether the mocap noise of that axis is as modelled (the first three are
+            the attitude axes in the IMU frame, the last three the position axes in the world
+            frame, each conditioned on the ones before).
         scores: (W, B, p) per window and block of consecutive samples, the whitened score
             ``sum J_w^T r_w`` (only when the problem collects them, for the sandwich
             covariance).
         raw_r, raw_J: pre-whitening residuals/Jacobians (only when ``store``).
+        whitened: (W, m+1, 6, p+1) whitened ``[J | r]`` rows (only when ``store``).
+        extras: the filter's state-space model (only when ``store``).
     """
 
     gram: Array
     innovation: Array
     d_raw: Array
     chi2: Array
-    q_rot: Array
-    q_pos: Array
     logdet: Array
+    e_white: Array
     scores: Array | None = None
     raw_r: Array | None = None
     raw_J: Array | None = None
     whitened: Array | None = None
     extras: dict[str, Array] = field(default_factory=dict)
+
+    @property
+    def q_rot(self) -> Array:
+        """(W, m+1) squared whitened attitude innovation (3 dof): its typical size tells
+        whether the mocap attitude noise is as modelled."""
+        return np.einsum("wki,wki->wk", self.e_white[..., 0:3], self.e_white[..., 0:3])
+
+    @property
+    def q_pos(self) -> Array:
+        """(W, m+1) squared whitened position innovation (3 dof)."""
+        return np.einsum("wki,wki->wk", self.e_white[..., 3:6], self.e_white[..., 3:6])

@@ -1,0 +1,462 @@
+"""The window filter, compiled: one pass over the samples of every window (see
+:mod:`mocap_calib.core.position.engine` for the model and :mod:`.kalman` for the calls).
+
+Per window and sample the pass propagates the nominal trajectory's sensitivities ``S`` and the
+filter state (mean ``X`` for every column of ``[J | r]``, covariance ``P``) through the step's
+error-state transition, whitens the sample's residual rows with the Cholesky factor of the
+innovation covariance and sums the Gram matrix, the scores and the likelihood's parts. The
+transition is built from the step's increments (its zero and identity blocks cost nothing), the
+process noise from the densities and the mocap noise from the lever arm, so nothing of size
+(windows x samples x states x states) is ever stored.
+
+Layouts: ``inc`` (W, m, 51) is a step's packed increments (dR, dv, dp, A, C, B, D, see
+:func:`~mocap_calib.core.model.preint.integrate_pieces`); ``par`` holds the noise: gyro and accel
+noise densities squared, their random walks squared, the correlated fraction and time constant of
+the mocap noise (AR(1) states when both are positive) and the six white mocap variances
+(attitude in the IMU frame, position in the world frame).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap_calib.core.jit import kernel
+
+#: Index of the noise parameters in ``par``.
+Q_GYRO, Q_ACCEL, Q_GYRO_WALK, Q_ACCEL_WALK, RHO, T_CORR, SIG2 = 0, 1, 2, 3, 4, 5, 6
+N_PAR = 12
+#: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
+DIFFUSE = (1.0, 1.0, 0.5)
+
+# ruff: noqa: N803, N806  (matrix names)
+
+
+@kernel
+def transition_blocks(inc, Rk, Fb):  # pragma: no cover  (compiled)
+    """The non-trivial 3x3 blocks of a step's error-state transition, into ``Fb`` (8, 3, 3):
+    F00 = dR^T, F03 = -dR^T A, F10 = -Rk [dp]x, F13 = Rk D, F14 = -Rk C, F20 = -Rk [dv]x,
+    F23 = Rk B, F24 = -Rk A (block rows: attitude, position, velocity; columns also gyro and
+    accel bias). The others: identity on the diagonal, ``h I`` at position/velocity."""
+    for i in range(3):
+        for j in range(3):
+            Fb[0, i, j] = inc[3 * j + i]
+    for i in range(3):
+        for j in range(3):
+            f03 = 0.0
+            f13 = f14 = f23 = f24 = 0.0
+            for t in range(3):
+                f03 -= Fb[0, i, t] * inc[15 + 3 * t + j]
+                f13 += Rk[i, t] * inc[42 + 3 * t + j]
+                f14 -= Rk[i, t] * inc[24 + 3 * t + j]
+                f23 += Rk[i, t] * inc[33 + 3 * t + j]
+                f24 -= Rk[i, t] * inc[15 + 3 * t + j]
+            Fb[1, i, j] = f03
+            Fb[3, i, j] = f13
+            Fb[4, i, j] = f14
+            Fb[6, i, j] = f23
+            Fb[7, i, j] = f24
+        # -Rk [x]x: column j of [x]x is e_j x x.
+        for k, base in ((2, 12), (5, 9)):
+            x0, x1, x2 = inc[base], inc[base + 1], inc[base + 2]
+            Fb[k, i, 0] = -(Rk[i, 1] * x2 - Rk[i, 2] * x1)
+            Fb[k, i, 1] = -(-Rk[i, 0] * x2 + Rk[i, 2] * x0)
+            Fb[k, i, 2] = -(Rk[i, 0] * x1 - Rk[i, 1] * x0)
+
+
+@kernel
+def phi_rows(Mx, nc, Fb, hk, ns, a, dL, tmp):  # pragma: no cover  (compiled)
+    """``Mx[:, :nc] <- Phi Mx[:, :nc]`` in place: the error-state rows through the transition
+    blocks ``Fb``; with AR(1) mocap states (ns 21) those through ``a [[I, 0], [dL, I]]``."""
+    for i in range(3):
+        for c in range(nc):
+            tmp[i, c] = 0.0
+            tmp[3 + i, c] = Mx[3 + i, c] + hk * Mx[6 + i, c]
+            tmp[6 + i, c] = Mx[6 + i, c]
+        for t in range(3):
+            f00, f03 = Fb[0, i, t], Fb[1, i, t]
+            f10, f13, f14 = Fb[2, i, t], Fb[3, i, t], Fb[4, i, t]
+            f20, f23, f24 = Fb[5, i, t], Fb[6, i, t], Fb[7, i, t]
+            for c in range(nc):
+                x, bg, ba = Mx[t, c], Mx[9 + t, c], Mx[12 + t, c]
+                tmp[i, c] += f00 * x + f03 * bg
+                tmp[3 + i, c] += f10 * x + f13 * bg + f14 * ba
+                tmp[6 + i, c] += f20 * x + f23 * bg + f24 * ba
+    for i in range(9):
+        for c in range(nc):
+            Mx[i, c] = tmp[i, c]
+    if ns == 21:
+        for i in range(3):
+            for c in range(nc):
+                tmp[i, c] = a * (dL[i, 0] * Mx[15, c] + dL[i, 1] * Mx[16, c]
+                                 + dL[i, 2] * Mx[17, c] + Mx[18 + i, c])
+        for i in range(3):
+            for c in range(nc):
+                Mx[15 + i, c] *= a
+                Mx[18 + i, c] = tmp[i, c]
+
+
+@kernel
+def mocap_cov(L, sig2, scale, out):  # pragma: no cover  (compiled)
+    """``out`` (6, 6) = scale times the covariance of a residual's mocap noise: attitude
+    variances ``sig2[0:3]`` (IMU frame), position ``sig2[3:6]`` (world frame), the position
+    error ``-L`` times the attitude noise (the lever arm)."""
+    for i in range(3):
+        for j in range(3):
+            LD = L[i, j] * sig2[j]
+            out[i, j] = scale * sig2[i] if i == j else 0.0
+            out[3 + i, j] = -scale * LD
+            out[j, 3 + i] = -scale * LD
+            s = sig2[3 + i] if i == j else 0.0
+            for t in range(3):
+                s += L[i, t] * sig2[t] * L[j, t]
+            out[3 + i, 3 + j] = scale * s
+
+
+@kernel
+def lever(R, M, L):  # pragma: no cover  (compiled)
+    """``L = R M`` (3x3): d p_meas / d attitude noise at a sample with mocap attitude ``R``."""
+    for i in range(3):
+        for j in range(3):
+            L[i, j] = R[i, 0] * M[0, j] + R[i, 1] * M[1, j] + R[i, 2] * M[2, j]
+
+
+@kernel
+def predict_cov(P, ns, Fb, hk, a, dL, Lk, par, tmp, cov):  # pragma: no cover  (compiled)
+    """Filter covariance through a step: ``Phi P Phi^T`` plus the process noise (and the AR(1)
+    states' innovation, ``rho (1 - a^2)`` of the mocap noise at the step's end sample)."""
+    phi_rows(P, ns, Fb, hk, ns, a, dL, tmp)
+    for i in range(ns):
+        for j in range(i + 1, ns):
+            P[i, j], P[j, i] = P[j, i], P[i, j]
+    phi_rows(P, ns, Fb, hk, ns, a, dL, tmp)
+    sa2 = par[Q_ACCEL]
+    for i in range(3):
+        P[i, i] += par[Q_GYRO] * hk
+        P[3 + i, 3 + i] += sa2 * hk * hk * hk / 3.0
+        P[6 + i, 6 + i] += sa2 * hk
+        P[9 + i, 9 + i] += par[Q_GYRO_WALK] * hk
+        P[12 + i, 12 + i] += par[Q_ACCEL_WALK] * hk
+        P[3 + i, 6 + i] += sa2 * hk * hk / 2.0
+        P[6 + i, 3 + i] += sa2 * hk * hk / 2.0
+    if ns == 21:
+        mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), cov)
+        for i in range(6):
+            for j in range(6):
+                P[15 + i, 15 + j] += cov[i, j]
+
+
+@kernel
+def cholesky6(A, Lc):  # pragma: no cover  (compiled)
+    """Lower Cholesky factor of the 6x6 ``A``; returns log det A."""
+    det = 1.0
+    for j in range(6):
+        s = A[j, j]
+        for t in range(j):
+            s -= Lc[j, t] * Lc[j, t]
+        d = np.sqrt(s)
+        Lc[j, j] = d
+        det *= s  # the product of the pivots (far from the range's ends at these scales)
+        for i in range(j + 1, 6):
+            s = A[i, j]
+            for t in range(j):
+                s -= Lc[i, t] * Lc[j, t]
+            Lc[i, j] = s / d
+        for i in range(j):
+            Lc[i, j] = 0.0
+    return np.log(det)
+
+
+@kernel
+def forward(Lc, B, nc, out):  # pragma: no cover  (compiled)
+    """``out[:, :nc] = Lc^-1 B[:, :nc]`` (forward substitution, 6 rows)."""
+    for i in range(6):
+        d = 1.0 / Lc[i, i]
+        for c in range(nc):
+            s = B[i, c]
+            for t in range(i):
+                s -= Lc[i, t] * out[t, c]
+            out[i, c] = s * d
+
+
+@kernel
+def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, dL, Lk, par, tmp,
+              cov):  # pragma: no cover  (compiled)
+    """One step: the sensitivities ``S`` (rows 0:9 of ``Y``) through the current transition
+    ``Fc`` with the parameters' inputs (``-d(w, f)/dtheta`` as bias rows, gravity directly),
+    the filter mean and covariance through the whitening's transition ``Fo``."""
+    if p > 0:
+        for i in range(6):
+            for c in range(p):
+                Y[9 + i, c] = -dwf[i, c]
+        phi_rows(Y, p, Fc, hk, min(ns, 15), 0.0, dL, tmp)  # (no literal: one compile)
+        for g in range(gcols.shape[0]):
+            col = gcols[g]
+            for i in range(3):
+                Y[3 + i, col] += 0.5 * hk * hk * dg[i, g]
+                Y[6 + i, col] += hk * dg[i, g]
+    phi_rows(X, p + 1, Fo, hk, ns, a, dL, tmp)
+    predict_cov(P, ns, Fo, hk, a, dL, Lk, par, tmp, cov)
+
+
+@kernel
+def residual_rows(N, Y, X, p, ns, rs, ts, r, Jinv, Pm_rot, R_WM):  # pragma: no cover
+    """A sample's ``[J | r]`` rows (``J``: the direct part minus the nominal's sensitivity),
+    then their innovation against the filter mean."""
+    for i in range(3):
+        for c in range(p):
+            N[i, c] = -(Pm_rot[i, 0] * Y[0, c] + Pm_rot[i, 1] * Y[1, c] + Pm_rot[i, 2] * Y[2, c])
+            N[3 + i, c] = -Y[3 + i, c]
+        if p > 0:
+            for j in range(3):
+                N[i, rs + j] += Jinv[i, j]
+                N[3 + i, ts + j] += R_WM[i, j]
+    for i in range(6):
+        N[i, p] = r[i]
+
+
+@kernel
+def innovate(N, X, P, PHt, S, ns, p):  # pragma: no cover  (compiled)
+    """``N -= H X``; ``PHt = P H^T``; ``S = H P H^T`` (H picks the error state's attitude and
+    position and adds the AR(1) mocap states)."""
+    for i in range(6):
+        for c in range(p + 1):
+            N[i, c] -= X[i, c] + (X[15 + i, c] if ns == 21 else 0.0)
+    for i in range(ns):
+        for j in range(6):
+            PHt[i, j] = P[i, j] + (P[i, 15 + j] if ns == 21 else 0.0)
+    for i in range(6):
+        for j in range(6):
+            S[i, j] = PHt[i, j] + (PHt[15 + i, j] if ns == 21 else 0.0)
+
+
+@kernel
+def gain_update(X, P, Nw, PHt, Lc, U, ns, p):  # pragma: no cover  (compiled)
+    """Kalman update of mean and covariance in square-root form: with ``U = P H^T Lc^-T``
+    (``Lc`` the innovation covariance's Cholesky factor, ``Nw = Lc^-1 N`` the whitened rows),
+    ``X += U Nw`` and ``P -= U U^T`` (the gain ``K = U Lc^-1``)."""
+    for i in range(ns):
+        for t in range(6):
+            s = PHt[i, t]
+            for v in range(t):
+                s -= U[i, v] * Lc[t, v]
+            U[i, t] = s / Lc[t, t]
+    for i in range(ns):
+        for c in range(p + 1):
+            s = 0.0
+            for t in range(6):
+                s += U[i, t] * Nw[t, c]
+            X[i, c] += s
+        for j in range(i, ns):
+            s = 0.0
+            for t in range(6):
+                s += U[i, t] * U[j, t]
+            P[i, j] -= s
+            if j > i:
+                P[j, i] = P[i, j]
+
+
+@kernel
+def accumulate(w, k, Nw, p, blocks, G, scores, e_white, whitened):  # pragma: no cover
+    """A sample's whitened rows into the window's Gram matrix ``G`` (upper triangle) and
+    scores."""
+    for i in range(6):
+        e_white[w, k, i] = Nw[i, p]
+    for a in range(p + 1):
+        for b in range(a, p + 1):
+            s = 0.0
+            for t in range(6):
+                s += Nw[t, a] * Nw[t, b]
+            G[a, b] += s
+    if scores.shape[1] > 0:
+        blk = blocks[k]
+        for c in range(p):
+            s = 0.0
+            for t in range(6):
+                s += Nw[t, c] * Nw[t, p]
+            scores[w, blk, c] += s
+    if whitened.shape[0] > 0:
+        for t in range(6):
+            for c in range(p + 1):
+                whitened[w, k, t, c] = Nw[t, c]
+
+
+@kernel
+def start_window(Y, X, P, p, ns, rs, ts, R0, M_op, Lk, par, cov):  # pragma: no cover
+    """A window's start: the diffuse prior, the AR(1) states' stationary covariance, the
+    sensitivities of the start pose to ``R_MI`` and ``p_MI``."""
+    Y[:, :] = 0.0
+    X[:, :] = 0.0
+    P[:, :] = 0.0
+    for i in range(3):
+        for j in range(3):
+            P[3 * j + i, 3 * j + i] = DIFFUSE[j] ** 2
+        if p > 0:
+            Y[i, rs + i] = 1.0
+            for j in range(3):
+                Y[3 + i, ts + j] = R0[i, j]
+    lever(R0, M_op, Lk)
+    if ns == 21:
+        mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO], cov)
+        P[15:21, 15:21] = cov
+
+
+@kernel
+def step_lever(R, M_op, Lk, Lprev, dL, hk, ns, par):  # pragma: no cover  (compiled)
+    """The lever arm at the step's end sample into ``Lk`` (the previous one into ``Lprev``);
+    with AR(1) states their transition ``a [[I, 0], [dL, I]]``: returns ``a``."""
+    Lprev[:, :] = Lk
+    lever(R, M_op, Lk)
+    if ns != 21:
+        return 0.0
+    for i in range(3):
+        for t in range(3):
+            dL[i, t] = Lprev[i, t] - Lk[i, t]
+    return np.exp(-hk / par[T_CORR])
+
+
+@kernel
+def chain(R, inc, Rnext):  # pragma: no cover  (compiled)
+    """``R <- R dR`` (the next nominal attitude), with ``compose``'s arithmetic."""
+    for i in range(3):
+        for j in range(3):
+            Rnext[i, j] = R[i, 0] * inc[j] + R[i, 1] * inc[3 + j] + R[i, 2] * inc[6 + j]
+    R[:, :] = Rnext
+
+
+@kernel
+def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, dg, gcols,
+                   r, Jinv, Pm_rot, R_WM, M_op, par, rs, ts, blocks, gram, innov, e_white,
+                   d_raw, logdet, scores, raw_J, whitened):  # pragma: no cover  (compiled)
+    """The filter pass over every window (outputs zeroed by the caller). With ``frozen`` the
+    filter (mean transition, covariance, gains, whitening) runs on the whitening's own
+    increments ``op_inc`` (its attitudes chained from ``op_R0`` as ``compose`` does), noise
+    ``par``/``M_op`` and weights ``op_wts`` while the sensitivities follow the current ones, so
+    the cost is a fixed weighted least squares."""
+    W, m = h.shape
+    p = dwf.shape[3]
+    ns = 21 if (par[RHO] > 0.0 and par[T_CORR] > 0.0) else 15
+    white = 1.0 - par[RHO] if ns == 21 else 1.0
+    Y, X = np.zeros((15, max(p, 1))), np.zeros((ns, p + 1))
+    P, PHt, K = np.zeros((ns, ns)), np.zeros((ns, 6)), np.zeros((ns, 6))
+    N, Nw = np.zeros((6, p + 1)), np.zeros((6, p + 1))
+    tmp = np.zeros((9, max(p + 1, ns)))
+    Fc, Fo = np.zeros((8, 3, 3)), np.zeros((8, 3, 3))
+    HPHt, Sk, Lc, Li, cov = (np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)),
+                             np.zeros((6, 6)), np.zeros((6, 6)))
+    Lk, Lprev, dL = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    Rop, Rnext = np.zeros((3, 3)), np.zeros((3, 3))
+    for w in range(W):
+        last = -1
+        for k in range(m + 1):
+            if mask[w, k]:
+                last = k
+        start_window(Y, X, P, p, ns, rs, ts, R_WM[w, 0], M_op, Lk, par, cov)
+        Rop[:, :] = op_R0[w]
+        ld = 0.0
+        for k in range(last + 1):
+            if k > 0:
+                j = k - 1
+                hk = h[w, j]
+                a = step_lever(R_WM[w, k], M_op, Lk, Lprev, dL, hk, ns, par)
+                transition_blocks(inc[w, j], Rbar[w, j], Fc)
+                if frozen:
+                    transition_blocks(op_inc[w, j], Rop, Fo)
+                    chain(Rop, op_inc[w, j], Rnext)
+                else:
+                    Fo[:, :, :] = Fc
+                propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf[w, j], dg, gcols, a, dL, Lk, par,
+                          tmp, cov)
+            if not mask[w, k]:
+                continue
+            ld += measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs,
+                          ts, white, wts[w, k], op_wts[w, k], par, r, Jinv, Pm_rot, R_WM,
+                          blocks, gram, innov, e_white, d_raw, scores, raw_J, whitened)
+        logdet[w] = ld
+        for a in range(p + 1):
+            for b in range(a):
+                gram[w, a, b] = gram[w, b, a]
+
+
+@kernel
+def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, ts, white,
+            wt, op_wt, par, r, Jinv, Pm_rot, R_WM, blocks, gram, innov, e_white, d_raw,
+            scores, raw_J, whitened):  # pragma: no cover  (compiled)
+    """Sample ``k`` of window ``w``: residual rows, whitening, sums, filter update; returns
+    the log det of the innovation covariance."""
+    residual_rows(N, Y, X, p, ns, rs, ts, r[w, k], Jinv[w, k], Pm_rot[w, k], R_WM[w, k])
+    if raw_J.shape[0] > 0:
+        for i in range(6):
+            for c in range(p):
+                raw_J[w, k, i, c] = N[i, c]
+    innovate(N, X, P, PHt, HPHt, ns, p)
+    mocap_cov(Lk, par[SIG2:SIG2 + 6], white, cov)
+    for i in range(6):
+        for j in range(6):
+            Sk[i, j] = HPHt[i, j] + cov[i, j] / op_wt
+    ld = cholesky6(Sk, Lc)
+    forward(Lc, N, p + 1, Nw)
+    accumulate(w, k, Nw, p, blocks, gram[w], scores, e_white, whitened)
+    q = 0.0
+    for i in range(6):
+        innov[w, k, i] = N[i, p]
+        q += Nw[i, p] * Nw[i, p]
+    d_raw[w, k] = np.sqrt(q)
+    if wt < 1.0:  # the robust weight's own test: the innovation against the unweighted noise
+        for i in range(6):
+            for j in range(6):
+                Sk[i, j] = HPHt[i, j] + cov[i, j]
+        cholesky6(Sk, Li)
+        for i in range(6):  # the innovation column into a C array: forward compiles once
+            cov[i, 0] = N[i, p]
+        forward(Li, cov, N.shape[1] - p, Sk)
+        q = 0.0
+        for i in range(6):
+            q += Sk[i, 0] * Sk[i, 0]
+        d_raw[w, k] = np.sqrt(q)
+    gain_update(X, P, Nw, PHt, Lc, K, ns, p)
+    return ld
+
+
+@kernel
+def state_space(inc, Rbar, h, R_WM, M, par, F, q_diag, q_pv, Rn, Fm, Qm,
+                Pm0):  # pragma: no cover  (compiled)
+    """The window filter's state-space model written out (for checks against a dense
+    likelihood): transitions, process noise, white mocap noise and the AR(1) states' model."""
+    W, m = h.shape
+    ns = 21 if (par[RHO] > 0.0 and par[T_CORR] > 0.0) else 15
+    Fb = np.zeros((8, 3, 3))
+    Lk, Lprev, dL = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    for w in range(W):
+        lever(R_WM[w, 0], M, Lk)
+        mocap_cov(Lk, par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, 0])
+        if ns == 21:
+            mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO], Pm0[w])
+        for j in range(m):
+            hk = h[w, j]
+            a = step_lever(R_WM[w, j + 1], M, Lk, Lprev, dL, hk, ns, par)
+            transition_blocks(inc[w, j], Rbar[w, j], Fb)
+            F[w, j] = 0.0
+            for i in range(15):
+                F[w, j, i, i] = 1.0
+            for i in range(3):
+                F[w, j, 3 + i, 6 + i] = hk
+                for t in range(3):
+                    for b, (r0, c0) in enumerate(((0, 0), (0, 9), (3, 0), (3, 9), (3, 12),
+                                                  (6, 0), (6, 9), (6, 12))):
+                        F[w, j, r0 + i, c0 + t] = Fb[b, i, t]
+            for i in range(3):
+                q_diag[w, j, i] = par[Q_GYRO] * hk
+                q_diag[w, j, 3 + i] = par[Q_ACCEL] * hk ** 3 / 3.0
+                q_diag[w, j, 6 + i] = par[Q_ACCEL] * hk
+                q_diag[w, j, 9 + i] = par[Q_GYRO_WALK] * hk
+                q_diag[w, j, 12 + i] = par[Q_ACCEL_WALK] * hk
+            q_pv[w, j] = par[Q_ACCEL] * hk ** 2 / 2.0
+            mocap_cov(Lk, par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, j + 1])
+            if ns == 21:
+                Fm[w, j] = 0.0
+                for i in range(6):
+                    Fm[w, j, i, i] = a
+                for i in range(3):
+                    for t in range(3):
+                        Fm[w, j, 3 + i, t] = a * dL[i, t]
+                mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), Qm[w, j])
