@@ -34,6 +34,7 @@ from mocap_calib.core.position.graph import (
     key_knot,
 )
 from mocap_calib.core.position.stage import PositionResult
+from mocap_calib.core.uncertainty.sensitivity import correlated_mocap_model
 
 Array = NDArray[np.float64]
 
@@ -80,8 +81,13 @@ def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | N
     init = PositionInit(pos.R_MI, pos.p_MI, pos.g_dir, pos.g_mag,
                         [TakeStart(t.delta, t.gyro_bias_mean, t.accel_bias_mean, t.knots)
                          for t in pos.takes], effects0)
-    pg = build_position_graph(takes, ext, pos.noise, init)
+    # Under the correlated mocap noise the session prefers (when it does): a white model would
+    # count correlated residuals as independent evidence for whatever can absorb them.
+    corr = correlated_mocap_model(pos, model)
+    pg = build_position_graph(takes, ext, pos.noise if corr is None else corr[0], init)
     pg.set_weights([t.weights for t in pos.takes])
+    for pp in pg.problems:
+        pp.mocap_axis_scale = pos.axis_scale.copy()
     for pp in pg.problems:
         pp.collect_scores = True
     H, offsets, n = information_matrix(pg.graph, pg.values)
@@ -156,19 +162,23 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     g = d[e] - A @ d[n_idx]
     V_model = H[np.ix_(e, e)] - A @ Hen.T
     s = rows[:, e] - rows[:, n_idx] @ A.T
-    s = s - s.mean(axis=0)
-    V_rob = s.T @ s * len(s) / max(len(s) - 1, 1)
-    stats = []
-    for V in (V_model, V_rob):
+    n_w, k = len(s), len(e)
+    log10_ps = []
+    try:  # model-based: chi-square
+        log10_ps.append(float(sps.chi2.logsf(float(g @ np.linalg.solve(V_model, g)), k)))
+    except np.linalg.LinAlgError:
+        pass
+    if n_w > k + 1:  # the windows' own spread: Hotelling's T^2 (few windows, F tails)
+        S = np.cov(s, rowvar=False).reshape(k, k)
         try:
-            stats.append(float(g @ np.linalg.solve(V, g)))
+            t2 = float(g @ np.linalg.solve(n_w * S, g))  # n mean' S^-1 mean, g = n mean
+            f = t2 * (n_w - k) / ((n_w - 1) * k)
+            log10_ps.append(float(sps.f.logsf(f, k, n_w - k)))
         except np.linalg.LinAlgError:
-            continue
-    T = min(stats) if stats else 0.0
-    k = len(e)
-    log10_p = float(sps.chi2.logsf(T, k)) / np.log(10.0)
-    if not np.isfinite(log10_p):
-        log10_p = -300.0
+            pass
+    # The weaker evidence of the two counts.
+    log10_p = max(log10_ps) / np.log(10.0) if log10_ps else 0.0
+    T = float(sps.chi2.isf(10.0**log10_p, k)) if log10_p > -300 else float("inf")
     step = np.linalg.solve(V_model, g)
     value = eff.report_value(step[:eff.dim] if eff.acts_on == "clock" else step)
     problem = effect_problem(name, value, limits or PlausibleLimits())

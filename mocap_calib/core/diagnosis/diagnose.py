@@ -169,7 +169,8 @@ class _Session:
         return run_position_stage([Take(self.s, self.windows)], m, nz, init, robust=False,
                                   adapt_noise=adapt, weights=[self.weights],
                                   max_iterations=self.opts.calibration.max_iterations,
-                                  covariance=covariance, window_blocks=False)
+                                  covariance=covariance, window_blocks=False,
+                                  axis_scale=base.axis_scale)
 
     def correlated(self, pos: PositionResult, m: Model) -> NoiseModel:
         """The mocap noise model (AR(1) and level) the windows' likelihood prefers at ``pos``:
@@ -177,6 +178,7 @@ class _Session:
         residuals as independent evidence."""
         pp = PositionProblem(self.s, m, pos.noise, self.windows, split=False)
         pp.weights = self.weights
+        pp.mocap_axis_scale = pos.axis_scale.copy()
         th = Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(), pos.g_mag,
                    pos.delta, dict(pos.effects), pos.knots, self.t_mid)
         return fit_mocap_correlation(pp, th).noise

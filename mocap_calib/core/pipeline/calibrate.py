@@ -193,10 +193,15 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     """The result: values (None where unobservable), sigmas, effects, solver figures."""
     model = opts.model
     sr, sp = pos.solver["mocap_noise_variance_scale"]
-    if max(abs(np.log(sr)), abs(np.log(sp))) > np.log(1.1):
+    att = np.degrees(pos.noise.mocap_rotation_sigma * np.sqrt(pos.axis_scale[0:3]))
+    posn = 1e3 * pos.noise.mocap_position_sigma * np.sqrt(pos.axis_scale[3:6])
+    pos.solver["mocap_noise_per_axis"] = {"attitude_deg": [round(float(x), 4) for x in att],
+                                          "position_mm": [round(float(x), 4) for x in posn]}
+    if max(abs(np.log(sr)), abs(np.log(sp)), *np.abs(np.log(pos.axis_scale))) > np.log(1.1):
         notes.append(
-            f"mocap noise estimated from the residuals: {1e3 * pos.noise.mocap_position_sigma:.3g} "
-            f"mm, {np.degrees(pos.noise.mocap_rotation_sigma):.3g} deg per axis (assumed "
+            "mocap noise estimated from the residuals: "
+            + ", ".join(f"{x:.3g}" for x in posn) + " mm and "
+            + ", ".join(f"{x:.3g}" for x in att) + " deg per axis (assumed "
             f"{1e3 * opts.noise.mocap_position_sigma:.3g} mm, "
             f"{np.degrees(opts.noise.mocap_rotation_sigma):.3g} deg)")
     # The sigmas are the larger of the model's and the sandwich's (see uncertainty.py), which

@@ -26,7 +26,6 @@ from typing import Any
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats as sps
 
 from mocap_calib.core.graph import require_converged, run_lm
 from mocap_calib.core.model.effects import EFFECTS, Model
@@ -108,6 +107,9 @@ class PositionResult:
     solver: dict[str, Any]
     history: list[dict[str, Any]]
     covariances: Callable[[], PositionUncertainty] | None = field(default=None, repr=False)
+    #: The mocap noise's shape per axis (attitude x, y, z in the IMU frame, position x, y, z in
+    #: the world frame), variance factors on ``noise``'s two levels (geometric mean 1 each).
+    axis_scale: Array = field(default_factory=lambda: np.ones(6))
 
     @property
     def delta(self) -> float:
@@ -180,7 +182,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
                        covariance: bool = True, one_step: bool | int = False,
-                       window_blocks: bool = True,
+                       window_blocks: bool = True, axis_scale: Array | None = None,
                        reweight: bool = False,
                        settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
     """Refine all parameters on the window factors of every take.
@@ -199,6 +201,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
         window_blocks: the sandwich's blocks are the windows (else their one-second parts:
             the diagnosis' tests, calibrated with those).
+        axis_scale: the mocap noise's shape per axis to start from (a refit's: its fit's).
         one_step: Gauss-Newton steps from ``init`` instead of LM rounds (``True``: one; an
             int: that many): for refits from a nearby solution (segments, other noise
             models). Between steps the mocap levels (with ``adapt_noise``) and the weights
@@ -211,6 +214,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
     pg = build_position_graph(takes, model, noise, init, priors)
     for pp in pg.problems:
         pp.collect_scores = True  # cheap, and a covariance needs them
+        if axis_scale is not None:
+            pp.mocap_axis_scale = np.asarray(axis_scale, dtype=float).copy()
     if weights is not None:
         pg.set_weights(weights)
         robust = False
@@ -271,7 +276,8 @@ def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUnce
         noise=pg.problem.noise,
         # (a Gauss-Newton refit's cost would cost an evaluation at the new values: not needed)
         cost=float("nan") if one_step else 2.0 * pg.graph.error(fit.values), dof=int(dof),
-        solver=solver, history=history.records)
+        solver=solver, history=history.records,
+        axis_scale=pg.problem.mocap_axis_scale.copy())
 
 
 class _History:
@@ -306,22 +312,16 @@ class _Fit:
     linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
 
 
-def mocap_levels(pg: PositionGraph, outs: list[Any], skip: int = 5) -> tuple[float, float]:
-    """How much larger (variance) the mocap attitude / position noise is than modelled, from
-    every take's innovations: the median of the whitened innovations' squares over the median
-    of chi^2_3, on inlier samples past each window's first ``skip`` (where the diffuse start
-    still absorbs them)."""
-    q_rot, q_pos = [], []
+def mocap_levels(pg: PositionGraph, outs: list[Any], skip: int = 5) -> Array:
+    """Per axis (attitude x, y, z; position x, y, z), how much larger (variance) the mocap
+    noise is than modelled, from every take's innovations (each take's estimate weighted by
+    its samples; see :meth:`PositionProblem.mocap_noise_scale_axes`)."""
+    total, weight = np.zeros(6), 0.0
     for pp, out in zip(pg.problems, outs, strict=True):
-        use = pp.win.mask & (pp.weights >= 1.0)
-        use[:, :skip] = False
-        q_rot.append(out.q_rot[use])
-        q_pos.append(out.q_pos[use])
-    qr, qp = np.concatenate(q_rot), np.concatenate(q_pos)
-    if len(qr) < 50:
-        return 1.0, 1.0
-    med = float(sps.chi2.median(3))
-    return float(np.median(qr)) / med, float(np.median(qp)) / med
+        n = float(np.sum(pp.win.mask[:, skip:]))
+        total += n * pp.mocap_noise_scale_axes(out, skip)
+        weight += n
+    return total / max(weight, 1.0)
 
 
 def huber_weights(d: Array, mask: NDArray[np.bool_], c: float = ROBUST_C) -> Array:
@@ -339,12 +339,17 @@ def _settle(pg: PositionGraph, outs: list[Any], adapt_noise: bool, robust: bool,
     changed, moved = False, 0.0
     d_scale = 1.0  # how the whitened innovations shrink with the noise change
     if adapt_noise:
-        s_rot, s_pos = np.clip(mocap_levels(pg, outs), 0.05, 400.0)
-        moved = float(max(abs(np.log(s_rot)), abs(np.log(s_pos))))
+        axes = np.clip(mocap_levels(pg, outs), 0.05, 400.0)
+        moved = float(np.max(np.abs(np.log(axes))))
         if moved > np.log(1.05):
-            pg.for_each("scale_mocap_noise", s_rot, s_pos)
+            # The two levels (geometric means) go to the noise model, the shape to the axes.
+            s_rot, s_pos = (float(np.exp(np.mean(np.log(axes[i:i + 3])))) for i in (0, 3))
+            shape = axes / np.repeat([s_rot, s_pos], 3)
+            for pp in pg.problems:
+                pp.scale_mocap_noise(s_rot, s_pos)
+                pp.mocap_axis_scale = pp.mocap_axis_scale * shape
             noise_scale *= (s_rot, s_pos)
-            d_scale = float((s_rot * s_pos) ** -0.25)
+            d_scale = float(np.prod(axes) ** (-1.0 / 12.0))
             changed = True
     if robust:
         for pp, out in zip(pg.problems, outs, strict=True):

@@ -72,6 +72,7 @@ def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
     rate = 1.0 / float(np.median(np.diff(win.tau[0][win.mask[0]])))
     k = max(1, int(rate // RATE_HZ)) if decimate else 1
     sub = PositionProblem(problem.s, problem.model, problem.noise, win.decimate(k), split=False)
+    sub.mocap_axis_scale = problem.mocap_axis_scale.copy()
     sub.weights = problem.weights[which][:, ::k].copy() if k > 1 else problem.weights[which]
     th_sub = replace(th, knots=th.knots[which])
     n_dof = 6.0 * float(sub.win.mask.sum())

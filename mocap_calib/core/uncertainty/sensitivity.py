@@ -163,11 +163,21 @@ def correlated_mocap_model(pos: PositionResult,
                            model: Model) -> tuple[NoiseModel, dict[str, float]] | None:
     """The AR(1) mocap noise model the windows' exact likelihood prefers, fitted at the
     solution on up to :data:`CORRELATION_WINDOWS` windows of the take with the most, at the
-    engine's rate; None when white noise fits best."""
+    engine's rate; None when white noise fits best. Fitted once per solution (the effect
+    tests and the sensitivity share it)."""
+    key = "_correlated_mocap_model"
+    if key not in pos.solver:
+        pos.solver[key] = _fit_correlated(pos, model)
+    return pos.solver[key]
+
+
+def _fit_correlated(pos: PositionResult,
+                    model: Model) -> tuple[NoiseModel, dict[str, float]] | None:
     k = max(range(len(pos.takes)), key=lambda i: pos.takes[i].windows.count)
     t = pos.takes[k]
     problem = PositionProblem(t.s, model, pos.noise, t.windows, split=False)
     problem.weights = t.weights
+    problem.mocap_axis_scale = pos.axis_scale.copy()
     th = Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(), pos.g_mag,
                t.delta, dict(pos.effects), t.knots, t.take.t_mid)
     fit = fit_mocap_correlation(problem, th, CORRELATION_GRID, CORRELATION_WINDOWS,
