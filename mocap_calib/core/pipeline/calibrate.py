@@ -178,6 +178,14 @@ def _with_takes(r: CalibrationResult, pos: PositionResult, fits: list[FirstFits]
             **({"imu_gaps": f.s.imu_gaps.to_dict()} if f.s.imu_gaps is not None else {}),
             **({"clock": f.clock.to_dict()} if f.clock is not None else {}),
             "take": k + 1})
+    gaps = [t["imu_gaps"] for t in r.takes if "imu_gaps" in t]
+    if gaps:  # the takes' gaps together; each take's own list is under takes
+        r.imu_gaps = {key: (max if key == "longest_s" else sum)(g[key] for g in gaps)
+                      for key in ("count", "total_s", "longest_s", "bridged", "split",
+                                  "segments", "trimmed_samples", "trimmed_s")}
+        r.imu_gaps["total_s"] = round(r.imu_gaps["total_s"], 4)
+        r.imu_gaps["trimmed_s"] = round(r.imu_gaps["trimmed_s"], 4)
+        r.imu_gaps["takes"] = len(gaps)
     r.gyro_bias = r.accel_bias = None
     r.time_offset = None
     r.sigma_gyro_bias = r.sigma_accel_bias = None

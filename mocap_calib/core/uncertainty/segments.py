@@ -31,16 +31,20 @@ MAX_PAIR_Z = 3.0
 @dataclass
 class SegmentEstimate:
     """One segment's answer (``t_d`` relative to the raw stamps, of a single take) with its
-    1-sigma; ``start_s``, ``end_s`` on its take's clock; ``take`` counted from 1."""
+    1-sigma; ``start_s`` on the clock of ``take``, ``end_s`` on that of ``end_take`` (takes
+    counted from 1; a segment of several takes spans from one to the other)."""
 
     start_s: float
     end_s: float
     est: Estimate
     take: int | None = None
+    end_take: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         e = self.est
         return {**({"take": self.take} if self.take is not None else {}),
+                **({"end_take": self.end_take} if self.end_take not in (None, self.take)
+                   else {}),
                 "start_s": round(self.start_s, 3), "end_s": round(self.end_s, 3),
                 "rotation_wxyz": so3.rotmat_to_quat(e.R_MI).tolist(),
                 "translation": e.p_MI.tolist(), "time_offset": e.t_d,
@@ -145,7 +149,8 @@ def _compare(pos: PositionResult, model: Model, parts: list[list[IntArray]],
         out.segments.append(SegmentEstimate(
             float(t0.windows.start[w0] - t0.s.tau[0]),
             float(pos.takes[takes[-1]].windows.end[w1] - pos.takes[takes[-1]].s.tau[0]),
-            est, takes[0] + 1 if (by_take or len(pos.takes) > 1) else None))
+            est, *((takes[0] + 1, takes[-1] + 1) if (by_take or len(pos.takes) > 1)
+                   else (None, None))))
     out.birge = _birge(out.segments)
     for a, b in itertools.combinations(out.segments, 2):
         for name, v in z_pair(a.est, b.est, a.est.sigma, b.est.sigma).items():
