@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.checks.conventions import explain_failure, screen_conventions
 from mocap_calib.core.checks.degenerate import mark_single_axis, mark_undetermined
 from mocap_calib.core.checks.verdict import judge
@@ -42,7 +43,7 @@ from mocap_calib.core.result.state import CalibrationTrace, ModelState
 from mocap_calib.core.stages.attitude import AttitudeResult, run_attitude_stage
 from mocap_calib.core.stages.figures import StageStats
 from mocap_calib.core.stages.velocity import VelocityResult, run_velocity_stage
-from mocap_calib.errors import CalibrationError, InputError, ObservabilityError
+from mocap_calib.errors import CalibrationError, InputError, Interrupted, ObservabilityError
 
 Array = NDArray[np.float64]
 
@@ -116,6 +117,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     try:  # a failure here is often a convention mistake: name it if one explains the data
         s, t_d0, clock, left_out, att, vel = _first_fits(s, opts, effects0, t_mid,
                                                          on_iteration, say)
+    except Interrupted:
+        raise
     except CalibrationError:
         found = explain_failure(s, opts, mocap.position_unit_m, say)
         if found is None:
@@ -128,6 +131,7 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     t_d0, clock, att, vel = _screen(s, opts, t_d0, clock, att, vel, effects0, t_mid,
                                     mocap.position_unit_m, on_iteration, say)
     delta0 = s.clock_shift + t_d0
+    interrupt.check()  # between stages: a stop a caller swallowed by mistake still stops
 
     say("stage 3/3: position factors (all parameters jointly)")
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
@@ -150,9 +154,11 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
                                clock=clock, position=pos))
     result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
                       time.perf_counter() - t0)
+    interrupt.check()
     mark_single_axis(result, s, pos.delta)
     judge(result, s, pos, opts, clock, say)
     mark_undetermined(result)
+    interrupt.check()
     return result
 
 
@@ -275,6 +281,8 @@ def _disambiguate(s: PreparedSession, opts: CalibrationOptions, search: ClockSea
         try:
             _, vel = _initial_stages(s, opts, s.clock_shift + t, effects0, t_mid)
             costs.append(vel.stats.chi2_per_dof)
+        except Interrupted:
+            raise
         except CalibrationError:
             costs.append(np.inf)
     order = np.argsort(costs)

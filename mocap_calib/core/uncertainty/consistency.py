@@ -22,13 +22,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.position.graph import Prior
 from mocap_calib.core.position.stage import PositionInit, PositionResult, run_position_stage
 from mocap_calib.core.position.windows import Theta
 from mocap_calib.core.prepare.session import PreparedSession
-from mocap_calib.errors import CalibrationError
+from mocap_calib.errors import CalibrationError, Interrupted
 
 Array = NDArray[np.float64]
 
@@ -126,6 +127,7 @@ def segment_consistency(s: PreparedSession, model: Model, pos: PositionResult, k
     seg_of = np.clip(np.searchsorted(bounds, win.start, side="right") - 1, 0, k - 1)
     out = Consistency()
     for i in range(k):
+        interrupt.check()
         which = np.flatnonzero(seg_of == i)
         if len(which) < 2:
             out.note = f"segment {i + 1} has fewer than 2 windows: too short to compare"
@@ -135,6 +137,8 @@ def segment_consistency(s: PreparedSession, model: Model, pos: PositionResult, k
                                      robust=False, adapt_noise=False,
                                      weights=pos.weights[which], max_iterations=max_iterations,
                                      one_step=one_step)
+        except Interrupted:
+            raise
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             return Consistency(note=f"segment {i + 1} could not be calibrated on its own ({err})")
         sg = _sigmas(seg)
@@ -271,8 +275,11 @@ def noise_sensitivity(s: PreparedSession, model: Model, pos: PositionResult,
                                   one_step=one_step, reweight=True, settled=settled)
 
     for f in factors:
+        interrupt.check()
         try:
             alt = refit(f)
+        except Interrupted:
+            raise
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             out.note = f"noise x{f:.3g}: refit failed ({err})"
             continue
