@@ -16,7 +16,8 @@ KeyboardInterrupt as usual.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from types import CodeType, FrameType
 from typing import TypeVar
 
@@ -24,6 +25,7 @@ from mocap_calib.errors import Interrupted
 
 _REQUEST: list[int] = []  # the signal number, once a stop is requested
 _CALLBACKS: set[CodeType] = set()  # code of the functions C++ calls back
+_DEFERRED: list[int] = [0]  # depth of deferred() blocks
 
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -57,6 +59,18 @@ def called_from_native(fn: F) -> F:
     return fn
 
 
+@contextmanager
+def deferred() -> Iterator[None]:
+    """A block that a signal does not cut in two (a file written and its status recorded): a
+    stop requested inside it is raised at its end."""
+    _DEFERRED[0] += 1
+    try:
+        yield
+    finally:
+        _DEFERRED[0] -= 1
+    check()
+
+
 def _in_callback(frame: FrameType | None) -> bool:
     while frame is not None:
         if frame.f_code in _CALLBACKS:
@@ -66,7 +80,8 @@ def _in_callback(frame: FrameType | None) -> bool:
 
 
 def handle(signum: int, frame: FrameType | None) -> None:
-    """Signal handler: record the stop, and raise it now unless C++ is on the way out."""
+    """Signal handler: record the stop, and raise it now unless C++ is on the way out or a
+    :func:`deferred` block runs."""
     request(signum)
-    if not _in_callback(frame):
+    if not _DEFERRED[0] and not _in_callback(frame):
         raise Interrupted(signum)

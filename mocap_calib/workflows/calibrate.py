@@ -14,6 +14,7 @@ from mocap_calib.core.pipeline.calibrate import IterationFn, ProgressFn, calibra
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
+from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
 from mocap_calib.workflows.html.provenance import RunClock
@@ -125,7 +126,8 @@ def calibrate_to_files(spec: InputSpec, options: CalibrationOptions, outputs: Ca
 
         if progress is not None:
             progress("writing rerun recording")
-        path = write_calibration_recording(outputs.rrd, result, session.imu, session.mocap)
+        path = write_with(outputs.rrd, lambda tmp: write_calibration_recording(
+            tmp, result, session.imu, session.mocap))
         run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
     if outputs.report is not None:
         save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")

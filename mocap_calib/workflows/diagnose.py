@@ -12,6 +12,7 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import ProgressFn
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
+from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
 from mocap_calib.workflows.html.provenance import RunClock
@@ -102,7 +103,7 @@ def diagnose_to_files(spec: InputSpec, options: DiagnoseOptions, out: Path, rrd:
 
         if progress is not None:
             progress("writing rerun recording")
-        path = write_calibration_recording(rrd, report.final, session.imu, session.mocap,
-                                           diagnose_steps=diagnose_series(report))
+        path = write_with(rrd, lambda tmp: write_calibration_recording(
+            tmp, report.final, session.imu, session.mocap, diagnose_steps=diagnose_series(report)))
         run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
     return run
