@@ -48,6 +48,7 @@ from mocap_calib.io.formats.euroc import (
     read_mav0,
 )
 from mocap_calib.io.formats.generic import read_generic
+from mocap_calib.io.formats.hints import unrecognised
 from mocap_calib.io.formats.imu_tk import read_imu_tk_pair
 from mocap_calib.io.formats.layout import WHITESPACE, sniff_layout
 from mocap_calib.io.formats.mocap_exports import ExportOptions, read_export, sniff_export
@@ -64,10 +65,6 @@ FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
 #: Formats holding time-stamped messages of several streams (read by topic).
 RECORDINGS = ("rosbag1", "rosbag2", "mcap", "ulog")
 EXPORTS = ("motive", "vicon-nexus", "vicon-tracker")
-
-_NEEDS_COLUMNS = ("say which columns hold what with --columns, e.g. "
-                  "--columns 't=0,gyro=1:4,accel=4:7,quat=7:11,pos=11:14' or --columns broad")
-
 
 def sniff_format(path: Path | str) -> str:
     """The format of an input path: a key of :data:`FORMAT_NAMES`.
@@ -250,8 +247,7 @@ class _Reader:
     def _generic(self, path: Path, streams: list[str]
                  ) -> tuple[ImuSamples | None, MocapPoses | None]:
         if self.columns is None:
-            raise input_error("format not recognised (not EuRoC or TUM)", _NEEDS_COLUMNS,
-                              str(path))
+            raise unrecognised(path, streams[0] if len(streams) == 1 else "both")
         return read_generic(path, self.columns, streams=streams,
                             **self._kw("time_unit", "gyro_unit", "accel_unit", "quat_order",
                                        "position_unit"))
@@ -467,10 +463,8 @@ def _read_imu_csv(path: Path, fmt: str, colmap: ColumnMap | None, raw: bool,
                           "pass the IMU file (EuRoC imu0/data.csv layout or a CSV with "
                           "--columns)", str(path))
     if colmap is None:
-        raise input_error("format not recognised (not an EuRoC imu0 CSV)",
-                          "say which columns hold what with --columns, e.g. "
-                          "--columns 't=0,gyro=1:4,accel=4:7' (imu_tk's two files: "
-                          "--accel FILE --gyro FILE)", str(path))
+        raise unrecognised(path, "imu", "--columns 't=0,gyro=1:4,accel=4:7' (imu_tk's two "
+                           "files: --accel FILE --gyro FILE)")
     read, _ = read_generic(path, colmap, streams=["imu"], raw=raw, **units)
     assert read is not None
     return read, path

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.checks.degenerate import single_axis_refusal
 from mocap_calib.core.checks.plausibility import check_plausibility
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.prepare.session import PreparedSession
@@ -42,11 +43,16 @@ if TYPE_CHECKING:
 
 def judge(r: CalibrationResult, s: PreparedSession, pos: PositionResult,
           opts: CalibrationOptions, clock: ClockSearch | None,
-          say: Callable[[str], None]) -> None:
+          say: Callable[[str], None], single_axis: Array | None = None) -> None:
     """Fill ``r``'s clock, plausibility, consistency and sensitivity sections (in place).
+
+    Args:
+        single_axis: the one rotation axis of degenerate motion (marker frame), if any: an
+            implausible answer is then blamed on the motion, which is named.
 
     Raises:
         PlausibilityError: the answer is implausible and ``opts.accept_implausible`` is off.
+        ObservabilityError: the same, on motion about one axis only.
     """
     if clock is not None:
         r.clock = clock.to_dict()
@@ -56,6 +62,8 @@ def judge(r: CalibrationResult, s: PreparedSession, pos: PositionResult,
                                         None if clock is None else clock.time_offset)
     if r.plausibility["failed"]:
         reasons = "; ".join(r.plausibility["failed"])
+        if not opts.accept_implausible and single_axis is not None:
+            raise single_axis_refusal(single_axis, f"the fit: {reasons}")
         if not opts.accept_implausible:
             raise PlausibilityError(
                 f"implausible calibration: {reasons}; check the inputs' units, conventions and "

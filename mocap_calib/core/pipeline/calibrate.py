@@ -29,6 +29,7 @@ from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.imu_model import Intrinsics, correct
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
+from mocap_calib.core.policy import MIN_SESSION_S
 from mocap_calib.core.position.engine import make_windows
 from mocap_calib.core.position.stage import (
     PositionInit,
@@ -63,12 +64,27 @@ def _crop(imu: ImuSamples, mocap: MocapPoses,
     if not hi > lo:
         raise InputError("--end must be after --start")
     imu_c = imu.select((imu.t >= lo) & (imu.t <= hi))
+    _check_crop(imu, imu_c, opts)
     shift = (imu.time_origin_ns - mocap.time_origin_ns) * 1e-9
     tm = mocap.t - shift  # mocap times on the IMU clock (before the fine offset)
     if tm[-1] < imu.t[0] or tm[0] > imu.t[-1]:  # different epochs
         return imu_c, mocap
     margin = 1.0 if opts.time_offset is None else 1.0 + abs(opts.time_offset)
     return imu_c, mocap.select((tm >= lo - margin) & (tm <= hi + margin))
+
+
+def _check_crop(imu: ImuSamples, cropped: ImuSamples, opts: CalibrationOptions) -> None:
+    """--start/--end must leave a stretch of the session to calibrate: say where it is."""
+    span = imu.t[-1] - imu.t[0]
+    kept = cropped.t[-1] - cropped.t[0] if len(cropped) > 1 else 0.0
+    if kept >= MIN_SESSION_S:
+        return
+    given = " ".join(f"--{k} {v:g}" for k, v in (("start", opts.start), ("end", opts.end))
+                     if v is not None)
+    left = ("nothing of the session is left" if len(cropped) < 2
+            else f"only {kept:.1f} s of the session are left")
+    raise InputError(f"{given}: {left} (the IMU log spans 0 to {span:.1f} s from its first "
+                     f"sample); choose --start/--end within it, at least {MIN_SESSION_S:g} s apart")
 
 
 def _corrector(model: Model, effects: dict[str, Array], t_mid: float, gyro_bias: Array,
@@ -137,8 +153,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
     windows = make_windows(s, delta0, opts.window, opts.max_mocap_rate, v_imu)
     if windows.count < 2:
-        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; the "
-                                 "session is too short or its mocap has too many gaps")
+        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; "
+                                 f"{s.gap_cause()}")
     init = PositionInit(att.R_MI, vel.p_MI, vel.gravity_dir, opts.gravity, delta0,
                         att.gyro_bias, vel.accel_bias, effects0)
     pos = run_position_stage(s, model, opts.noise, windows, init, opts.priors, opts.robust,
@@ -155,8 +171,8 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
     result = _package(pos, s, opts, [att.stats, vel.stats, pos.stats], notes, session_info, diag,
                       time.perf_counter() - t0)
     interrupt.check()
-    mark_single_axis(result, s, pos.delta)
-    judge(result, s, pos, opts, clock, say)
+    axis = mark_single_axis(result, s, pos.delta)
+    judge(result, s, pos, opts, clock, say, axis)
     mark_undetermined(result)
     interrupt.check()
     return result
