@@ -17,7 +17,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from refusal_corpus import CASES, run_case  # noqa: E402
+from refusal_corpus import run_case  # noqa: E402
+from refusal_more import ALL_CASES as CASES  # noqa: E402
 
 #: What the same inputs gave before issue 17 (commit 151d384), run the same way.
 BEFORE = {

@@ -498,3 +498,4 @@ def run_case(case: Case, d: Path) -> Verdict:
         if missing:
             v.problems.append(f"no note naming {missing}")
     return v
+

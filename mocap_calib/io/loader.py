@@ -48,7 +48,7 @@ from mocap_calib.io.formats.euroc import (
     read_mav0,
 )
 from mocap_calib.io.formats.generic import read_generic
-from mocap_calib.io.formats.hints import unrecognised
+from mocap_calib.io.formats.hints import headerless_euroc_poses, unrecognised
 from mocap_calib.io.formats.imu_tk import read_imu_tk_pair
 from mocap_calib.io.formats.layout import WHITESPACE, sniff_layout
 from mocap_calib.io.formats.mocap_exports import ExportOptions, read_export, sniff_export
@@ -333,6 +333,8 @@ class _Reader:
         if fmt == "euroc_poses":
             return self._euroc_poses(path, fmt)
         if fmt == "tum" and self.columns is None:
+            if "time_unit" not in kw and (euroc := headerless_euroc_poses(path)) is not None:
+                raise euroc
             return self._note_mocap(read_tum(path, **kw), fmt, path)
         if fmt == "euroc_imu":
             raise input_error("--mocap is given an IMU file (EuRoC IMU CSV)",

@@ -57,6 +57,33 @@ def _short_by_one(layout: Layout, stream: str) -> str | None:
     return None
 
 
+def _first_stamp(layout: Layout) -> float | None:
+    """The first data row's first number (the time column of EuRoC and TUM)."""
+    with open(layout.path, encoding="utf-8", errors="replace") as f:
+        for i, line in enumerate(f):
+            if i == layout.skip:
+                tokens = line.split() if layout.sep == WHITESPACE else line.split(layout.sep)
+                try:
+                    return float(tokens[0])
+                except (ValueError, IndexError):
+                    return None
+    return None
+
+
+def headerless_euroc_poses(path: Path | str) -> InputError | None:
+    """A headerless file of 8 columns whose stamps are nanoseconds (any delimiter): EuRoC
+    pose rows without EuRoC's header, which TUM's reading (seconds, ``xyzw``) would get
+    wrong twice. None for anything else."""
+    layout = sniff_layout(path)
+    stamp = _first_stamp(layout) if layout.names is None and layout.n_fields == 8 else None
+    if stamp is None or stamp < 1e15:
+        return None
+    return input_error("8 columns of nanosecond stamps without a header: EuRoC pose rows "
+                       "(time, position x y z, quaternion w x y z) without EuRoC's header line?",
+                       "add the header of docs/conventions.md, or pass --columns "
+                       "'t=0,pos=1:4,quat=4:8' --time-unit ns", str(path))
+
+
 def unrecognised(path: Path | str, stream: str, example: str = COLUMNS_EXAMPLE
                  ) -> InputError:
     """The refusal of a file no reader recognises, given as the ``stream`` (``imu``,
@@ -73,6 +100,8 @@ def unrecognised(path: Path | str, stream: str, example: str = COLUMNS_EXAMPLE
                            f"{layout.n_fields} (missing {shown}?)",
                            "write every column of the EuRoC layout (docs/conventions.md), or "
                            "say which columns hold what with --columns", str(path))
+    if stream == "mocap" and (euroc := headerless_euroc_poses(path)) is not None:
+        return euroc
     short = _short_by_one(layout, stream)
     if short is not None:
         return input_error(short, "write the missing column, or say which columns hold what "
