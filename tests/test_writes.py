@@ -181,3 +181,17 @@ def test_a_symlinked_output_stays_a_link(result: Path, tmp_path: Path) -> None:
     assert _cli("export", str(result), "--to", "kalibr", "--out", str(link)).returncode == 0
     assert link.is_symlink() and real.read_text() != "old\n"
     assert stat.S_IMODE(real.stat().st_mode) == 0o640  # the replaced file's permissions
+
+
+def test_a_full_disk_is_refused_before_the_run(session: Path, tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """The folder's file system reports no free block: refused before calibrating."""
+    import collections
+
+    from mocap_calib.io import atomic
+
+    full = collections.namedtuple("full", "f_blocks f_bfree f_bavail")(1000, 0, 0)
+    monkeypatch.setattr(atomic.os, "statvfs", lambda _path: full)
+    proc = _cli("calibrate", str(session), "--out", str(tmp_path / "calib.yaml"))
+    _one_line(proc, "calib.yaml: cannot write (No space left on device)", "free some space")
+    assert "stage" not in proc.stderr

@@ -204,7 +204,11 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
     reason = "iteration limit"
     while it < max_iterations:
         prev = err
-        opt.iterate()
+        try:
+            opt.iterate()
+        except RuntimeError:  # the stop's zero errors can leave GTSAM nothing to solve
+            interrupt.check()
+            raise
         interrupt.check()  # a signal during the iteration only set the request
         it += 1
         err = float(opt.error())

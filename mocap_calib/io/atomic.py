@@ -184,7 +184,8 @@ def check_writable(*paths: str | Path | None) -> None:
         finally:
             probe.unlink(missing_ok=True)
         st = os.statvfs(folder)
-        if (st.f_bfree if os.geteuid() == 0 else st.f_bavail) == 0:
+        free = st.f_bfree if os.geteuid() == 0 else st.f_bavail
+        if st.f_blocks > 0 and free == 0:  # (pseudo file systems report no blocks at all)
             raise write_error(path, OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
 
 
