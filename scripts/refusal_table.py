@@ -90,7 +90,7 @@ BEFORE = {
 }
 
 
-def _cell(text: str, width: int = 260) -> str:
+def _cell(text: str, width: int = 440) -> str:
     text = text.replace("|", "\\|").replace("\n", " ")
     return text if len(text) <= width else text[: width - 3] + "..."
 
