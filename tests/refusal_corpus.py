@@ -498,4 +498,3 @@ def run_case(case: Case, d: Path) -> Verdict:
         if missing:
             v.problems.append(f"no note naming {missing}")
     return v
-
