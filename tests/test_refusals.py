@@ -15,7 +15,8 @@ import gtsam
 import numpy as np
 import pytest
 from conftest import shared_data
-from refusal_corpus import CASES, Case, clean, run_case, session
+from refusal_corpus import Case, clean, run_case, session
+from refusal_more import ALL_CASES as CASES
 
 from mocap_calib.cli.main import _is_indeterminate
 from mocap_calib.core.checks.conventions import check_conventions

@@ -26,7 +26,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from mocap_calib.errors import CalibrationError, InputError
+from mocap_calib.errors import CalibrationError, InputError, Interrupted
 
 ENGINES = ("local", "dask")
 
@@ -53,6 +53,8 @@ def guarded_call(fn: Callable[[Any], Any], job: Any) -> tuple[bool, Any, str, fl
     try:
         value = fn(job)
         return True, value, "", time.perf_counter() - t0
+    except Interrupted:
+        raise
     except CalibrationError as err:
         msg = one_line(str(err))
     except MemoryError:
@@ -258,6 +260,8 @@ class DaskEngine(Engine):
                 i = index[fut.key]
                 try:
                     ok, value, err, secs = fut.result()
+                except Interrupted:
+                    raise
                 except Exception as exc:  # KilledWorker, a lost connection...
                     yield Outcome(i, False, error=f"the Dask worker failed: {type(exc).__name__}: "
                                   f"{one_line(str(exc))}")

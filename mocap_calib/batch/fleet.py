@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 
 from mocap_calib.batch.manifest import SessionEntry
-from mocap_calib.batch.store import write_atomic
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.versioned import header
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.priors import priors_from_results, to_chart
+from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import save_yaml
 
 FLEET_KIND, FLEET_VERSION = "fleet", 1
@@ -170,11 +170,11 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> Path:
         names += [k for k in row if k not in names]
 
     def write(p: Path) -> None:
-        with p.open("w", newline="") as f:
+        with p.open("x", newline="") as f:
             w = csv.DictWriter(f, fieldnames=names)
             w.writeheader()
             w.writerows(rows)
-    return write_atomic(path, write)
+    return write_with(path, write)
 
 
 def write_fleet(folder: Path, done: Sequence[tuple[SessionEntry, CalibrationResult]]
@@ -192,8 +192,8 @@ def write_fleet(folder: Path, done: Sequence[tuple[SessionEntry, CalibrationResu
     files = [_write_csv(folder / "history.csv", rows)]
     if trend_rows:
         files.append(_write_csv(folder / "trends.csv", trend_rows))
-    files.append(write_atomic(folder / "fleet.yaml", lambda p: save_yaml(
-        p, summary, "mocap-calib fleet summary: history, trends and outliers per IMU")))
+    files.append(save_yaml(folder / "fleet.yaml", summary, "mocap-calib fleet summary: "
+                           "history, trends and outliers per IMU"))
     outliers = [{"imu_id": imu, **o} for imu, rec in summary["imus"].items()
                 for o in rec["outliers"]]
     return files, outliers

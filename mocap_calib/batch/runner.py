@@ -18,17 +18,13 @@ from typing import Any
 from mocap_calib.batch.engine import ENGINES, Engine, make_engine
 from mocap_calib.batch.manifest import Manifest, SessionEntry, load_manifest
 from mocap_calib.batch.session import SessionJob, run_session
-from mocap_calib.batch.store import (
-    Digests,
-    finished_hash,
-    input_hash,
-    remove_leftovers,
-    write_atomic,
-)
+from mocap_calib.batch.store import Digests, finished_hash, input_hash
+from mocap_calib.core import interrupt
 from mocap_calib.core.model.versioned import header
 from mocap_calib.core.params import param
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
+from mocap_calib.io.atomic import check_writable, remove_leftovers
 from mocap_calib.io.yaml_io import load_result, save_result, save_yaml
 
 BATCH_KIND, BATCH_VERSION = "batch", 1
@@ -156,8 +152,7 @@ class _Batch:
     def save_status(self) -> None:
         data = {**header(BATCH_KIND, BATCH_VERSION), "manifest": str(self.m.path),
                 "sessions": [s.to_dict() for s in self.status]}
-        write_atomic(self.out / "batch.yaml", lambda p: save_yaml(p, data, "mocap-calib batch "
-                                                                  "status; one entry per session"))
+        save_yaml(self.out / "batch.yaml", data, "mocap-calib batch status; one entry per session")
 
     def run_round(self, indices: list[int]) -> None:
         todo: list[int] = []
@@ -197,6 +192,11 @@ class _Batch:
             self.tell(f"{self.status[i].id} {self.status[i].status}")
 
     def finish(self, i: int, ok: bool, result: Any, error: str, seconds: float) -> None:
+        # A stop waits until the result and its status are both on disk (or neither is).
+        with interrupt.deferred():
+            self._finish(i, ok, result, error, seconds)
+
+    def _finish(self, i: int, ok: bool, result: Any, error: str, seconds: float) -> None:
         st = self.status[i]
         st.seconds = seconds
         self.computed += 1
@@ -205,7 +205,7 @@ class _Batch:
             result.session["batch"] = {"id": st.id, "imu_id": st.imu_id, "date": st.date,
                                        "input_hash": st.input_hash,
                                        "priors_from": list(st.priors_from)}
-            write_atomic(path, lambda p: save_result(p, result))
+            save_result(path, result)
             self.results[i] = result
             st.status, st.error = "ok", ""
         else:
@@ -254,6 +254,7 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder; choose another --out")
+    check_writable(out / "batch.yaml")
     if html is not None:
         check_html_available()
     make_engine(engine, workers, scheduler)  # checks the choice before any work

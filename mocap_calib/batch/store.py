@@ -1,12 +1,10 @@
-"""What the batch keeps on disk: content hashes of a session's inputs, atomic writes, and the
-``session.batch`` record inside each result that lets a rerun skip it."""
+"""What the batch keeps on disk: content hashes of a session's inputs, and the ``session.batch``
+record inside each result that lets a rerun skip it (files are written by io/atomic.py)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -78,24 +76,3 @@ def finished_hash(result_path: Path) -> str | None:
         return str(data["session"]["batch"]["input_hash"])
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         return None
-
-
-def write_atomic(path: Path, write: Callable[[Path], Any]) -> Path:
-    """Write through a temporary file in the same folder and rename it into place: a reader,
-    a kill or Ctrl-C sees the old file or the new one, never half of one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
-def remove_leftovers(folder: Path) -> None:
-    """Temporary files of a batch that was killed while writing."""
-    if folder.is_dir():
-        for tmp in folder.glob(".*.tmp"):
-            tmp.unlink(missing_ok=True)

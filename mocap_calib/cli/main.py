@@ -8,15 +8,11 @@ message on stderr and the error's exit code, here and nowhere else.
 from __future__ import annotations
 
 import os
-import signal
 import sys
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import typer
 
-from mocap_calib.errors import CalibrationError, InputError, Interrupted, ObservabilityError
+from mocap_calib.errors import CalibrationError, InputError, ObservabilityError
 
 app = typer.Typer(
     name="mocap-calib",
@@ -51,28 +47,6 @@ def _refuse_repeated(args: list[str]) -> None:
                          f"once{may}")
 
 
-def _raise_interrupted(signum: int, _frame: object) -> None:
-    raise Interrupted(signum)
-
-
-@contextmanager
-def _signals_raise() -> Iterator[None]:
-    """SIGINT and SIGTERM raise :class:`Interrupted` (not KeyboardInterrupt, which click would
-    turn into an exit code of its own), so every command stops the same way and writes
-    nothing: outputs are written atomically, at the end."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    for s in old:
-        signal.signal(s, _raise_interrupted)
-    try:
-        yield
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-
-
 def _is_usage_error(err: BaseException) -> bool:
     """click's usage errors (bad option, missing argument): they can show themselves and carry
     an exit code. Recognised by that, not by click's class, whose module typer vendors."""
@@ -100,10 +74,11 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return (and exit with) its exit code."""
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
     from mocap_calib.workflows.html.provenance import record_command_line
+    from mocap_calib.workflows.interrupts import stop_on_signals
 
     record_command_line(list(sys.argv[1:] if argv is None else argv))  # for the HTML reports
     try:
-        with _signals_raise():
+        with stop_on_signals():
             _register_commands()
             _refuse_repeated(list(sys.argv[1:] if argv is None else argv))
             app(args=argv, standalone_mode=False)

@@ -20,6 +20,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core import interrupt
 from mocap_calib.errors import ConvergenceError, ObservabilityError
 
 Array = NDArray[np.float64]
@@ -81,7 +82,15 @@ class BatchFactors:
 
     def output(self, values: gtsam.Values, i: int) -> tuple[Array, list[Array]]:
         """Error and Jacobians of factor ``i`` at ``values`` (evaluating the batch if needed)."""
+        interrupt.check()
+        return self._output(values, i)
+
+    def _output(self, values: gtsam.Values, i: int) -> tuple[Array, list[Array]]:
         with self._lock:
+            if interrupt.requested() and self._cache is not None:
+                # Stopping: GTSAM only needs to return (see core/interrupt.py); zero errors
+                # end its iteration at once and the check after it raises.
+                return np.zeros_like(self._cache.errors[i]), self._cache.jacobians[i]
             shared_fp = self._fingerprint(values, self.shared)
             own_fp = self._fingerprint(values, self._own(i))
             if (self._cache is None or shared_fp != self._shared_fp
@@ -106,8 +115,9 @@ class BatchFactors:
         for i, keys in enumerate(self.factor_keys):
             nm = self.noise if isinstance(self.noise, gtsam.noiseModel.Base) else self.noise[i]
 
+            @interrupt.called_from_native
             def fn(this: gtsam.CustomFactor, v: gtsam.Values, H: list | None, i: int = i) -> Array:
-                err, jac = self.output(v, i)
+                err, jac = self._output(v, i)
                 if H is not None:
                     for j, J in enumerate(jac):
                         H[j] = J
@@ -158,6 +168,7 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
     """
     t0 = time.perf_counter()
     initial_error = float(graph.error(initial))
+    interrupt.check()
     values, it, err, rel, reason = _lm_pass(graph, initial, max_iterations, on_iteration,
                                             relative_tol, 0, absolute_tol)
     if reason == "iteration limit" and retry:
@@ -193,7 +204,12 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
     reason = "iteration limit"
     while it < max_iterations:
         prev = err
-        opt.iterate()
+        try:
+            opt.iterate()
+        except RuntimeError:  # the stop's zero errors can leave GTSAM nothing to solve
+            interrupt.check()
+            raise
+        interrupt.check()  # a signal during the iteration only set the request
         it += 1
         err = float(opt.error())
         if on_iteration is not None:
@@ -222,9 +238,12 @@ def marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.
     """GTSAM's marginals, with its indeterminate-system exception turned into a one-line
     :class:`~mocap_calib.errors.ObservabilityError`."""
     try:
-        return gtsam.Marginals(graph, values)
+        marg = gtsam.Marginals(graph, values)
     except RuntimeError as err:
+        interrupt.check()
         raise gtsam_error(err) from None
+    interrupt.check()
+    return marg
 
 
 def gtsam_error(err: RuntimeError) -> Exception:
@@ -250,6 +269,7 @@ def information_matrix(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     import scipy.sparse as sp
 
     gfg = graph.linearize(values)
+    interrupt.check()
     if offsets is None:
         grad = gfg.gradientAtZero()  # one vector per key: gives each key's tangent dimension
         offsets, n = {}, 0

@@ -51,6 +51,8 @@ IMU_TRIM_START_S = 1.0
 IMU_MAX_GAP_FRACTION = 0.5
 #: Gap-free stretches shorter than this (s) are left out; a session with none longer, refused.
 MIN_SEGMENT_S = 2.0
+#: Shortest session (s) a calibration accepts (also what --start/--end must leave).
+MIN_SESSION_S = 10.0
 
 
 def gap_threshold(t: Array, floor: float = 0.0) -> float:

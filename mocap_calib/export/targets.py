@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
@@ -120,11 +121,7 @@ def _header(inp: ExportInputs, target: str) -> list[str]:
 
 
 def _intr(inp: ExportInputs, notes: list[str]) -> ImuIntrinsics:
-    effects = inp.result.effects
-    for name in ("gyro_bias_drift", "accel_bias_drift"):
-        if name in effects:
-            notes.append(f"{name} is not exported (the target estimates biases online)")
-    return intrinsics_of(effects)
+    return intrinsics_of(inp.result.effects)
 
 
 def _kalibr(inp: ExportInputs, notes: list[str]) -> str:
@@ -164,9 +161,6 @@ def _openvins(inp: ExportInputs, notes: list[str]) -> str:
 
 
 def _vins(inp: ExportInputs, notes: list[str]) -> str:
-    if not intrinsics_of(inp.result.effects).is_identity:
-        notes.append("VINS has no IMU intrinsics: the scale/misalignment/g-sensitivity of the "
-                     "model is not exported")
     n = inp.noise
     t_d = _t_d(inp)
     lines = ["%YAML:1.0", *_header(inp, "VINS-Mono/VINS-Fusion IMU"),
@@ -184,9 +178,6 @@ def _vins(inp: ExportInputs, notes: list[str]) -> str:
 
 
 def _orbslam3(inp: ExportInputs, notes: list[str]) -> str:
-    if not intrinsics_of(inp.result.effects).is_identity:
-        notes.append("ORB-SLAM3 has no IMU intrinsics: the scale/misalignment/g-sensitivity of "
-                     "the model is not exported")
     n = inp.noise
     t_d = _t_d(inp)
     notes.append("ORB-SLAM3 has no clock-offset parameter: the offset is in a comment only")
@@ -245,6 +236,32 @@ def _px4(inp: ExportInputs, notes: list[str]) -> str:
 
 _WRITERS = {"kalibr": _kalibr, "openvins": _openvins, "vins": _vins, "orbslam3": _orbslam3,
             "basalt": _basalt, "px4": _px4}
+#: The kinds of effect (``Effect.acts_on``) each target has parameters for; every other
+#: effect of a result is named in a note, never dropped silently. (The clock offset is
+#: handled by each writer: ORB-SLAM3's comment says it has none.)
+_WRITES: dict[str, frozenset[str]] = {
+    "kalibr": frozenset({"clock", "w", "f"}), "openvins": frozenset({"clock", "w", "f", "gravity"}),
+    "vins": frozenset({"clock", "gravity"}), "orbslam3": frozenset({"clock"}),
+    "basalt": frozenset({"clock"}), "px4": frozenset({"clock"})}
+
+
+def _not_exported(result: CalibrationResult, target: str) -> list[str]:
+    """One note per estimated effect the target has no parameter for."""
+    notes = []
+    for name, rec in result.effects.items():
+        eff = EFFECTS.get(name)
+        if eff is None or eff.acts_on in _WRITES[target]:
+            continue
+        if all(v is None for k, v in rec.items() if k != "sigma"):
+            continue  # unobservable: nothing to export
+        if eff.acts_on == "time":
+            why = "the target estimates biases online"
+        elif eff.acts_on in ("w", "f"):
+            why = f"{target} has no IMU intrinsics"
+        else:
+            why = f"{target} has no parameter for it"
+        notes.append(f"{name} is not exported ({why})")
+    return notes
 
 
 def export_calibration(inp: ExportInputs, target: str) -> Exported:
@@ -255,6 +272,6 @@ def export_calibration(inp: ExportInputs, target: str) -> Exported:
     """
     if target not in _WRITERS:
         raise InputError(f"unknown --to '{target}'; choose one of: {', '.join(TARGETS)}")
-    notes: list[str] = []
+    notes = _not_exported(inp.result, target)
     text = _WRITERS[target](inp, notes)
     return Exported(target, text, notes)

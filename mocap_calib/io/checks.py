@@ -20,7 +20,9 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.policy import (
+    ACCEL_UNITS,
     GAP_FACTOR,
+    GYRO_UNITS,
     IMU_TRIM_START_S,
     POSITION_UNITS,
     TIME_UNITS_NS,
@@ -55,6 +57,10 @@ GYRO_P5_MAX = 3.0
 ACCEL_COUNTS_MIN = 200.0
 #: A gyro faster than this (deg/s) at its 99th percentile is beyond any MEMS gyro's range.
 GYRO_COUNTS_DEG_MIN = 4000.0
+#: Swapped columns: the "gyro" numbers' median magnitude in this band (specific force in
+#: m/s^2: real sessions 9.8-11) while the "accel" numbers' median stays below this (rates).
+SWAP_FORCE = (7.0, 13.0)
+SWAP_RATE_MAX = 4.0
 _COUNTS_FIX = ("'mocap-calib multipos --raw' calibrates raw counts; the other commands need "
                "SI units: convert the log (or pass --gyro-unit / --accel-unit)")
 _UNIT_NAMES = {"m": "metres", "cm": "centimetres", "mm": "millimetres"}
@@ -291,6 +297,28 @@ def _integral(x: Array) -> bool:
     return bool(np.all(x == np.round(x)))
 
 
+def check_swapped(gyro: Array, accel: Array, gyro_unit: str, accel_unit: str,
+                  lines: Lines) -> None:
+    """Raise when the gyro and accel columns look swapped: the "gyro" reads like specific
+    force (median magnitude near |g| in m/s^2, never near zero, as rates often are) and the
+    "accel" far below |g|. Checked before the units, whose hints would mislead here."""
+    g = np.linalg.norm(gyro / GYRO_UNITS[gyro_unit], axis=1)  # the file's numbers
+    a = np.linalg.norm(accel / ACCEL_UNITS[accel_unit], axis=1)
+    g5, gm = (float(v) for v in np.percentile(g, [5.0, 50.0]))
+    am = float(np.median(a))
+    if not (SWAP_FORCE[0] <= gm <= SWAP_FORCE[1] and g5 > 0.4 * gm and am < SWAP_RATE_MAX):
+        return
+    fix = ("swap them: gyro x y z first, then accel x y z (EuRoC imu0 layout); with --columns, "
+           "exchange the gyro= and accel= columns")
+    if 0.85 <= am <= 1.15:  # also the numbers of a slow deg/s gyro and an accel in g
+        fix += " (or, if the gyro is in deg/s and the accelerometer in g: pass --gyro-unit " \
+               "deg/s --accel-unit g)"
+    raise lines.error(f"the gyro and accelerometer columns look swapped: the gyro columns read "
+                      f"like specific force (median magnitude {gm:.3g}, near |g| = 9.81 m/s^2, "
+                      f"and never near 0) and the accelerometer columns like rates (median "
+                      f"{am:.3g})", fix)
+
+
 def check_imu_units(gyro: Array, accel: Array, gyro_unit: str, accel_unit: str,
                     lines: Lines) -> None:
     """Raise when gyro or accel magnitudes suggest a unit other than the declared one; raw
@@ -378,6 +406,7 @@ def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
     require_rows(len(ns), MIN_IMU_ROWS, "IMU", lines)
     check_time_unit(ns, time_unit, "IMU", lines)
     if not raw:
+        check_swapped(gyro, accel, gyro_unit, accel_unit, lines)
         check_imu_units(gyro, accel, gyro_unit, accel_unit, lines)
     origin = int(ns[0])
     return ImuSamples((ns - origin) / 1e9, gyro, accel, origin, lines.source)

@@ -13,6 +13,11 @@ Format sniffing, per path:
   is given: then it is read as a generic CSV);
 - anything else -> generic CSV, which needs ``columns`` (see :mod:`mocap_calib.io.formats.generic`).
 
+A ``--columns`` map is used or refused, never dropped: it is parsed (and a malformed one
+refused) before any file is read; an EuRoC CSV is read with it when it names that file's
+stream (gyro/accel for the IMU, quat/pos for the poses; EuRoC's units stay the defaults), and a
+recording or an export, which have no columns, refuse it.
+
 The same file given as IMU and mocap (BROAD) is read once, with both streams. Unit options
 left as None take the format's own units (EuRoC: ns, rad/s, m/s^2, m; TUM: s, m, xyzw;
 generic: s, rad/s, m/s^2, wxyz, m); given ones override them for every file.
@@ -32,6 +37,7 @@ from mocap_calib.io.formats.bags import (
     read_bag_imu,
     read_bag_mocap,
 )
+from mocap_calib.io.formats.columns import COLUMNS_FIX, ColumnMap, parse_columns
 from mocap_calib.io.formats.euroc import (
     POSE_FOLDERS,
     find_mav0,
@@ -42,6 +48,7 @@ from mocap_calib.io.formats.euroc import (
     read_mav0,
 )
 from mocap_calib.io.formats.generic import read_generic
+from mocap_calib.io.formats.hints import headerless_euroc_poses, unrecognised
 from mocap_calib.io.formats.imu_tk import read_imu_tk_pair
 from mocap_calib.io.formats.layout import WHITESPACE, sniff_layout
 from mocap_calib.io.formats.mocap_exports import ExportOptions, read_export, sniff_export
@@ -59,10 +66,6 @@ FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
 #: Formats holding time-stamped messages of several streams (read by topic).
 RECORDINGS = ("rosbag1", "rosbag2", "mcap", "ulog")
 EXPORTS = ("motive", "vicon-nexus", "vicon-tracker")
-
-_NEEDS_COLUMNS = ("say which columns hold what with --columns, e.g. "
-                  "--columns 't=0,gyro=1:4,accel=4:7,quat=7:11,pos=11:14' or --columns broad")
-
 
 def sniff_format(path: Path | str) -> str:
     """The format of an input path: a key of :data:`FORMAT_NAMES`.
@@ -164,6 +167,7 @@ class _Reader:
     def __init__(self, columns: str | None, pose_source: str, units: dict[str, str],
                  recording: RecordingOptions, export: ExportOptions) -> None:
         self.columns = columns
+        self.colmap = None if columns is None else _column_map(columns)
         self.pose_source = pose_source
         self.units = units
         self.recording = recording
@@ -171,10 +175,10 @@ class _Reader:
         self.notes: list[str] = []
 
     def _ignore_options(self, path: Path, fmt: str) -> None:
-        """Units and column maps do not apply to self-describing recordings."""
-        given = [f"--{k.replace('_', '-')}" for k in self.units]
+        """Units do not apply to self-describing recordings; a column map is refused."""
         if self.columns is not None:
-            given.insert(0, "--columns")
+            raise _no_columns(path, fmt)
+        given = [f"--{k.replace('_', '-')}" for k in self.units]
         if given:
             self.notes.append(f"ignored {', '.join(given)} for {path}: it is a "
                               f"{FORMAT_NAMES[fmt]} (SI units)")
@@ -219,15 +223,32 @@ class _Reader:
             self.notes.append(f"dropped {mocap.dropped_rows} mocap rows with NaN (occlusions)")
         return mocap
 
-    def _ignore_columns(self, path: Path, fmt: str) -> None:
-        if self.columns is not None:
-            self.notes.append(f"ignored --columns for {path}: it is an {FORMAT_NAMES[fmt]}")
+    def _euroc_imu(self, file: Path, fmt: str) -> ImuSamples:
+        """An EuRoC IMU CSV, with the column map when it names the IMU's columns."""
+        if self.colmap is None or not self.colmap.has_imu:
+            imu = read_euroc_imu(file, **self._kw("time_unit", "gyro_unit", "accel_unit"))
+            return self._note_imu(imu, fmt, file)
+        imu, _ = read_generic(file, self.colmap, streams=["imu"], **{
+            "time_unit": "ns", **self._kw("time_unit", "gyro_unit", "accel_unit")})
+        assert imu is not None
+        self.notes.append(f"read {file} with the --columns map")
+        return self._note_imu(imu, fmt, file)
+
+    def _euroc_poses(self, file: Path, fmt: str) -> MocapPoses:
+        """An EuRoC pose CSV, with the column map when it names the poses' columns."""
+        kw = self._kw("time_unit", "quat_order", "position_unit")
+        if self.colmap is None or not self.colmap.has_mocap:
+            return self._note_mocap(read_euroc_poses(file, **kw), fmt, file)
+        _, mocap = read_generic(file, self.colmap, streams=["mocap"], **{"time_unit": "ns",
+                                                                          **kw})
+        assert mocap is not None
+        self.notes.append(f"read {file} with the --columns map")
+        return self._note_mocap(mocap, fmt, file)
 
     def _generic(self, path: Path, streams: list[str]
                  ) -> tuple[ImuSamples | None, MocapPoses | None]:
         if self.columns is None:
-            raise input_error("format not recognised (not EuRoC or TUM)", _NEEDS_COLUMNS,
-                              str(path))
+            raise unrecognised(path, streams[0] if len(streams) == 1 else "both")
         return read_generic(path, self.columns, streams=streams,
                             **self._kw("time_unit", "gyro_unit", "accel_unit", "quat_order",
                                        "position_unit"))
@@ -239,7 +260,12 @@ class _Reader:
                               "marker body")
 
     def mav0(self, path: Path) -> tuple[ImuSamples, MocapPoses, list[str]]:
-        self._ignore_columns(path, "mav0")
+        if self.colmap is not None:  # each file read as the map says (or by its header)
+            root = find_mav0(path)
+            name, folder = pose_folder(root, self.pose_source)
+            imu = self._euroc_imu(root / "imu0" / "data.csv", "mav0")
+            self._pose_note(name, folder)
+            return imu, self._euroc_poses(folder / "data.csv", "mav0"), self.notes
         m = read_mav0(path, self.pose_source, **self._kw(
             "time_unit", "gyro_unit", "accel_unit", "quat_order", "position_unit"))
         folder = m.root / POSE_FOLDERS[m.pose_source]
@@ -280,15 +306,9 @@ class _Reader:
         if fmt in EXPORTS:
             raise input_error(f"--imu is given a mocap export ({FORMAT_NAMES[fmt]})",
                               "pass it with --mocap and the IMU log with --imu", str(path))
-        if fmt == "mav0":
-            file = find_mav0(path) / "imu0" / "data.csv"
-            self._ignore_columns(path, fmt)
-            return self._note_imu(read_euroc_imu(file, **self._kw(
-                "time_unit", "gyro_unit", "accel_unit")), fmt, file)
-        if fmt == "euroc_imu":
-            self._ignore_columns(path, fmt)
-            return self._note_imu(read_euroc_imu(path, **self._kw(
-                "time_unit", "gyro_unit", "accel_unit")), fmt, path)
+        if fmt in ("mav0", "euroc_imu"):
+            file = find_mav0(path) / "imu0" / "data.csv" if fmt == "mav0" else path
+            return self._euroc_imu(file, fmt)
         if fmt == "euroc_poses" or (fmt == "tum" and self.columns is None):
             raise input_error(f"--imu is given a pose file ({FORMAT_NAMES[fmt]})",
                               "pass it with --mocap and the IMU file with --imu", str(path))
@@ -308,15 +328,14 @@ class _Reader:
             return self._export(path, fmt)
         kw = self._kw("time_unit", "quat_order", "position_unit")
         if fmt == "mav0":
-            self._ignore_columns(path, fmt)
             name, folder = pose_folder(find_mav0(path), self.pose_source)
             self._pose_note(name, folder)
-            return self._note_mocap(read_euroc_poses(folder / "data.csv", **kw), fmt,
-                                    folder / "data.csv")
+            return self._euroc_poses(folder / "data.csv", fmt)
         if fmt == "euroc_poses":
-            self._ignore_columns(path, fmt)
-            return self._note_mocap(read_euroc_poses(path, **kw), fmt, path)
+            return self._euroc_poses(path, fmt)
         if fmt == "tum" and self.columns is None:
+            if "time_unit" not in kw and (euroc := headerless_euroc_poses(path)) is not None:
+                raise euroc
             return self._note_mocap(read_tum(path, **kw), fmt, path)
         if fmt == "euroc_imu":
             raise input_error("--mocap is given an IMU file (EuRoC IMU CSV)",
@@ -324,6 +343,21 @@ class _Reader:
         _, mocap = self._generic(path, ["mocap"])
         assert mocap is not None
         return self._note_mocap(mocap, "generic", path)
+
+
+def _column_map(columns: str) -> ColumnMap:
+    """The ``--columns`` map, refused now if malformed or if it names no stream."""
+    colmap = parse_columns(columns)
+    if not (colmap.has_imu or colmap.has_mocap):
+        raise input_error("names neither IMU (gyro=, accel=) nor mocap (quat=, pos=) columns",
+                          COLUMNS_FIX, "--columns")
+    return colmap
+
+
+def _no_columns(path: Path, fmt: str) -> Exception:
+    return input_error(f"--columns given, but this is a {FORMAT_NAMES[fmt]}, which has no "
+                       "columns (its messages say what they hold)", "drop --columns",
+                       str(path))
 
 
 def is_recording(path: Path | str) -> bool:
@@ -387,40 +421,56 @@ def load_imu_file(path: Path | str | None, *, columns: str | None = None,
         ("time_unit", time_unit), ("gyro_unit", gyro_unit), ("accel_unit", accel_unit))
         if v is not None}
     if accel_file is not None or gyro_file is not None:
+        if columns is not None:
+            raise input_error("--columns given with imu_tk's two files (--accel, --gyro), "
+                              "whose layout is fixed", "drop --columns")
         return _load_imu_tk(path, accel_file, gyro_file, units, raw)
     if path is None:
         raise input_error("no --imu given", "pass the IMU log with --imu FILE (or imu_tk's two "
                           "files with --accel FILE --gyro FILE)")
     path = Path(path)
+    colmap = None if columns is None else _column_map(columns)
     if is_recording(path):
+        if colmap is not None:
+            raise _no_columns(path, sniff_format(path))
         if raw:
             raise input_error("--raw given for a bag or ULog", "their IMU messages are in SI "
                               "units: leave out --raw", str(path))
         return _load_recording_imu(path, topic, stamp)
     fmt = sniff_format(path)
     notes: list[str] = []
-    if fmt in ("mav0", "euroc_imu"):
-        file = find_mav0(path) / "imu0" / "data.csv" if fmt == "mav0" else path
-        if columns is not None:
-            notes.append(f"ignored --columns for {path}: it is an {FORMAT_NAMES[fmt]}")
-        imu = read_euroc_imu(file, raw=raw, **units)
-    elif fmt == "euroc_poses" or (fmt == "tum" and columns is None):
-        raise input_error(f"--imu is given a pose file ({FORMAT_NAMES[fmt]}), not an IMU log",
-                          "pass the IMU file (EuRoC imu0/data.csv layout or a CSV with "
-                          "--columns)", str(path))
-    else:
-        if columns is None:
-            raise input_error("format not recognised (not an EuRoC imu0 CSV)",
-                              "say which columns hold what with --columns, e.g. "
-                              "--columns 't=0,gyro=1:4,accel=4:7' (imu_tk's two files: "
-                              "--accel FILE --gyro FILE)", str(path))
-        read, _ = read_generic(path, columns, streams=["imu"], raw=raw, **units)
-        assert read is not None
-        imu, file = read, path
+    imu, file = _read_imu_csv(path, fmt, colmap, raw, units, notes)
     if raw:
         notes.append("readings taken as raw sensor counts")
     notes.append(_describe("IMU", len(imu), imu.rate_hz, imu.duration, fmt, file))
     return imu, notes
+
+
+def _read_imu_csv(path: Path, fmt: str, colmap: ColumnMap | None, raw: bool,
+                  units: dict[str, str], notes: list[str]) -> tuple[ImuSamples, Path]:
+    """The IMU samples of an EuRoC or generic CSV (the column map used or refused)."""
+    if fmt in ("mav0", "euroc_imu"):
+        file = find_mav0(path) / "imu0" / "data.csv" if fmt == "mav0" else path
+        if colmap is None:
+            return read_euroc_imu(file, raw=raw, **units), file
+        if not colmap.has_imu:
+            raise input_error("names no IMU columns (gyro=, accel=) for the IMU log",
+                              COLUMNS_FIX, "--columns")
+        read, _ = read_generic(file, colmap, streams=["imu"], raw=raw,
+                               **{"time_unit": "ns", **units})
+        assert read is not None
+        notes.append(f"read {file} with the --columns map")
+        return read, file
+    if fmt == "euroc_poses" or (fmt == "tum" and colmap is None):
+        raise input_error(f"--imu is given a pose file ({FORMAT_NAMES[fmt]}), not an IMU log",
+                          "pass the IMU file (EuRoC imu0/data.csv layout or a CSV with "
+                          "--columns)", str(path))
+    if colmap is None:
+        raise unrecognised(path, "imu", "--columns 't=0,gyro=1:4,accel=4:7' (imu_tk's two "
+                           "files: --accel FILE --gyro FILE)")
+    read, _ = read_generic(path, colmap, streams=["imu"], raw=raw, **units)
+    assert read is not None
+    return read, path
 
 
 def _load_imu_tk(path: Path | str | None, accel_file: Path | str | None,

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+
+from mocap_calib.io.atomic import write_with
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -36,23 +37,14 @@ def write_table(path: Path | str, header: str, columns: Sequence[Array | IntArra
     Returns:
         The path written.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # Atomic: written under a temporary name and renamed, so an interrupted run leaves the
-    # old file (or none), never half of a new one.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        _write_rows(tmp, header, columns, sep, chunk)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    # Atomic (io/atomic.py): an interrupted run leaves the old file (or none), never half.
+    return write_with(path, lambda tmp: _write_rows(tmp, header, columns, sep, chunk))
 
 
 def _write_rows(path: Path, header: str, columns: Sequence[Array | IntArray | list[str]],
                 sep: str, chunk: int) -> None:
     n = len(columns[0]) if columns else 0
-    with open(path, "w", encoding="utf-8", newline="\n") as f:
+    with open(path, "x", encoding="utf-8", newline="\n") as f:
         f.write(header + "\n")
         for start in range(0, n, chunk):
             cols = []

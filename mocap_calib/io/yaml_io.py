@@ -6,7 +6,6 @@ clear message instead of misreading it.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +17,8 @@ from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.model.versioned import KindError
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
+from mocap_calib.io.atomic import check_writable as check_writable  # re-exported
+from mocap_calib.io.atomic import write_text
 
 
 def _plain(x: Any) -> Any:
@@ -56,36 +57,8 @@ def save_yaml(path: str | Path, data: dict[str, Any], header: str | None = None)
 
 
 def save_text(path: str | Path, text: str) -> Path:
-    """Write a text file, or raise a one-line :class:`InputError`."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # Atomic: a reader (or an interrupted run) sees the old file or the new one, never half.
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    except OSError as err:
-        raise InputError(f"{path}: cannot write ({err.strerror or err}); choose another "
-                         "output path") from None
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
-
-
-def check_writable(*paths: str | Path | None) -> None:
-    """Fail early (before a long computation) if an output path cannot be written."""
-    for p in paths:
-        if p is None:
-            continue
-        path = Path(p)
-        if path.is_dir():
-            raise InputError(f"{path}: is a folder; give a file name")
-        parent = path.parent if str(path.parent) else Path(".")
-        probe = parent
-        while not probe.exists() and probe != probe.parent:
-            probe = probe.parent
-        if not os.access(probe, os.W_OK):
-            raise InputError(f"{path}: the folder is not writable; choose another output path")
+    """Write a text file atomically, or raise a one-line :class:`InputError`."""
+    return write_text(path, text)
 
 
 def load_yaml(path: str | Path, what: str = "YAML file") -> dict[str, Any]:

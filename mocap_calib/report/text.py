@@ -11,8 +11,12 @@ from mocap_calib.core.result.calibration import CalibrationResult
 
 
 def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:
+    """A number, a vector or a matrix (flattened) on one line; a mapping of those (an effect
+    with several parameters, e.g. ``{r_y: [..], r_z: [..]}``) as ``key value`` pairs."""
     if v is None:
         return "unobservable"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {_fmt(x, scale, digits)}" for k, x in v.items())
     a = np.atleast_1d(np.asarray(v, dtype=float)).ravel() * scale
     if a.size == 1:
         return f"{a[0]:.{digits}g}"
@@ -67,15 +71,8 @@ def summary_table(r: CalibrationResult) -> str:
                  "ms"))
     for name, rec in r.effects.items():
         for key, val in rec.items():
-            if key == "sigma":
-                continue
-            sig = rec.get("sigma")
-            if val is not None and np.asarray(val).ndim == 2:  # a 3x3 matrix: one row per line
-                for i in range(3):
-                    rows.append((f"{name}.{key}" if i == 0 else "", _fmt(np.asarray(val)[i]),
-                                 "" if sig is None else _fmt(np.asarray(sig)[i], digits=2), ""))
-            else:
-                rows.append((f"{name}.{key}", _fmt(val), _fmt(sig, digits=2), ""))
+            if key != "sigma":
+                rows += _value_rows(f"{name}.{key}", val, rec.get("sigma"))
     lines = [table(("parameter", "estimate", "1-sigma", "unit"), rows), ""]
     stage_rows = []
     for s in r.stages:
@@ -100,6 +97,21 @@ def summary_table(r: CalibrationResult) -> str:
     for n in r.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)
+
+
+def _value_rows(label: str, val: object, sig: object) -> list[tuple[str, str, str, str]]:
+    """Table rows of one reported value: a matrix one row per line, a mapping (an effect's
+    several parameters) one row per key, anything else one row."""
+    if isinstance(val, dict):
+        sig_d = sig if isinstance(sig, dict) else {}
+        return [row for k, v in val.items() for row in _value_rows(f"{label}.{k}", v,
+                                                                      sig_d.get(k))]
+    if val is not None and np.asarray(val).ndim == 2:
+        m = np.asarray(val)
+        return [(label if i == 0 else "", _fmt(m[i]),
+                 "" if sig is None else _fmt(np.asarray(sig)[i], digits=2), "")
+                for i in range(m.shape[0])]
+    return [(label, _fmt(val), _fmt(sig, digits=2), "")]
 
 
 def checks_lines(r: CalibrationResult) -> list[str]:

@@ -6,6 +6,7 @@ is actually written, so the CLI and the core start without loading the viewer SD
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Sequence
 from types import ModuleType
 from typing import Any
@@ -51,14 +52,26 @@ class Logger:
         self.rr = import_rerun()
         # No make_default: the global stream is left alone, nothing is spawned.
         self.rec = self.rr.RecordingStream(APPLICATION_ID)
-        self.rec.save(path, default_blueprint=blueprint)
+        try:
+            self.rec.save(path, default_blueprint=blueprint)
+        except RuntimeError as err:  # rerun's own writer: an OSError like any other write's
+            raise OSError(errno.EIO, f"rerun cannot write it: {err}") from None
         if name:
             self.rec.send_recording_name(name)
 
     def close(self) -> None:
-        """Flush everything and close the file."""
-        self.rec.flush()
-        self.rec.disconnect()
+        """Flush everything and close the file.
+
+        Raises:
+            OSError: rerun's writer failed (it names no cause: a full disk, most often).
+        """
+        try:
+            self.rec.flush()
+        except RuntimeError as err:
+            raise OSError(errno.EIO, f"rerun's file writer failed ({err}); is the disk full?"
+                          ) from None
+        finally:
+            self.rec.disconnect()
 
     # ------------------------------------------------------------------ series
     def style(self, path: str, name: str, color: Sequence[int], width: float = 1.5) -> None:

@@ -22,7 +22,6 @@ One view per sensor and axis (``/gyroscope/x``, ... ``/accelerometer/z``) holds:
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -105,7 +104,8 @@ def write_allan_recording(path: Path | str, result: AllanResult) -> Path:
     """Write the Allan deviation curves of every axis with the fitted model lines.
 
     Args:
-        path: ``.rrd`` file to write (parent folders are created).
+        path: ``.rrd`` file to write (parent folders are created), directly: to replace a file
+            whole, write a temporary one and rename it (``io.atomic.write_with``).
         result: output of :func:`mocap_calib.core.intrinsics.allan.characterise_noise`.
 
     Returns:
@@ -130,11 +130,10 @@ def write_allan_recording(path: Path | str, result: AllanResult) -> Path:
                                                                  name="legend"),
                        column_shares=[4, 1]),
         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
-    # Written under a temporary name and renamed at the end: no half-written recording.
-    tmp = Path(path).with_name(f".{Path(path).name}.partial")
-    log = Logger(str(tmp), blueprint, name="Allan deviation")
+    # rerun's writer writes ``path`` itself: the workflow gives it a temporary file that
+    # mocap_calib.io.atomic renames into place (no half-written recording).
+    log = Logger(str(path), blueprint, name="Allan deviation")
     rr = log.rr
-    done = False
     try:
         log.text("/README", _readme(result), markdown=True)
         for s in sensors:
@@ -151,11 +150,6 @@ def write_allan_recording(path: Path | str, result: AllanResult) -> Path:
                     ok = np.isfinite(y)
                     if ok.any():
                         log.scalars(entity, x[ok], y[ok], timeline=TIMELINE, sequence=True)
-        done = True
     finally:
         log.close()
-        if done:
-            os.replace(tmp, path)
-        else:
-            tmp.unlink(missing_ok=True)
     return path

@@ -28,7 +28,6 @@ Only this package imports rerun, and only when a recording is written.
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -91,7 +90,8 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
     """Write a rerun recording of a calibration (see the module docstring for its contents).
 
     Args:
-        path: the ``.rrd`` file to write (parent folders are created).
+        path: the ``.rrd`` file to write (parent folders are created), directly: to replace a
+            file whole, write a temporary one and rename it (``io.atomic.write_with``).
         result: the calibration; with ``result.diagnostics`` (as :func:`calibrate` returns it)
             the recording shows exactly the session, model state and residuals the solver
             used. Without diagnostics (e.g. a result read from YAML) the session is prepared
@@ -108,6 +108,7 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
 
     Raises:
         InputError: ``path`` is a folder, or (without diagnostics) the result lacks a value.
+        OSError: the file cannot be written (``io.atomic.write_with`` makes it one line).
     """
     path = Path(path)
     if path.is_dir():
@@ -122,14 +123,10 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
     blueprint = default_blueprint(list(residuals), pos is not None and pos.rotation_after
                                   is not None, [(n, list(x)) for n, x in steps], bool(history))
 
-    # Written under a temporary name and renamed at the end: no half-written recording.
-    tmp = path.with_name(f".{path.name}.partial")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        log = Logger(str(tmp), blueprint, name=f"mocap-calib {result.model}")
-    except (OSError, RuntimeError) as err:
-        raise InputError(f"{path}: cannot write the recording ({err})") from None
-    done = False
+    # rerun's writer writes ``path`` itself: the workflows give it a temporary file that
+    # mocap_calib.io.atomic renames into place (no half-written recording).
+    path.parent.mkdir(parents=True, exist_ok=True)
+    log = Logger(str(path), blueprint, name=f"mocap-calib {result.model}")
     try:
         log.rec.log("world", log.rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log.text("summary", summary_table(result))
@@ -144,13 +141,8 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
         for name, series_by_stage in steps:
             for stage, series in series_by_stage.items():
                 _log_residuals(log, f"diagnose/{name}/{stage}", series)
-        done = True
     finally:
         log.close()
-        if done:
-            os.replace(tmp, path)
-        else:
-            tmp.unlink(missing_ok=True)
     return path
 
 

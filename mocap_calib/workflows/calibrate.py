@@ -15,6 +15,7 @@ from mocap_calib.core.pipeline.calibrate import (
     calibrate_takes,
 )
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
 from mocap_calib.workflows.html.provenance import RunClock
@@ -120,7 +121,8 @@ def calibrate_to_files(request: CalibrateRequest,
 
         if progress is not None:
             progress("writing rerun recording")
-        path = write_calibration_recording(outputs.rrd, result, session.imu, session.mocap)
+        path = write_with(outputs.rrd, lambda tmp: write_calibration_recording(
+            tmp, result, session.imu, session.mocap))
         run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
     if outputs.report is not None:
         save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")

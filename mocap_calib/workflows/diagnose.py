@@ -8,6 +8,7 @@ from pathlib import Path
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, DiagnoseReport
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import ProgressFn
+from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
 from mocap_calib.workflows.calibrate import HTML_HELP, QUIET_HELP
@@ -115,7 +116,7 @@ def diagnose_to_files(request: DiagnoseRequest,
 
         if progress is not None:
             progress("writing rerun recording")
-        path = write_calibration_recording(rrd, report.final, session.imu, session.mocap,
-                                           diagnose_steps=diagnose_series(report))
+        path = write_with(rrd, lambda tmp: write_calibration_recording(
+            tmp, report.final, session.imu, session.mocap, diagnose_steps=diagnose_series(report)))
         run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
     return run

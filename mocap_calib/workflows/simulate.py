@@ -71,12 +71,13 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
         ``(path, description)`` of every file written.
     """
     from mocap_calib.io.formats.euroc import write_euroc_imu, write_mav0
-    from mocap_calib.io.yaml_io import save_yaml
+    from mocap_calib.io.yaml_io import check_writable, save_yaml
     from mocap_calib.sim.flight import SimConfig, parse_effect, simulate_flight
 
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"{out_dir}: exists and is not a folder; choose another OUT_DIR")
+    check_writable(out_dir / "truth.yaml")
     parsed = dict(parse_effect(e) for e in (effects or []))
     if protocol == "multipos":
         from mocap_calib.workflows.imu.multipos import simulate_multipos_to_folder

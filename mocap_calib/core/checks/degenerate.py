@@ -118,23 +118,25 @@ def single_axis_rotation(s: PreparedSession, delta: float, axis: Array
     return so3.exp(phis[k] * axis) @ Q, contrast
 
 
-def mark_single_axis(r: CalibrationResult, s: PreparedSession, delta: float) -> None:
+def mark_single_axis(r: CalibrationResult, s: PreparedSession, delta: float
+                     ) -> Array | None:
     """One rotation axis: the lever arm along it is unobservable, and ``R_MI`` too unless the
-    accelerometer pins the angle about it (see the module doc). In place."""
+    accelerometer pins the angle about it (see the module doc). In place; returns the axis
+    (marker frame) or None."""
     axis = single_axis(s, delta)
     if axis is None:
-        return
+        return None
     shown = np.round(axis, 3).tolist()
     _unobservable(r, "translation", f"the body rotated about one axis only ({shown} in the "
                   "marker frame): the lever arm along it is not determined")
     R = r.R_marker_imu
     if R is None:
-        return
+        return axis
     cf = single_axis_rotation(s, delta, axis)
     if cf is None:
         _unobservable(r, "rotation", "the body rotated about one axis only: R_MI about it is "
                       "not determined")
-        return
+        return axis
     R_cf, contrast = cf
     diff = float(np.degrees(np.linalg.norm(so3.log(R.T @ R_cf))))
     sig = 0.0 if r.sigma_rotation is None else float(np.degrees(np.max(r.sigma_rotation)))
@@ -142,6 +144,19 @@ def mark_single_axis(r: CalibrationResult, s: PreparedSession, delta: float) -> 
         _unobservable(r, "rotation", f"the body rotated about one axis only ({shown} in the "
                       "marker frame): R_MI about it rests on the accelerometer alone, which "
                       f"does not pin it down (an independent fit differs by {diff:.1f} deg)")
+    return axis
+
+
+def single_axis_refusal(axis: Array, reasons: str) -> ObservabilityError:
+    """The refusal of an implausible fit on one rotation axis: names the motion and what it
+    cannot determine (the fit's failed checks follow in brackets)."""
+    shown = np.round(axis, 3).tolist()
+    return ObservabilityError(
+        f"the body rotated about one axis only ({shown} in the marker frame: a turntable or a "
+        "ground robot); such motion cannot tell the accelerometer bias along that axis from "
+        "the direction of gravity (a fit may turn gravity upside down and take 2 g as bias), "
+        f"nor determine the lever arm along it ({reasons}); record motion that tilts the "
+        "body about all axes, or pass an earlier calibration of this IMU with --prior")
 
 
 def mark_undetermined(r: CalibrationResult) -> None:

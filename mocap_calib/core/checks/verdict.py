@@ -30,6 +30,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.checks.degenerate import single_axis_refusal
 from mocap_calib.core.checks.plausibility import check_plausibility
 from mocap_calib.core.clock.search import ClockSearch
 from mocap_calib.core.options import CalibrationOptions
@@ -56,12 +57,17 @@ MOCAP_MODEL_NOTE_SIGMA = 2.0
 
 def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionResult,
           opts: CalibrationOptions, clocks: list[ClockSearch | None],
-          say: Callable[[str], None]) -> None:
+          say: Callable[[str], None], single_axis: Array | None = None) -> None:
     """Fill ``r``'s clock, plausibility, consistency, sensitivity and uncertainty sections and
     set its sigmas by the rule (in place).
 
+    Args:
+        single_axis: the one rotation axis of degenerate motion (marker frame), if any: an
+            implausible answer is then blamed on the motion, which is named.
+
     Raises:
         PlausibilityError: the answer is implausible and ``opts.accept_implausible`` is off.
+        ObservabilityError: the same, on motion about one axis only.
     """
     clock = clocks[0] if len(clocks) == 1 else None
     if clock is not None:
@@ -72,6 +78,8 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
                                         None if clock is None else clock.time_offset)
     if r.plausibility["failed"]:
         reasons = "; ".join(r.plausibility["failed"])
+        if not opts.accept_implausible and single_axis is not None:
+            raise single_axis_refusal(single_axis, f"the fit: {reasons}")
         if not opts.accept_implausible:
             raise PlausibilityError(
                 f"implausible calibration: {reasons}; check the inputs' units, conventions and "

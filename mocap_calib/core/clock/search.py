@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import signal
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.model import so3
 from mocap_calib.core.policy import GRAVITY, gap_threshold
 from mocap_calib.errors import ObservabilityError
@@ -222,6 +223,7 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     # Every signal on one t_d axis: t_d = (start_m - clock_shift) - start_i + lag * dt.
     curves: dict[str, tuple[Array, Array]] = {}
     for sg in sigs:
+        interrupt.check()
         corr, n, lags = _correlation(sg.x, sg.y, dt)
         td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
         tau_c = max(_correlation_time(sg.x, dt), _correlation_time(sg.y, dt))

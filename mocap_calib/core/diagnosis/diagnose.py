@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from scipy import special
 from scipy import stats as sps
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.clock.search import search_clock
 from mocap_calib.core.diagnosis.predict import analyse_residuals
 from mocap_calib.core.diagnosis.report import (
@@ -60,7 +61,7 @@ from mocap_calib.core.position.stage import (
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.state import ModelState
 from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
-from mocap_calib.errors import CalibrationError, InputError
+from mocap_calib.errors import CalibrationError, InputError, Interrupted
 
 Array = NDArray[np.float64]
 
@@ -301,11 +302,14 @@ def _score_candidates(ds: _Session, model: Model, current: PositionResult, noise
     scores: list[CandidateScore] = []
     fits: dict[str, tuple[PositionResult, Residuals]] = {}
     for cand in todo:
+        interrupt.check()
         say(f"step {step}: trying {cand}")
         m = model.with_effect(cand)
         try:
             # Covariances (for the robust test) only where the likelihood ratio is significant.
             f = ds.fit(m, current, noise, ds.start_values(cand), covariance=False)
+        except Interrupted:
+            raise
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             # A candidate that cannot be fitted (GTSAM raises RuntimeError on an
             # indeterminate system) is not the answer.

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.checks.degenerate import mark_single_axis, mark_undetermined
 from mocap_calib.core.checks.effect_scores import ALPHA, effect_scores
 from mocap_calib.core.checks.verdict import judge
@@ -104,6 +105,7 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
             raise
         except CalibrationError as err:  # which take it was, in the one line
             raise type(err)(f"{name}: {err}") from None
+    interrupt.check()  # between stages: a stop a caller swallowed by mistake still stops
     say("stage 3/3: position factors (all parameters jointly)")
     # The shared parameters start from the take with the most windows (its stages 1-2 saw
     # the most data); every take starts its own from its own stages.
@@ -133,9 +135,11 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
         _with_takes(result, pos, fits, recordings)
     if opts.effect_tests:
         _effect_tests(result, pos, opts, say)
-    mark_single_axis(result, f.s, pos.delta)
-    judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits], say)
+    interrupt.check()
+    axis = mark_single_axis(result, f.s, pos.delta)
+    judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits], say, axis)
     mark_undetermined(result)
+    interrupt.check()
     return result
 
 

@@ -98,8 +98,8 @@ def first_fits(imu: ImuSamples, mocap: MocapPoses, opts: CalibrationOptions,
     v_imu = _imu_velocity(s, delta0, att.R_MI, vel.p_MI, att.gyro_bias)
     windows = make_windows(s, delta0, opts.window, opts.max_mocap_rate, v_imu)
     if windows.count < 2:
-        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; the "
-                                 "session is too short or its mocap has too many gaps")
+        raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; "
+                                 f"{s.gap_cause()}")
     if not opts.model.has("time_offset"):
         notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
     return FirstFits(s, t_d0, clock, att, vel, windows, notes, session_info)

@@ -27,6 +27,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.graph import require_converged, run_lm
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.types import NoiseModel
@@ -385,6 +386,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
     for k in range(steps):
         at = values
         lin = pg.graph.linearize(at)
+        interrupt.check()  # a signal during the evaluation only set the request
         outs = pg.evals[-1]
         out0 = outs if out0 is None else out0
         values = values.retract(lin.optimize())

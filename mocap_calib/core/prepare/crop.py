@@ -24,9 +24,10 @@ def crop_imu(imu: ImuSamples, start: float | None, end: float | None) -> ImuSamp
         span = imu.t[-1] - imu.t[0]
         given = " ".join(f"--{k} {v:g}" for k, v in (("start", start), ("end", end))
                          if v is not None)
-        raise InputError(f"{imu.source}: {given} leaves {len(kept)} IMU samples: the log spans "
-                         f"0-{span:.3f} s (s after its first sample); choose --start/--end "
-                         "inside that")
+        left = ("nothing of the session is left" if len(kept) < 2
+                else f"only {len(kept)} IMU samples are left")
+        raise InputError(f"{imu.source}: {given}: {left} (the IMU log spans 0 to {span:.1f} s "
+                         "from its first sample); choose --start/--end within it")
     return kept
 
 

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, refuse_dead
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.policy import gap_threshold
+from mocap_calib.core.policy import MIN_SESSION_S, gap_threshold
 from mocap_calib.core.prepare.gaps import ImuGaps, find_imu_gaps
 from mocap_calib.errors import InputError, ObservabilityError
 
@@ -76,6 +76,18 @@ class PreparedSession:
         hi = self.u[-1 - margin] + delta
         return (tau0 >= lo) & (tau1 <= hi) & self.imu_clear(tau0 - delta, tau1 - delta)
 
+    def gap_cause(self) -> str:
+        """Why the mocap has too many gaps, with the fix: for the refusals of too few
+        gap-free intervals. Removed jumps (marker swaps) leave holes that are gaps."""
+        n = self.spikes_removed
+        if not n:
+            return "the session is too short or the mocap has too many gaps"
+        holes = int(np.sum(np.diff(self.tau) > self.gap))
+        return (f"{n} mocap samples ({100.0 * n / (len(self.tau) + n):.1f} %) were removed as "
+                f"implausible jumps (marker swaps or outliers), and the {holes} holes they and "
+                "any dropouts leave are gaps; repair the marker labelling (swaps) in the mocap "
+                "software and export again, or record a session without them")
+
     def segments_without_gaps(self, idx0: NDArray[np.int64],
                               idx1: NDArray[np.int64]) -> NDArray[np.bool_]:
         """Whether mocap index ranges ``[idx0, idx1]`` contain no gap."""
@@ -83,7 +95,7 @@ class PreparedSession:
         return gaps[idx1] == gaps[idx0]
 
 
-def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = 10.0,
+def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSION_S,
             noise: NoiseModel | None = None) -> PreparedSession:
     """Check that the two streams can support a calibration and put them on relative clocks.
 

@@ -125,7 +125,7 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     i0, i1 = i0[ok], i1[ok]
     if len(i0) < 10:
         raise ObservabilityError(f"only {len(i0)} gap-free keyframe intervals overlap the IMU; "
-                                 "the session is too short or the mocap has too many gaps")
+                                 f"{s.gap_cause()}")
     dRM = np.einsum("nji,njk->nik", s.R_WM[i0], s.R_WM[i1])
     dt = s.tau[i1] - s.tau[i0]
 

@@ -205,8 +205,8 @@ def _intervals(s: PreparedSession, delta: float, spacing: float,
           & (s.tau[i1] - s.tau[i0] < 2.5 * spacing))
     i0, i1 = i0[ok], i1[ok]
     if len(i0) < 10:
-        raise ObservabilityError(f"only {len(i0)} gap-free velocity intervals; the session is "
-                                 "too short or the mocap has too many gaps")
+        raise ObservabilityError(f"only {len(i0)} gap-free velocity intervals; "
+                                 f"{s.gap_cause()}")
     return vM, kf, i0, i1
 
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.windows import Theta
 
@@ -83,6 +84,7 @@ def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
     # scale of the innovation covariance (its optimum c = chi2 / n): -2 log L = n log(chi2/n)
     # + log det + n. The mocap noise dominates the innovations, so c is its level.
     parts = sub.likelihoods(th_sub, models)
+    interrupt.check()
     chi2 = [float(c.sum()) for c, _ in parts]
     m2ll = [n_dof * np.log(c / n_dof) + float(ld.sum()) + n_dof
             for c, (_, ld) in zip(chi2, parts, strict=True)]

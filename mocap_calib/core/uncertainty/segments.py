@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats as sps
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.position.stage import PositionResult
@@ -133,6 +134,7 @@ def _compare(pos: PositionResult, model: Model, parts: list[list[IntArray]],
     single = len(pos.takes) == 1  # takes have clocks of their own: t_d is not compared
     what = "take" if by_take else "segment"
     for i, which in enumerate(parts):
+        interrupt.check()
         if sum(len(w) for w in which) < 2:
             return Consistency(note=f"{what} {i + 1} has fewer than 2 windows: too short to "
                                     "compare")

@@ -23,6 +23,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core import interrupt
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.types import NoiseModel
@@ -137,6 +138,7 @@ def noise_sensitivity(pos: PositionResult, model: Model,
 
     def run(key: str, noise: NoiseModel, scale: float) -> None:
         scaled_priors = [replace(p, sigma=np.asarray(p.sigma) * scale) for p in priors or []]
+        interrupt.check()
         try:
             alt = refit(pos, model, everything(pos), noise=noise, adapt_noise=True,
                         reweight=True, priors=scaled_priors, max_iterations=max_iterations,

@@ -42,11 +42,8 @@ class ColumnMap:
 
     def check(self) -> ColumnMap:
         """Raise if a group has the wrong number of columns or a stream is half given."""
-        for key, cols, n in (("gyro", self.gyro, 3), ("accel", self.accel, 3),
-                             ("quat", self.quat, 4), ("pos", self.position, 3)):
-            if cols is not None and len(cols) != n:
-                raise input_error(f"{key}= names {len(cols)} columns, not {n}",
-                                  COLUMNS_FIX, "--columns")
+        _check_counts({"gyro": self.gyro, "accel": self.accel, "quat": self.quat,
+                       "position": self.position})
         if (self.gyro is None) != (self.accel is None):
             raise input_error("the IMU stream needs both gyro= and accel=", COLUMNS_FIX,
                               "--columns")
@@ -102,6 +99,7 @@ def parse_columns(spec: str) -> ColumnMap:
         if field in found:
             raise input_error(f"{key.strip()}= is given twice", COLUMNS_FIX, "--columns")
         found[field] = _parse_cols(value.strip())
+    _check_counts({k: v for k, v in found.items() if k != "time"})
     if "time" not in found:
         raise input_error("no time column (t=)", COLUMNS_FIX, "--columns")
     if len(found["time"]) != 1:
@@ -109,6 +107,20 @@ def parse_columns(spec: str) -> ColumnMap:
                           "--columns")
     return ColumnMap(time=found["time"][0], gyro=found.get("gyro"), accel=found.get("accel"),
                      quat=found.get("quat"), position=found.get("position")).check()
+
+
+#: Columns of each group, and what they hold (for messages).
+_COUNTS = {"gyro": (3, "the gyro's x, y, z"), "accel": (3, "the accelerometer's x, y, z"),
+           "quat": (4, "a quaternion's w, x, y, z"), "position": (3, "the position's x, y, z")}
+
+
+def _check_counts(groups: dict[str, tuple[Col, ...] | None]) -> None:
+    for field, cols in groups.items():
+        n, what = _COUNTS[field]
+        if cols is not None and len(cols) != n:
+            key = "pos" if field == "position" else field
+            raise input_error(f"{key}= names {len(cols)} columns, but {what} are {n}",
+                              COLUMNS_FIX, "--columns")
 
 
 def _parse_cols(value: str) -> tuple[Col, ...]:

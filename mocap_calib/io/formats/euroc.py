@@ -27,10 +27,10 @@ IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z 
               "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
 POSE_HEADER = ("#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], "
                "q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []")
-_IMU_NAMES = tuple(n.strip().lstrip("#") for n in IMU_HEADER.split(","))
-_POSE_NAMES = tuple(n.strip().lstrip("#") for n in POSE_HEADER.split(","))
-IMU_KEYS = tuple(name_key(n) for n in _IMU_NAMES)
-POSE_KEYS = tuple(name_key(n) for n in _POSE_NAMES)
+IMU_NAMES = tuple(n.strip().lstrip("#") for n in IMU_HEADER.split(","))
+POSE_NAMES = tuple(n.strip().lstrip("#") for n in POSE_HEADER.split(","))
+IMU_KEYS = tuple(name_key(n) for n in IMU_NAMES)
+POSE_KEYS = tuple(name_key(n) for n in POSE_NAMES)
 
 #: ``pose_source`` value -> folder under ``mav0``; "auto" tries them in this order.
 POSE_FOLDERS: dict[str, str] = {"vicon0": "vicon0", "groundtruth": "state_groundtruth_estimate0"}
@@ -50,8 +50,8 @@ def header_kind(names: Sequence[str] | None) -> str | None:
 
 def _check_header(layout: Layout, kind: str) -> None:
     """Raise naming the first column that does not match the EuRoC layout ``kind``."""
-    keys, names, what = ((IMU_KEYS, _IMU_NAMES, "imu0") if kind == "imu"
-                         else (POSE_KEYS, _POSE_NAMES, "pose (vicon0)"))
+    keys, names, what = ((IMU_KEYS, IMU_NAMES, "imu0") if kind == "imu"
+                         else (POSE_KEYS, POSE_NAMES, "pose (vicon0)"))
     other = header_kind(layout.names)
     if other is not None and other != kind:
         flag = "--imu" if other == "imu" else "--mocap"

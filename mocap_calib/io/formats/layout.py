@@ -81,6 +81,17 @@ def _split(line: str, sep: str) -> list[str]:
     return [t.strip() for t in line.split(sep)]
 
 
+def _header_names(line: str, sep: str, n_fields: int) -> tuple[str, ...]:
+    """The header's names; a tab-separated header over whitespace-separated data keeps the
+    names that contain spaces (``timestamp [ns]``) whole."""
+    text = line.lstrip("#").strip()
+    if sep == WHITESPACE and "\t" in text:
+        tabbed = tuple(t.strip() for t in text.split("\t") if t.strip())
+        if len(tabbed) == n_fields:
+            return tabbed
+    return tuple(t.strip() for t in _split(text, sep))
+
+
 def _is_number(token: str) -> bool:
     try:
         float(token)
@@ -137,7 +148,7 @@ def sniff_layout(path: Path | str) -> Layout:
                 header_line = None
                 if prev is not None:
                     header_line = prev[0] + 1
-                    names = tuple(t.strip() for t in _split(prev[1].lstrip("#").strip(), sep))
+                    names = _header_names(prev[1], sep, len(tokens))
                     if names:
                         names = (names[0].lstrip("#").strip(),) + names[1:]
                 return Layout(path, sep, idx, names, header_line, len(tokens), decimal)

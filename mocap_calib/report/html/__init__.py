@@ -1,11 +1,12 @@
 """Self-contained HTML reports (inline PNG plots by matplotlib, no external references).
 
-Generic: :func:`write_html` / :func:`render_html` take :class:`Section` lists (tables, figures,
+Generic: :func:`render_html` takes :class:`Section` lists (tables, figures,
 notes) and a :class:`Provenance`; :func:`prefixed` makes the ids of sections unique when several
 results share one page. Per result kind: :func:`calibration_sections`,
 :func:`diagnosis_sections`, :func:`multipos_sections`, :func:`allan_sections`,
 :func:`batch_sections`. The files are read and the figures computed in the workflow layer
-(``mocap_calib.workflows.html.report``, e.g. ``write_batch_report``).
+(``mocap_calib.workflows.html.report``, e.g. ``write_batch_report``), and written there through
+``mocap_calib.io.atomic``.
 matplotlib is imported only when a figure is drawn.
 """
 
@@ -22,7 +23,6 @@ from mocap_calib.report.html.page import (
     Table,
     prefixed,
     render_html,
-    write_html,
 )
 from mocap_calib.report.html.sections import (
     allan_sections,
@@ -33,5 +33,5 @@ from mocap_calib.report.html.sections import (
 )
 
 __all__ = ["Cell", "Figure", "InputFile", "Notes", "Provenance", "Row", "Section", "Table",
-           "render_html", "write_html", "prefixed", "calibration_sections",
+           "render_html", "prefixed", "calibration_sections",
            "diagnosis_sections", "multipos_sections", "allan_sections", "batch_sections"]

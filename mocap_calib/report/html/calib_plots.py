@@ -148,11 +148,16 @@ def segments_png(segments: list[dict], full: dict[str, float | list[float] | Non
         mid = np.array([0.5 * (s["start_s"] + s["end_s"]) for s in segments])
         span = float(np.ptp(mid)) if len(mid) > 1 else 1.0
         ref = full.get("time_offset")
-        td = 1e3 * (np.array([s["time_offset"] for s in segments]) - float(ref or 0.0))
-        a1.errorbar(mid, td, yerr=1e3 * np.array([s["sigma"]["time_offset"] for s in segments]),
-                    fmt="o", ms=3, capsize=3, color="#444")
-        a1.axhline(0.0, color="k", lw=0.8)
-        a1.set_title("t_d per segment minus whole session (ms)", y=1.0)
+        if all(s.get("time_offset") is not None for s in segments):
+            td = 1e3 * (np.array([s["time_offset"] for s in segments]) - float(ref or 0.0))
+            a1.errorbar(mid, td, yerr=1e3 * np.array([s["sigma"]["time_offset"]
+                                                      for s in segments]),
+                        fmt="o", ms=3, capsize=3, color="#444")
+            a1.axhline(0.0, color="k", lw=0.8)
+            a1.set_title("t_d per segment minus whole session (ms)", y=1.0)
+        else:  # a model without the clock offset: the segments fit none
+            a1.set_axis_off()
+            a1.set_title("t_d fixed (not in the model)", y=1.0)
         pref = np.asarray(full.get("translation") or np.zeros(3), dtype=float)
         for i in range(3):
             v = 1e3 * (np.array([s["translation"][i] for s in segments]) - pref[i])

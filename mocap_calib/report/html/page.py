@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import base64
 import html
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 __all__ = ["Cell", "Table", "Figure", "Notes", "Row", "Section", "InputFile", "Provenance",
-           "render_html", "write_html"]
+           "render_html"]
 
 
 @dataclass(frozen=True)
@@ -248,27 +246,6 @@ def render_html(title: str, sections: Sequence[Section], provenance: Provenance 
                     f"{_provenance(provenance)}</section></footer>")
     body.append("</main></body></html>\n")
     return "\n".join(body)
-
-
-def write_html(path: str | Path, title: str, sections: Sequence[Section],
-               provenance: Provenance | None = None, subtitle: str = "",
-               verdict: tuple[str, str] | None = None) -> Path:
-    """Render (see :func:`render_html`) and write atomically; returns the path.
-
-    Raises:
-        OSError: the file cannot be written (callers in the workflow layer turn it into a
-            one-line error, or write :func:`render_html`'s string with their own writer).
-    """
-    path = Path(path)
-    text = render_html(title, sections, provenance, subtitle, verdict)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
 
 
 def _prefix_block(b: Any, prefix: str) -> Any:

@@ -155,7 +155,7 @@ def write_batch_report(path: Path | str, sessions: Sequence[dict], fleet: dict |
     """The ``batch --html`` page: ``sessions`` are the batch file's entries (``result``: the
     session's result YAML relative to the page's folder), ``fleet`` the fleet summary's plain
     data (None: none). Results that cannot be read are listed without numbers."""
-    from mocap_calib.errors import CalibrationError
+    from mocap_calib.errors import CalibrationError, Interrupted
     from mocap_calib.io.yaml_io import load_result
     from mocap_calib.report.html import batch_sections
 
@@ -169,6 +169,8 @@ def write_batch_report(path: Path | str, sessions: Sequence[dict], fleet: dict |
         try:
             results[str(s.get("id"))] = load_result(f)
             files.append(f)
+        except Interrupted:
+            raise
         except (CalibrationError, OSError):
             continue
     n = len(sessions)

@@ -13,6 +13,7 @@ from mocap_calib.core.intrinsics.allan import characterise_noise, segments_of, u
 from mocap_calib.core.intrinsics.noise_result import AllanResult
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.params import group, param
+from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import check_writable, save_yaml
 from mocap_calib.report.intrinsics_text import allan_summary
 from mocap_calib.workflows.calibrate import HTML_HELP
@@ -115,5 +116,5 @@ def run_allan(request: AllanRequest, progress: ProgressFn | None = None) -> Alla
         from mocap_calib.viz.allan_plot import write_allan_recording
 
         say(progress, "writing rerun recording")
-        run.written.append(write_allan_recording(rrd, result))
+        run.written.append(write_with(rrd, lambda tmp: write_allan_recording(tmp, result)))
     return run
