@@ -48,13 +48,15 @@ def run(session, opts: CalibrationOptions, start: float | None = None,
         end: float | None = None) -> dict:
     """One calibration (of the part from ``start`` to ``end`` s); a refusal is recorded with
     its exit code and message."""
-    from mocap_calib.core.pipeline.calibrate import calibrate
+    from mocap_calib.core.diagnosis.auto import calibrate_auto
+    from mocap_calib.core.pipeline.calibrate import Recording, calibrate
     from mocap_calib.core.prepare.crop import crop_session
 
     t0 = time.perf_counter()
     try:
         imu, mocap = crop_session(session.imu, session.mocap, start, end, opts.time_offset)
-        r = calibrate(imu, mocap, opts)
+        r = (calibrate_auto([Recording(imu, mocap)], opts) if opts.model.auto
+             else calibrate(imu, mocap, opts))
     except CalibrationError as err:
         return {"exit": err.exit_code, "error": str(err), "seconds": time.perf_counter() - t0}
     out = {"exit": 0, "seconds": time.perf_counter() - t0, "notes": r.notes}

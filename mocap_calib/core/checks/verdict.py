@@ -10,7 +10,7 @@ models, with one documented rule for every reported sigma.
 
 The rule, per parameter and component (``uncertainty`` in the result lists every term):
 
-    sigma = max( sqrt( (c * s_stat)^2 + d_imu^2 + d_mocap^2 ),  m )
+    sigma = max( sqrt( (c * s_stat)^2 + d_imu^2 + d_mocap^2 + d_effects^2 ),  m )
 
 - ``s_stat``: the larger of the model-based and the sandwich sigma (windows as blocks);
 - ``c``: the consistency factor, 1 unless two segments (or takes) disagree by more than 3
@@ -19,6 +19,8 @@ The rule, per parameter and component (``uncertainty`` in the result lists every
   it contradicted);
 - ``d_imu``, ``d_mocap``: how far the answer moves under the other IMU densities and under the
   correlated mocap noise model, beyond what the reweighting explains by chance (Hausman);
+- ``d_effects``: the same for the model with the effects the data show but the model lacks
+  (the score tests at the solution; none shown, no term);
 - ``m``: the largest plain move under any of those models: a user who assumed it would get
   that answer, and the sigma covers it.
 """
@@ -42,7 +44,12 @@ from mocap_calib.core.uncertainty.segments import (
     segment_consistency,
     take_consistency,
 )
-from mocap_calib.core.uncertainty.sensitivity import MOCAP_AR1, Sensitivity, noise_sensitivity
+from mocap_calib.core.uncertainty.sensitivity import (
+    EFFECTS_SHOWN,
+    MOCAP_AR1,
+    Sensitivity,
+    noise_sensitivity,
+)
 from mocap_calib.errors import PlausibilityError
 
 Array = NDArray[np.float64]
@@ -94,8 +101,9 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
         takes = take_consistency(pos, opts.model, opts.max_iterations)
     if opts.sensitivity:
         say("sensitivity: IMU noise densities x3 and x1/3, correlated mocap noise")
+        shown = tuple((r.effect_tests or {}).get("shown", ()))
         sens = noise_sensitivity(pos, opts.model, max_iterations=opts.max_iterations,
-                                 priors=opts.priors)
+                                 priors=opts.priors, effects_shown=shown)
     total = _apply_rule(r, cons, takes, sens)
     r.consistency = cons.to_dict()
     if takes.segments or takes.note:
@@ -119,9 +127,10 @@ def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,
         c = max(cons.factor(param), takes.factor(param))
         d_imu = sens.systematic(param, imu)
         d_moc = sens.systematic(param, (MOCAP_AR1,))
+        d_eff = sens.systematic(param, (EFFECTS_SHOWN,))
         move = sens.largest_move(param)
         var = (c * stat) ** 2
-        for d in (d_imu, d_moc):
+        for d in (d_imu, d_moc, d_eff):
             if d is not None and d.shape == stat.shape:
                 var = var + d**2
         sig = np.sqrt(var)
@@ -133,6 +142,7 @@ def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,
             "statistical": stat.tolist(), "consistency_factor": round(float(c), 3),
             "imu_noise_shift": None if d_imu is None else d_imu.tolist(),
             "mocap_model_shift": None if d_moc is None else d_moc.tolist(),
+            "effects_shown_shift": None if d_eff is None else d_eff.tolist(),
             "largest_move": None if move is None else move.tolist(),
             "total": sig.tolist()}
     return total
@@ -157,6 +167,10 @@ def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency, sens: Se
             f"fraction {m.get('fraction', 0):g}) moves "
             + ", ".join(f"{k} by {v:.1f}" for k, v in big.items())
             + " of its statistical sigma: the sigmas carry that move as model uncertainty")
+    if EFFECTS_SHOWN in sens.raw:
+        r.notes.append("the sigmas carry how far the answer moves when the effects the data "
+                       "show are added to the model (" + ", ".join(r.effect_tests["shown"])
+                       + "): fit them with --model auto")
     if sens.shift:
         r.notes.append("sigmas include the shifts under other noise models (IMU densities x3 "
                        "and x1/3, correlated mocap noise) beyond chance and cover their moves "

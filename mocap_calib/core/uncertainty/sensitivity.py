@@ -9,6 +9,9 @@
   likelihood prefers is fitted once, at the solution and at the engine's rate, and the answer
   refitted under it. How far it moves is model uncertainty, carried into the sigmas like the
   IMU densities' (:mod:`mocap_calib.core.checks.verdict`).
+- The effects the data show (the score tests at the solution) but the model lacks: the answer
+  refitted with them added. The data say the model is incomplete; how far completing it moves
+  the answer is model uncertainty too (``--model auto`` fits them instead).
 
 Each refit starts at the solution and takes up to three Gauss-Newton steps, between which the
 mocap levels and the robust weights follow the innovations, as a full run's rounds would.
@@ -45,6 +48,8 @@ CORRELATION_GRID: tuple[tuple[float, float], ...] = (
     (0.0, 0.0), *((T, rho) for T in (0.1, 0.3, 1.0, 3.0) for rho in (0.5, 0.9)))
 #: The key of the correlated mocap model among the alternatives.
 MOCAP_AR1 = "mocap_ar1"
+#: The key of the model with the effects the data show (the effect tests) among them.
+EFFECTS_SHOWN = "effects_shown"
 
 #: Result parameter -> covariance block of the position stage.
 _BLOCKS = {"R_MI": "rotation", "p_MI": "translation", "t_d": "time_offset",
@@ -122,9 +127,11 @@ def noise_sensitivity(pos: PositionResult, model: Model,
                       factors: tuple[float, ...] = (3.0, 1.0 / 3.0),
                       max_iterations: int = 30, one_step: bool | int = 3,
                       priors: list[Prior] | None = None,
-                      mocap_model: bool = True) -> Sensitivity:
+                      mocap_model: bool = True,
+                      effects_shown: tuple[str, ...] = ()) -> Sensitivity:
     """Refit with the IMU noise densities scaled, and under the correlated mocap noise model
-    the session prefers (``mocap_model``), as full runs given those models would land.
+    the session prefers (``mocap_model``), and with the effects the data show
+    (``effects_shown``) added to ``model``, as full runs given those models would land.
 
     User priors come from earlier sessions calibrated under the same densities, so their
     sigmas scale with them: the balance between prior and data stays, and a prior that
@@ -136,11 +143,11 @@ def noise_sensitivity(pos: PositionResult, model: Model,
         # A step below a tenth of a sigma: the rest of the way is smaller still.
         return max(z_pair(a, b, sig, None).values()) < SETTLED_SIGMA
 
-    def run(key: str, noise: NoiseModel, scale: float) -> None:
+    def run(key: str, noise: NoiseModel, scale: float, alt_model: Model = model) -> None:
         scaled_priors = [replace(p, sigma=np.asarray(p.sigma) * scale) for p in priors or []]
         interrupt.check()
         try:
-            alt = refit(pos, model, everything(pos), noise=noise, adapt_noise=True,
+            alt = refit(pos, alt_model, everything(pos), noise=noise, adapt_noise=True,
                         reweight=True, priors=scaled_priors, max_iterations=max_iterations,
                         one_step=one_step, settled=settled)
         except Interrupted:
@@ -158,6 +165,11 @@ def noise_sensitivity(pos: PositionResult, model: Model,
         if corr is not None:
             noise, out.mocap_model = corr
             run(MOCAP_AR1, noise, 1.0)
+    if effects_shown:
+        fuller = model
+        for name in effects_shown:
+            fuller = fuller.with_effect(name)
+        run(EFFECTS_SHOWN, pos.noise, 1.0, fuller)
     return out
 
 
