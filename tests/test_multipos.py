@@ -197,6 +197,7 @@ def _matrix_errors(res: MultiposResult, truth: dict) -> np.ndarray:
     return np.concatenate([ea, eg])
 
 
+@pytest.mark.slow
 def test_prior_lets_a_short_session_match_a_long_one() -> None:
     """A 9-orientation session with the prior of an earlier 40-orientation session is as
     accurate as a 40-orientation session alone, and clearly better than without the prior.

@@ -20,6 +20,8 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 BROAD = ("broad_15_undisturbed_fast_translation_A", "broad_21_undisturbed_fast_combined",
          "broad_27_disturbed_phone_vibration_B")
 

@@ -23,6 +23,7 @@ from mocap_calib.sim.flight import SimConfig, simulate_flight
 SEEDS = range(500, 506)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("corr", [0.0, "drawn"], ids=["clean", "realistic"])
 def test_error_over_sigma_is_unit_normal_both_ways(corr: object) -> None:
     z_all = []

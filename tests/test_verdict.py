@@ -15,6 +15,8 @@ from mocap_calib.core.uncertainty.sensitivity import noise_sensitivity
 from mocap_calib.errors import ObservabilityError, PlausibilityError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 
 @pytest.fixture(scope="module")
 def calibrated():

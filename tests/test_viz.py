@@ -25,6 +25,8 @@ from mocap_calib.report.text import summary_table
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight
 from mocap_calib.viz.recording import write_calibration_recording
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 AXES = ("x", "y", "z")
 STAGES = ("attitude", "velocity", "position")
 
