@@ -26,6 +26,8 @@ from mocap_calib.io.yaml_io import load_result
 from mocap_calib.workflows.compare import compare
 from mocap_calib.workflows.fleet_sim import FleetSimConfig, simulate_fleet
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Lines of a result file that hold wall-clock times (they differ between any two runs).
 TIMING = re.compile(r"^\s*-?\s*(seconds|total_seconds|position_batch_seconds):")

@@ -126,6 +126,7 @@ def _square(x: int) -> int:
     return x * x
 
 
+@pytest.mark.slow
 def test_engine_runs_any_function_and_survives_failures() -> None:
     outs = map_jobs(_square, list(range(7)), "local", workers=2)
     assert [o.index for o in outs] == list(range(7))

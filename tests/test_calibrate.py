@@ -15,6 +15,8 @@ from mocap_calib.core.prepare.crop import crop_session
 from mocap_calib.errors import InputError, ObservabilityError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 # Acceptance targets of the calibration issue (90 s, defaults, a few ms of clock offset).
 #: About three times the worst error achieved on these seeds (0.0037 deg, 0.21 mm, 9.3e-5 rad/s,
 #: 1.5e-3 m/s^2, 0.0043 deg, 0.013 ms), so that a regression of a few times fails; each is also

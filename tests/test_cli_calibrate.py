@@ -57,24 +57,29 @@ def test_calibrate_with_two_files_and_an_effect(session: Path, tmp_path: Path, c
     assert d["effects"]["gravity_magnitude"]["gravity_magnitude"] == pytest.approx(9.81, abs=0.02)
 
 
-@pytest.mark.parametrize("args", [
-    [],  # neither a folder nor files
-    ["--imu", "nope.csv"],  # --mocap missing
-    ["{session}", "--imu", "x.csv", "--mocap", "y.csv"],  # both kinds
-    ["{tmp}/does_not_exist"],
-    ["{session}", "--model", "base+warp_drive"],
-    ["{session}", "--gravity", "98.1"],
-    ["{session}", "--window", "0.001"],
-    ["{session}", "--noise", "{tmp}/missing_noise.yaml"],
-    ["{session}", "--gyro-noise", "-1"],
-    ["{session}", "--start", "30", "--end", "10"],
-    ["{session}", "--prior", "{tmp}/no_prior.yaml"],
+@pytest.mark.parametrize(("args", "named"), [
+    ([], "give a mav0 folder, or both --imu and --mocap"),  # neither a folder nor files
+    (["--imu", "nope.csv"], "1 --imu and 0 --mocap"),  # --mocap missing
+    (["{session}", "--imu", "x.csv", "--mocap", "y.csv"], "mav0 folders or --imu/--mocap"),
+    (["{tmp}/does_not_exist"], "{tmp}/does_not_exist: folder not found"),
+    (["{session}", "--model", "base+warp_drive"], "--model: unknown effect 'warp_drive'"),
+    (["{session}", "--gravity", "98.1"], "--gravity 98.1: must be between 5 and 15"),
+    (["{session}", "--window", "0.001"], "--window 0.001: must be between 0.5 and 60"),
+    (["{session}", "--noise", "{tmp}/missing_noise.yaml"],
+     "{tmp}/missing_noise.yaml: noise file not found"),
+    (["{session}", "--gyro-noise", "-1"], "--gyro-noise -1.0: must be above 0"),
+    (["{session}", "--start", "30", "--end", "10"], "--end 10 must be after --start 30"),
+    (["{session}", "--prior", "{tmp}/no_prior.yaml"],
+     "{tmp}/no_prior.yaml: calibration result not found"),
 ])
-def test_bad_input_is_one_line_exit_2(args: list[str], session: Path, tmp_path: Path,
-                                      capsys) -> None:
+def test_bad_input_is_one_line_exit_2(args: list[str], named: str, session: Path,
+                                      tmp_path: Path, capsys) -> None:
+    """One line, exit 2, naming the option or file at fault (and its value)."""
     argv = [a.format(session=session, tmp=tmp_path) for a in args]
     code = main(["calibrate", *argv, "--out", str(tmp_path / "o.yaml"), "-q"])
-    _one_line_error(code, capsys.readouterr().err)
+    err = capsys.readouterr().err
+    _one_line_error(code, err)
+    assert named.format(tmp=tmp_path) in err.strip().splitlines()[-1], err
 
 
 def test_too_short_a_session_is_exit_3(tmp_path: Path, capsys) -> None:

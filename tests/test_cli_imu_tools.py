@@ -196,6 +196,7 @@ def test_multipos_recovers_the_truth(multipos_run: tuple[Path, str],
     assert float(row.group(1)) == pytest.approx(100 * (M_a[2, 2] - 1), abs=1e-4)
 
 
+@pytest.mark.slow
 def test_multipos_with_one_and_two_priors(work: Path,
                                           multipos_session: tuple[Path, dict[str, Any]],
                                           multipos_run: tuple[Path, str],
@@ -265,6 +266,7 @@ def test_multipos_reads_a_generic_csv_with_units(work: Path, multipos_run: tuple
 # allan
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_allan_densities_within_10_percent(allan_run: tuple[Path, Path, str],
                                            static_log: tuple[Path, dict[str, Any]]) -> None:
     noise, _, out = allan_run

@@ -146,6 +146,7 @@ def _triads(work: Path, imu_csv: Path, shifted: bool) -> tuple[Path, Path]:
     return acc, gyr
 
 
+@pytest.mark.slow
 def test_imu_tk_two_files(work: Path, raw_run: tuple[Path, str],
                           counts_session: tuple[Path, dict[str, Any]],
                           capsys: pytest.CaptureFixture[str]) -> None:
@@ -176,6 +177,7 @@ def test_imu_tk_two_files(work: Path, raw_run: tuple[Path, str],
                      pattern)
 
 
+@pytest.mark.slow
 def test_raw_prior_and_drift(work: Path, raw_run: tuple[Path, str],
                              counts_session: tuple[Path, dict[str, Any]],
                              capsys: pytest.CaptureFixture[str]) -> None:

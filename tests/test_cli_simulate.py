@@ -48,6 +48,7 @@ def run_entry_point(args: list[str], cwd: Path) -> subprocess.CompletedProcess[s
                           timeout=300, env=env)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not ENTRY_POINT.exists(), reason="mocap-calib entry point not installed")
 def test_acceptance_simulate_seed_7_time_offset(tmp_path: Path) -> None:
     proc = run_entry_point(["simulate", "OUT", "--seed", "7", "--effect", "time_offset=0.012"],

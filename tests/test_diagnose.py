@@ -15,6 +15,8 @@ from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 
 def _check_floor(rep) -> None:
     # A 60 s session's low-band RMS (about 2 x 2 Hz x 60 s = 240 independent samples) scatters

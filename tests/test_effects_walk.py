@@ -22,6 +22,8 @@ from mocap_calib.cli.main import main
 from mocap_calib.core.model.effects import EFFECTS, Effect
 from mocap_calib.workflows.export import ALL_TARGETS, TARGETS
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 WALKS = [[name] for name in EFFECTS] + [list(EFFECTS)]
 
 

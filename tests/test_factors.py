@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+import pytest
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.stages.attitude import attitude_errors
 from mocap_calib.core.stages.velocity import _Data, velocity_factor
+
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
 
 
 def test_attitude_factor_jacobians():

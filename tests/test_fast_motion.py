@@ -24,6 +24,8 @@ from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.errors import InputError
 from mocap_calib.sim.flight import SimConfig, SimulatedSession, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 _DEFAULT = NoiseModel()
 #: The true IMU noise: twice the densities the calibration assumes (its defaults).
 NOISIER = NoiseModel(gyroscope_noise_density=2 * _DEFAULT.gyroscope_noise_density,

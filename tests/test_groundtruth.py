@@ -33,6 +33,8 @@ from evo.core import sync  # noqa: E402
 from evo.core.trajectory import PoseTrajectory3D  # noqa: E402
 from evo.tools import file_interface  # noqa: E402
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 CFG = SimConfig(seed=3, duration=60.0, effects={"time_offset": [0.006], "mocap_dropouts": [4]})
 
 

@@ -28,6 +28,8 @@ from mocap_calib.cli.main import main
 from mocap_calib.report.html.mpl import thin
 from mocap_calib.workflows.simulate import simulate_to_folder
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 REPO = Path(__file__).resolve().parents[1]
 VOID = {"meta", "img", "br", "hr", "input", "link", "source", "col", "area", "base", "wbr"}
 

@@ -22,6 +22,8 @@ from mocap_calib.errors import ObservabilityError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.sim.static import simulate_static
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 #: The gap pattern of real PX4 logs: dozens of 12-161 ms dropouts (one right after the first
 #: sample), one 0.5 s and one 3 s stall.
 PX4_LIKE = {"imu_dropouts": [36], "imu_stalls": [0.5, 3.0]}

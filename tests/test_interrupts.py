@@ -15,6 +15,8 @@ import pytest
 
 from mocap_calib.workflows.simulate import simulate_to_folder
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 ENTRY = Path(sys.executable).parent / "mocap-calib"
 
 

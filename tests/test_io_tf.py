@@ -210,6 +210,7 @@ def _diagnose(path: Path, out: Path) -> dict:
     return yaml.safe_load(out.read_text())
 
 
+@pytest.mark.slow
 def test_diagnose_on_a_bag_and_on_a_ulog(tmp_path) -> None:
     from mocap_calib.io.formats.euroc import write_mav0
     from mocap_calib.sim.flight import SimConfig, simulate_flight

@@ -40,6 +40,7 @@ def _probe(env: dict[str, str]) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_kernels_run_without_a_writable_cache():
     """No cache location can be written (here: numba is told to use only a locator that never
     applies): the kernels compile in the process and give the same numbers."""

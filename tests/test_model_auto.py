@@ -16,6 +16,8 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 T_D = 0.006
 
 

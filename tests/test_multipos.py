@@ -63,13 +63,13 @@ def test_accuracy_against_truth(seed: int) -> None:
     assert e["accel_bias"] < 5e-3, e
     assert e["gyro_bias"] < 1e-4, e
     # The structure of the conventions: M_a lower-triangular, the sigmas honest (errors
-    # within 5 sigma) and nothing flagged on a good session.
+    # within 4 sigma) and nothing flagged on a good session.
     assert np.all(np.triu(res.accel_matrix, 1) == 0.0)
     T_a = np.asarray(truth["accel_matrix"])
     low = np.tril_indices(3)
-    assert np.all(np.abs(res.accel_matrix - T_a)[low] < 5 * res.accel_matrix_sigma[low])
+    assert np.all(np.abs(res.accel_matrix - T_a)[low] < 4 * res.accel_matrix_sigma[low])
     assert np.all(np.abs(res.gyro_matrix - np.asarray(truth["gyro_matrix"]))
-                  < 5 * res.gyro_matrix_sigma)
+                  < 4 * res.gyro_matrix_sigma)
     assert res.poorly_determined == []
     assert res.accel_residual_rms < 5e-3 and res.gyro_residual_rms < 2e-3
 
@@ -197,6 +197,7 @@ def _matrix_errors(res: MultiposResult, truth: dict) -> np.ndarray:
     return np.concatenate([ea, eg])
 
 
+@pytest.mark.slow
 def test_prior_lets_a_short_session_match_a_long_one() -> None:
     """A 9-orientation session with the prior of an earlier 40-orientation session is as
     accurate as a 40-orientation session alone, and clearly better than without the prior.

@@ -89,6 +89,7 @@ def test_unsigned_counts_with_an_offset() -> None:
     assert_targets(errors(res.in_units(nominal(UNSIGNED)), truth))
 
 
+@pytest.mark.slow
 def test_a_nominal_only_sets_the_starting_point() -> None:
     """The datasheet values, or ones 30 % / 2x off, give the same calibration as none."""
     imu, truth = session(0)
@@ -128,6 +129,7 @@ def test_rescaled_input_gives_identical_figures(factor: float) -> None:
     assert np.allclose(res.raw_input.gyro_scale * factor, ref.raw_input.gyro_scale, rtol=1e-7)
 
 
+@pytest.mark.slow
 def test_quality_figures_do_not_depend_on_the_gyro_nominal_scale() -> None:
     """The issue's case: the gyro chi2 changed 4x with the nominal scale used for the counts."""
     imu, _ = session(0)
@@ -191,7 +193,7 @@ def test_g_sensitivity_is_recovered_and_needed() -> None:
           f"{np.degrees(t['gyro_rms_rad_with_g']):.4f} deg, without "
           f"{np.degrees(t['gyro_rms_rad_without_g']):.4f} deg")
     assert err < 0.05
-    assert np.all(np.abs(res.g_sensitivity - G) < 5 * res.g_sensitivity_sigma)
+    assert np.all(np.abs(res.g_sensitivity - G) < 4 * res.g_sensitivity_sigma)
     noise_level = calibrate_multipos(imu_0, g_sensitivity="off")
     assert res.gyro_residual_rms == t["gyro_rms_rad_with_g"]
     assert res.gyro_residual_rms < 1.3 * noise_level.gyro_residual_rms

@@ -12,6 +12,8 @@ from mocap_calib.core.result.priors import priors_from_results
 from mocap_calib.errors import InputError
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 RIG = 77
 
 

@@ -20,6 +20,8 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 BROAD = ("broad_15_undisturbed_fast_translation_A", "broad_21_undisturbed_fast_combined",
          "broad_27_disturbed_phone_vibration_B")
 
@@ -41,9 +43,15 @@ def test_broad_trial_calibrates_plausibly_without_a_given_clock(trial: str) -> N
     r = _calibrate(InputSpec(imu=csv, mocap=csv, columns="broad"))
     assert r.plausibility["verdict"] == "plausible", r.plausibility
     assert np.degrees(np.linalg.norm(so3.log(r.R_marker_imu))) < 1.0
-    assert abs(r.time_offset) < 0.020
+    # The authors synchronised the streams to a few ms: measured -3.75, -3.97, -4.04 ms
+    # (trials 15, 21, 27); a search that returned 0 would fail.
+    assert r.time_offset == pytest.approx(-0.004, abs=0.001)
     assert r.clock["margin_z"] >= 3.0
-    assert r.consistency["max_pairwise_z"]  # the segments were compared
+    # The segments were compared on every parameter (the verdict judges the values; measured
+    # largest pairwise z: 3.0, 5.9, 1.8 on R_MI).
+    z = r.consistency["max_pairwise_z"]
+    assert set(z) == {"R_MI", "p_MI", "t_d"}, z
+    assert all(np.isfinite(v) and v > 0.0 for v in z.values()), z
 
 
 def test_euroc_segments_agree_and_noise_densities_barely_matter() -> None:

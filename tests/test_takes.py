@@ -15,6 +15,8 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import Recording, calibrate, calibrate_takes
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 RIG = 77
 TAKES = ((21, 0.004), (22, -0.011))  # (seed, clock offset): a power cycle changes both
 

@@ -17,6 +17,8 @@ from mocap_calib.core.position.threads import MIN_CHUNK_WINDOWS, set_chunk_threa
 from mocap_calib.core.prepare.session import local_derivative, prepare
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 ALL_IMU_EFFECTS = ("base+time_offset+gravity_magnitude+gyro_scale_misalignment+"
                    "accel_scale_misalignment+gyro_g_sensitivity+gyro_bias_drift+accel_bias_drift+"
                    "clock_drift+accel_delay+accel_size_effect")

@@ -21,6 +21,8 @@ import pytest
 from mocap_calib.cli.main import main
 from mocap_calib.workflows.simulate import simulate_to_folder
 
+pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
+
 ENTRY = Path(sys.executable).parent / "mocap-calib"
 DEV_FULL = Path("/dev/full")
 needs_dev_full = pytest.mark.skipif(not DEV_FULL.exists(), reason="no /dev/full here")

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.model.effects import ActsOn, Sensor, of_term
+
 Array = NDArray[np.float64]
 
 
@@ -44,13 +46,14 @@ class ImuIntrinsics:
 def intrinsics_of(effects: dict) -> ImuIntrinsics:
     """Read the effect blocks of a result (``effects: {name: {param: value}}``)."""
 
-    def matrix(effect: str, param: str, default: Array) -> Array:
-        value = (effects.get(effect) or {}).get(param)
-        return default if value is None else np.asarray(value, dtype=float).reshape(3, 3)
+    def matrix(sensor: Sensor, acts_on: ActsOn) -> Array:
+        eff = of_term(sensor, acts_on)  # the matrix term of this sensor and kind
+        value = (effects.get(eff.name) or {}).get(eff.param)
+        if value is None:  # absent: the term vanishes
+            return np.eye(3) if eff.about_identity else np.zeros((3, 3))
+        return np.asarray(value, dtype=float).reshape(3, 3)
 
-    return ImuIntrinsics(matrix("gyro_scale_misalignment", "gyro_matrix", np.eye(3)),
-                         matrix("gyro_g_sensitivity", "g_sensitivity", np.zeros((3, 3))),
-                         matrix("accel_scale_misalignment", "accel_matrix", np.eye(3)))
+    return ImuIntrinsics(matrix("gyro", "w"), matrix("gyro", "f"), matrix("accel", "f"))
 
 
 def lower_times_rotation(m: Array) -> tuple[Array, Array]:

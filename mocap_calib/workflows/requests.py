@@ -17,6 +17,7 @@ from dataclasses import MISSING, dataclass
 from typing import Any
 
 from mocap_calib.core.params import ParamInfo, check_options, param_info
+from mocap_calib.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,10 @@ def _coerce(value: Any, leaf: Leaf) -> Any:
     if value is None:
         return leaf.default if leaf.repeatable else None
     if leaf.info.parse is not None and isinstance(value, str):
-        return leaf.info.parse(value)
+        try:
+            return leaf.info.parse(value)
+        except InputError as err:  # the line names the option, as a range check's does
+            raise InputError(f"{leaf.info.option_name(leaf.name)}: {err}") from None
     if leaf.repeatable:
         return tuple(value) if isinstance(value, (list, tuple)) else (value,)
     return value

@@ -398,7 +398,7 @@ def explain_failure(s: PreparedSession, opts: CalibrationOptions, position_unit_
     say("checking the inputs' conventions (the first fits failed)")
     known = [] if opts.time_offset is None else [opts.time_offset]
     fit = check_conventions(s, known, opts.gravity, opts.max_offset, position_unit_m)
-    free = opts.model.has("time_offset") and opts.time_offset is None
+    free = opts.model.timed and opts.time_offset is None
     if fit is None or not free or fit.runner_up < 2.0 * fit.score:
         return None
     say(f"the data as given fit at clock offset {fit.t_d:.4f} s (closed-form fit)")
@@ -424,7 +424,7 @@ def screen_conventions(s: PreparedSession, opts: CalibrationOptions, t_d: float,
     say("the first fits are poor: checking the inputs' conventions")
     fit = check_conventions(s, [t_d, *candidates], opts.gravity, opts.max_offset,
                             position_unit_m)
-    free = opts.model.has("time_offset") and opts.time_offset is None
+    free = opts.model.timed and opts.time_offset is None
     if fit is None or not free or abs(fit.t_d - t_d) <= CLOCK_MOVE:
         return None
     say(f"the data fit at clock offset {fit.t_d:.4f} s, not {t_d:.4f} s: starting there")

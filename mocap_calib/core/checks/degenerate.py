@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import CLOCK_OFFSET
 from mocap_calib.core.prepare.kinematics import (
     SmoothedImu,
     mocap_grid,
@@ -181,5 +182,5 @@ def mark_undetermined(r: CalibrationResult) -> None:
         raise ObservabilityError(
             "the motion determines none of R_MI, p_MI and the clock offset ("
             + "; ".join(f"{k}: {v}" for k, v in r.unobservable.items()
-                        if k in ("rotation", "translation", "time_offset"))
+                        if k in ("rotation", "translation", CLOCK_OFFSET.name))
             + "); record motion that rotates the body about all axes")

@@ -44,7 +44,7 @@ from mocap_calib.core.diagnosis.report import (
     Residuals,
 )
 from mocap_calib.core.diagnosis.signature import unexplained_signature
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, CLOCK_OFFSET, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
@@ -271,9 +271,9 @@ def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
     try:
         start = calibrate(imu, mocap, cal_opts)
     except InputError:  # the streams may not even overlap without the offset
-        if model.has("time_offset"):
+        if model.timed:
             raise
-        model = model.with_effect("time_offset")
+        model = model.with_effect(CLOCK_OFFSET.name)
         notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
         start = calibrate(imu, mocap, replace(cal_opts, model=model))
     tr = start.diagnostics.trace

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis, lowpass, predict_imu
+from mocap_calib.core.model.effects import CLOCK_OFFSET
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.state import ModelState
@@ -96,7 +97,7 @@ def _clock_profile(s: PreparedSession, st: ModelState, pos: PositionResult,
                    k: int) -> dict[str, Any]:
     """The clock offset fitted per time segment (needs the offset in the model), with the
     slope of a straight line through them (ppm) and the largest jump between neighbours."""
-    if "time_offset" not in pos.cov:
+    if CLOCK_OFFSET.name not in pos.cov:
         return {"note": "time_offset is not in the model"}
     cons = segment_consistency(pos, st.model, k)
     if not cons.segments:

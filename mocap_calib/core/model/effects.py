@@ -83,6 +83,8 @@ class Effect:
         range_sigma: the weak prior around the start value (parameter units) that keeps
             every graph well posed; a parameter whose posterior sigma is not well below it
             was not determined by the data (:mod:`mocap_calib.core.model.ranges`).
+        about_identity: a matrix term reported (and judged plausible) as ``M = I + E``, a
+            scale-and-misalignment matrix near identity, rather than as ``E`` itself.
     """
 
     name: str
@@ -94,6 +96,7 @@ class Effect:
     description: str
     limits: tuple[tuple[str, float], ...] = ()
     range_sigma: float = 0.05  # weak prior (1 sigma) that keeps the graph well posed
+    about_identity: bool = False
 
     @property
     def in_effects(self) -> bool:
@@ -121,7 +124,7 @@ class Effect:
         theta = np.asarray(theta, dtype=float)
         if self.acts_on in ("w", "f"):
             m = self.matrix(theta)
-            if self.name.endswith("scale_misalignment"):
+            if self.about_identity:
                 m = m + np.eye(3)
             return m.tolist()
         if self.acts_on == "size":
@@ -144,7 +147,7 @@ class Effect:
         """Inverse of :meth:`report_value` (for priors and truth files)."""
         if self.acts_on in ("w", "f"):
             m = np.asarray(value, dtype=float).reshape(3, 3)
-            if self.name.endswith("scale_misalignment"):
+            if self.about_identity:
                 m = m - np.eye(3)
             return np.einsum("kij,ij->k", self.basis, m)
         if self.acts_on == "size" and isinstance(value, dict):
@@ -161,11 +164,11 @@ EFFECTS: dict[str, Effect] = {
         Effect("gyro_scale_misalignment", "gyro_matrix", 9, "gyro", "w", "-",
                "w_m = M_g w + b_g with M_g near identity (scale and axis misalignment)",
                (("scale", 0.03), ("misalignment_deg", 2.0)),
-               range_sigma=0.05),
+               range_sigma=0.05, about_identity=True),
         Effect("accel_scale_misalignment", "accel_matrix", 6, "accel", "f", "-",
                "a_m = M_a f + b_a with M_a lower-triangular near identity",
                (("scale", 0.03), ("misalignment_deg", 2.0)),
-               range_sigma=0.05),
+               range_sigma=0.05, about_identity=True),
         Effect("gyro_g_sensitivity", "g_sensitivity", 9, "gyro", "f", "rad/s per m/s^2",
                "w_m = w + G f + b_g (gyro responds to specific force)",
                (("max", 1e-3),),
@@ -198,6 +201,28 @@ EFFECTS: dict[str, Effect] = {
 }
 
 CANONICAL_EFFECTS: tuple[str, ...] = tuple(EFFECTS)
+
+#: Kinds with exactly one effect: world variables of their own in every graph (the clock
+#: offset and |g|), in the order the layouts put them.
+WORLD_KINDS: tuple[ActsOn, ...] = ("clock", "gravity")
+
+
+def of_kind(kind: ActsOn) -> Effect:
+    """The one effect of a single-member kind (:data:`WORLD_KINDS`)."""
+    (eff,) = [e for e in EFFECTS.values() if e.acts_on == kind]
+    return eff
+
+
+def of_term(sensor: Sensor, acts_on: ActsOn) -> Effect:
+    """The one effect of a sensor's term kind, e.g. ``("gyro", "f")``: the gyro's
+    g-sensitivity."""
+    (eff,) = [e for e in EFFECTS.values() if e.sensor == sensor and e.acts_on == acts_on]
+    return eff
+
+
+#: The clock offset t_d (its name is also the result file's key) and the world's |g|.
+CLOCK_OFFSET: Effect = of_kind("clock")
+GRAVITY_MAGNITUDE: Effect = of_kind("gravity")
 
 
 @dataclass(frozen=True)
@@ -241,6 +266,15 @@ class Model:
     def has_kind(self, kind: str) -> bool:
         """Whether an effect of this kind (``Effect.acts_on``) is in the model."""
         return any(e.acts_on == kind for e in self.units)
+
+    @property
+    def timed(self) -> bool:
+        """Whether the clock offset is a variable of this model."""
+        return self.has_kind("clock")
+
+    def world_units(self) -> list[Effect]:
+        """The model's world variables (:data:`WORLD_KINDS`), in layout order."""
+        return [e for k in WORLD_KINDS for e in self.units if e.acts_on == k]
 
     def __str__(self) -> str:
         return "auto" if self.auto else "+".join(("base", *self.effects))

@@ -91,7 +91,7 @@ def effect_problem(effect: str, value: object, limits: PlausibleLimits) -> str |
         v = np.array([np.linalg.norm(th[0:3]), np.linalg.norm(th[3:6])])
     else:
         v = np.asarray(value, dtype=float)
-    if effect.endswith("scale_misalignment"):
+    if eff.about_identity:  # M = I + E: its diagonal's scale, off-diagonal misalignment
         scale = float(np.abs(np.diag(v) - 1.0).max())
         mis = float(np.degrees(np.abs(v - np.diag(np.diag(v))).max()))
         if scale > lim["scale"] or mis > lim["misalignment_deg"]:

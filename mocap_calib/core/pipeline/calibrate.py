@@ -23,7 +23,7 @@ from mocap_calib.core.checks.degenerate import mark_single_axis, mark_undetermin
 from mocap_calib.core.checks.effect_scores import ALPHA, effect_scores
 from mocap_calib.core.checks.verdict import judge
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import EFFECTS
+from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.first_fits import FirstFits, IterationFn, ProgressFn, first_fits
@@ -251,7 +251,7 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
         rotation_wxyz=val("rotation", so3.rotmat_to_quat(pos.R_MI)),
         translation=val("translation", pos.p_MI),
         gravity_in_mocap=val("gravity", pos.g_dir),
-        time_offset=None if "time_offset" in unob else float(t_d),
+        time_offset=None if CLOCK_OFFSET.name in unob else float(t_d),
         sigma_gyro_bias=sig("gyro_bias"), sigma_accel_bias=sig("accel_bias"),
         sigma_rotation=sig("rotation"), sigma_translation=sig("translation"),
         sigma_gravity=sig("gravity"),

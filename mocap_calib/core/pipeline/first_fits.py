@@ -100,7 +100,7 @@ def first_fits(imu: ImuSamples, mocap: MocapPoses, opts: CalibrationOptions,
     if windows.count < 2:
         raise ObservabilityError("fewer than 2 gap-free mocap windows overlap the IMU; "
                                  f"{s.gap_cause()}")
-    if not opts.model.has("time_offset"):
+    if not opts.model.timed:
         notes.append(f"time_offset fixed at {t_d0:g} s (not in the model)")
     return FirstFits(s, t_d0, clock, att, vel, windows, notes, session_info)
 
@@ -197,7 +197,7 @@ def _align_clocks(s: PreparedSession, opts: CalibrationOptions, effects0: dict[s
     """
     model = opts.model
     search = None
-    if model.has("time_offset") and opts.time_offset is None:
+    if model.timed and opts.time_offset is None:
         say("aligning clocks (angular speed and specific force, all lags)")
         search = search_clock(s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM, s.clock_shift,
                               opts.max_offset, opts.gravity)
@@ -211,7 +211,7 @@ def _align_clocks(s: PreparedSession, opts: CalibrationOptions, effects0: dict[s
     overlap = min(s.u[-1] + delta0, s.tau[-1]) - max(s.u[0] + delta0, s.tau[0])
     if overlap < 10.0:
         fix = ("add time_offset to the model (--model base+time_offset) to search the offset"
-               if not model.has("time_offset") else "check that both files are from one session")
+               if not model.timed else "check that both files are from one session")
         raise InputError(f"the IMU and mocap streams overlap for only {max(overlap, 0):.1f} s "
                          f"with a time offset of {t_d0:.3f} s; {fix}")
     return t_d0, search

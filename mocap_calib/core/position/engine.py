@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from scipy import stats as sps
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.core.model.effects import EFFECTS, GRAVITY_MAGNITUDE, Model
 from mocap_calib.core.model.imu_model import (
     Corrected,
     Intrinsics,
@@ -284,8 +284,8 @@ class PositionProblem:
         L = self.layout
         gcols = list(range(L.slice("gravity").start, L.slice("gravity").stop))
         dg = th.g_mag * th.g_basis  # (3, 2)
-        if L.has("gravity_magnitude"):
-            gcols.append(L.slice("gravity_magnitude").start)
+        if L.has(GRAVITY_MAGNITUDE.name):
+            gcols.append(L.slice(GRAVITY_MAGNITUDE.name).start)
             dg = np.concatenate([dg, th.g_dir[:, None]], axis=1)
         return gcols, dg
 

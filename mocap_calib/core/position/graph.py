@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.graph import BatchFactors, BatchOutput
-from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, GRAVITY_MAGNITUDE, Model
 from mocap_calib.core.model.ranges import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta, Windows, compress
@@ -115,9 +115,9 @@ def _theta(values: gtsam.Values, model: Model, take: int, knot0: int, W: int,
         p_MI=np.asarray(values.atPoint3(KEY_P), dtype=float),
         g_dir=u3.point3(),
         g_basis=u3.basis(),
-        g_mag=(float(values.atVector(KEY_GM)[0]) if model.has("gravity_magnitude")
+        g_mag=(float(values.atVector(KEY_GM)[0]) if model.has_kind("gravity")
                else init.g_mag),
-        delta=(float(values.atVector(key_time(take))[0]) if model.has("time_offset")
+        delta=(float(values.atVector(key_time(take))[0]) if model.timed
                else init.takes[take].delta),
         effects=effects,
         knots=knots,
@@ -128,8 +128,8 @@ def _theta(values: gtsam.Values, model: Model, take: int, knot0: int, W: int,
 def _shared_keys(model: Model) -> dict[str, int]:
     """Block name -> key of the parameters every take shares."""
     keys = {"rotation": KEY_R, "translation": KEY_P, "gravity": KEY_G}
-    if model.has("gravity_magnitude"):
-        keys["gravity_magnitude"] = KEY_GM
+    if model.has_kind("gravity"):
+        keys[GRAVITY_MAGNITUDE.name] = KEY_GM
     for i, eff in enumerate(model.units):
         if eff.in_effects:
             keys[eff.name] = key_effect(i)
@@ -185,8 +185,8 @@ class PositionGraph:
         """Block name -> key of every parameter block a window of ``take`` depends on (the
         window's knot aside)."""
         keys = dict(self.shared_keys)
-        if self.model.has("time_offset"):
-            keys["time_offset"] = key_time(take)
+        if self.model.timed:
+            keys[CLOCK_OFFSET.name] = key_time(take)
         return keys
 
     def set_weights(self, weights: list[Array]) -> None:
@@ -213,10 +213,9 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
     factor_keys: list[list[int]] = []
     col_keys: list[list[tuple[int | None, slice]]] = []
     for k, t in enumerate(takes):
-        if model.has("time_offset"):
+        if model.timed:
             key_kinds[key_time(k)] = "vector"
-        blocks = {**shared, **({"time_offset": key_time(k)} if model.has("time_offset")
-                               else {})}
+        blocks = {**shared, **({CLOCK_OFFSET.name: key_time(k)} if model.timed else {})}
         cols = [(blocks[n] if n != "knot" else None, layout.slice(n))
                 for n, _ in layout.blocks]
         for w in range(t.windows.count):
@@ -266,13 +265,13 @@ def _start_values(model: Model, init: PositionInit, takes: list[Take],
     values.insert(KEY_R, gtsam.Rot3(init.R_MI))
     values.insert(KEY_P, gtsam.Point3(*init.p_MI))
     values.insert(KEY_G, gtsam.Unit3(init.g_dir))
-    if model.has("gravity_magnitude"):
+    if model.has_kind("gravity"):
         values.insert(KEY_GM, np.array([init.g_mag]))
     for i, eff in enumerate(model.units):
         if eff.in_effects:
             values.insert(key_effect(i), init.effects.get(eff.name, eff.zero()))
     for k, (t, st) in enumerate(zip(takes, init.takes, strict=True)):
-        if model.has("time_offset"):
+        if model.timed:
             values.insert(key_time(k), np.array([st.delta]))
         for w in range(t.windows.count):
             values.insert(key_knot(knot0[k] + w), np.r_[st.gyro_bias, st.accel_bias]
@@ -288,21 +287,21 @@ def _add_range_priors(graph: gtsam.NonlinearFactorGraph, model: Model,
         "translation": (KEY_P, init.p_MI),
         "gravity": (KEY_G, init.g_dir),
     }
-    if model.has("gravity_magnitude"):
-        range_priors["gravity_magnitude"] = (KEY_GM, init.g_mag)
+    if model.has_kind("gravity"):
+        range_priors[GRAVITY_MAGNITUDE.name] = (KEY_GM, init.g_mag)
     for i, eff in enumerate(model.units):
         if eff.in_effects:
             range_priors[eff.name] = (key_effect(i), init.effects.get(eff.name, eff.zero()))
     for block, (key, val) in range_priors.items():
         dim = {"rotation": 3, "translation": 3, "gravity": 2}.get(block)
         if dim is None:
-            dim = 1 if block == "gravity_magnitude" else EFFECTS[block].dim
+            dim = EFFECTS[block].dim
         graph.add(_prior_factor(block, key, val, np.full(dim, RANGE_SIGMA[block])))
     knot_sigma = np.r_[np.full(3, RANGE_SIGMA["gyro_bias"]), np.full(3, RANGE_SIGMA["accel_bias"])]
     for k, st in enumerate(init.takes):
-        if model.has("time_offset"):
-            graph.add(_prior_factor("time_offset", key_time(k), st.delta,
-                                    np.full(1, RANGE_SIGMA["time_offset"])))
+        if model.timed:
+            graph.add(_prior_factor(CLOCK_OFFSET.name, key_time(k), st.delta,
+                                    np.full(1, CLOCK_OFFSET.range_sigma)))
         graph.add(_prior_factor("knot", key_knot(knot0[k]), np.r_[st.gyro_bias, st.accel_bias],
                                 knot_sigma))
 
@@ -325,8 +324,8 @@ def _add_user_priors(graph: gtsam.NonlinearFactorGraph, priors: list[Prior],
                 graph.add(gtsam.PriorFactorVector(kw, val,
                                                   gtsam.noiseModel.Diagonal.Sigmas(sig)))
             continue
-        if pr.block == "time_offset":
-            if not model.has("time_offset"):
+        if pr.block == CLOCK_OFFSET.name:  # a take's own variable
+            if not model.timed:
                 continue
             for k, t in enumerate(takes):  # t_d -> delta, on the take's own clocks
                 value = np.atleast_1d(np.asarray(pr.value, dtype=float)) + t.s.clock_shift

@@ -235,7 +235,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
 
     def covariances() -> PositionUncertainty:
         inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes], pg.knot0,
-                               [th.knots for th in thetas], model.has("time_offset"),
+                               [th.knots for th in thetas], model.timed,
                                [o.scores for o in outs], window_blocks)
         return position_covariances(pg.graph, at, inp, pg.problem.noise)
 

@@ -152,13 +152,8 @@ class Layout:
 
 def layout_for(model: Model) -> Layout:
     blocks: list[tuple[str, int]] = [("rotation", 3), ("translation", 3), ("gravity", 2)]
-    if model.has("time_offset"):
-        blocks.append(("time_offset", 1))
-    if model.has("gravity_magnitude"):
-        blocks.append(("gravity_magnitude", 1))
-    for eff in model.units:
-        if eff.in_effects:
-            blocks.append((eff.name, eff.dim))
+    blocks += [(eff.name, eff.dim) for eff in model.world_units()]
+    blocks += [(eff.name, eff.dim) for eff in model.units if eff.in_effects]
     blocks.append(("knot", 6))
     return Layout(tuple(blocks))
 

@@ -103,6 +103,71 @@ def attitude_errors(R: Array, b: Array, dRM: Array, dRI: Array, J: Array, b0: Ar
     return e, H_R, H_b
 
 
+def _intervals(s: PreparedSession, delta: float, spacing: float) -> tuple[Array, Array]:
+    """Start and end keyframes of every gap-free interval the IMU covers."""
+    kf = keyframes(s.tau, spacing)
+    i0, i1 = kf[:-1], kf[1:]
+    ok = s.segments_without_gaps(i0, i1) & s.imu_covers(s.tau[i0], s.tau[i1], delta)
+    i0, i1 = i0[ok], i1[ok]
+    if len(i0) < 10:
+        raise ObservabilityError(f"only {len(i0)} gap-free keyframe intervals overlap the IMU; "
+                                 f"{s.gap_cause()}")
+    return i0, i1
+
+
+@dataclass
+class _Solve:
+    """The attitude solve's state: estimate, linearisation point and its preintegration."""
+
+    R: Array
+    b: Array
+    b_lin: Array
+    dRI: Array
+    J: Array
+    graph: gtsam.NonlinearFactorGraph | None = None
+    sol: gtsam.Values | None = None
+    iterations: int = 0
+    evaluations: int = 0
+
+
+def _solve(st: _Solve, dRM: Array, noises, R0: Array, bg0: Array, preint,
+           max_iterations: int, on_iteration) -> _Solve:
+    """Solve for ``R_MI`` and the gyro bias; re-preintegrate (up to three solves) while the
+    bias moves beyond the first-order correction's comfort zone."""
+    for _relinearise in range(3):
+        def evaluate(v: gtsam.Values, dRI=st.dRI, J=st.J, b_lin=st.b_lin) -> BatchOutput:
+            R = v.atRot3(KEY_R).matrix()
+            b = np.asarray(v.atVector(KEY_BG))
+            e, HR, Hb = attitude_errors(R, b, dRM, dRI, J, b_lin)
+            return BatchOutput(list(e), [[HR[n], Hb[n]] for n in range(len(e))])
+
+        batch = BatchFactors(evaluate, [[KEY_R, KEY_BG]] * len(dRM),
+                             {KEY_R: "rot3", KEY_BG: "vector"}, [KEY_R, KEY_BG], noises)
+        graph = gtsam.NonlinearFactorGraph()
+        for f in batch.factors():
+            graph.add(f)
+        graph.add(gtsam.PriorFactorRot3(
+            KEY_R, gtsam.Rot3(R0), gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["rotation"])))
+        graph.add(gtsam.PriorFactorVector(
+            KEY_BG, bg0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["gyro_bias"])))
+        init = gtsam.Values()
+        init.insert(KEY_R, gtsam.Rot3(st.R))
+        init.insert(KEY_BG, st.b)
+        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
+                          absolute_tol=ABS_TOL)
+        require_converged("attitude", rep, max_iterations)
+        st.graph, st.sol = graph, sol
+        st.iterations += rep.iterations
+        st.evaluations += batch.evaluations
+        st.R = sol.atRot3(KEY_R).matrix()
+        st.b = np.asarray(sol.atVector(KEY_BG))
+        if np.linalg.norm(st.b - st.b_lin) < 1e-3:
+            break
+        st.b_lin = st.b.copy()
+        st.dRI, st.J = preint(st.b_lin)
+    return st
+
+
 def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spacing: float,
                        correct_fn, huber_k: float = 3.0, max_iterations: int = 30,
                        on_iteration=None) -> AttitudeResult:
@@ -119,13 +184,7 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     """
     t0 = time.perf_counter()
     R0, bg0 = initial_rotation(s, delta)
-    kf = keyframes(s.tau, spacing)
-    i0, i1 = kf[:-1], kf[1:]
-    ok = s.segments_without_gaps(i0, i1) & s.imu_covers(s.tau[i0], s.tau[i1], delta)
-    i0, i1 = i0[ok], i1[ok]
-    if len(i0) < 10:
-        raise ObservabilityError(f"only {len(i0)} gap-free keyframe intervals overlap the IMU; "
-                                 f"{s.gap_cause()}")
+    i0, i1 = _intervals(s, delta, spacing)
     dRM = np.einsum("nji,njk->nik", s.R_WM[i0], s.R_WM[i1])
     dt = s.tau[i1] - s.tau[i0]
 
@@ -138,46 +197,12 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
                   + noise.gyroscope_random_walk**2 * dt**3 / 3.0)
     noises = huber_isotropic(sig, huber_k)
 
-    b_lin = bg0.copy()
-    dRI, J = preint(b_lin)
-    e_before, _, _ = attitude_errors(R0, bg0, dRM, dRI, J, b_lin, jacobians=False)
-    R_est, b_est = R0, bg0
-    iterations = 0
-    evaluations = 0
-    for _relinearise in range(3):
-        def evaluate(v: gtsam.Values, dRI=dRI, J=J, b_lin=b_lin) -> BatchOutput:
-            R = v.atRot3(KEY_R).matrix()
-            b = np.asarray(v.atVector(KEY_BG))
-            e, HR, Hb = attitude_errors(R, b, dRM, dRI, J, b_lin)
-            return BatchOutput(list(e), [[HR[n], Hb[n]] for n in range(len(e))])
-
-        batch = BatchFactors(evaluate, [[KEY_R, KEY_BG]] * len(i0),
-                             {KEY_R: "rot3", KEY_BG: "vector"}, [KEY_R, KEY_BG], noises)
-        graph = gtsam.NonlinearFactorGraph()
-        for f in batch.factors():
-            graph.add(f)
-        graph.add(gtsam.PriorFactorRot3(
-            KEY_R, gtsam.Rot3(R0), gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["rotation"])))
-        graph.add(gtsam.PriorFactorVector(
-            KEY_BG, bg0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["gyro_bias"])))
-        init = gtsam.Values()
-        init.insert(KEY_R, gtsam.Rot3(R_est))
-        init.insert(KEY_BG, b_est)
-        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
-                          absolute_tol=ABS_TOL)
-        require_converged("attitude", rep, max_iterations)
-        iterations += rep.iterations
-        evaluations += batch.evaluations
-        R_est = sol.atRot3(KEY_R).matrix()
-        b_est = np.asarray(sol.atVector(KEY_BG))
-        # Re-preintegrate when the bias moved beyond the first-order correction's comfort zone.
-        if np.linalg.norm(b_est - b_lin) < 1e-3:
-            break
-        b_lin = b_est.copy()
-        dRI, J = preint(b_lin)
-
-    marg = marginals(graph, sol)
-    e_after, _, _ = attitude_errors(R_est, b_est, dRM, dRI, J, b_lin, jacobians=False)
+    dRI, J = preint(bg0.copy())
+    e_before, _, _ = attitude_errors(R0, bg0, dRM, dRI, J, bg0.copy(), jacobians=False)
+    st = _solve(_Solve(R0, bg0, bg0.copy(), dRI, J), dRM, noises, R0, bg0, preint,
+                max_iterations, on_iteration)
+    marg = marginals(st.graph, st.sol)
+    e_after, _, _ = attitude_errors(st.R, st.b, dRM, st.dRI, st.J, st.b_lin, jacobians=False)
     w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     t_mid = 0.5 * (s.tau[i0] + s.tau[i1])
     stats = StageStats(
@@ -185,8 +210,8 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
         rms_before=np.degrees(np.sqrt(np.mean(e_before**2, axis=0))).tolist(),
         rms_after=np.degrees(np.sqrt(np.mean(e_after**2, axis=0))).tolist(),
         n_factors=len(i0), n_residuals=len(i0), outliers=int(np.sum(w < 0.5)),
-        iterations=iterations, seconds=time.perf_counter() - t0,
-        chi2_per_dof=chi2 / max(1, 3 * len(i0) - 6), batch_evaluations=evaluations)
+        iterations=st.iterations, seconds=time.perf_counter() - t0,
+        chi2_per_dof=chi2 / max(1, 3 * len(i0) - 6), batch_evaluations=st.evaluations)
     series = ResidualSeries(t_mid, np.degrees(e_before), np.degrees(e_after), w, "deg")
-    return AttitudeResult(R_est, b_est, np.asarray(marg.marginalCovariance(KEY_R)),
+    return AttitudeResult(st.R, st.b, np.asarray(marg.marginalCovariance(KEY_R)),
                           np.asarray(marg.marginalCovariance(KEY_BG)), stats, series)

@@ -87,6 +87,70 @@ def velocity_factor(data: _Data, b: Array, p: Array, u3: gtsam.Unit3, gravity: f
     return e, Hb, data.LM, Hg
 
 
+@dataclass
+class _Solve:
+    """The velocity solve's state: estimate, linearisation point and the factors' data."""
+
+    b: Array
+    p: Array
+    g_dir: Array
+    b_lin: Array
+    data: _Data
+    graph: gtsam.NonlinearFactorGraph | None = None
+    sol: gtsam.Values | None = None
+    iterations: int = 0
+    evaluations: int = 0
+
+
+def _solve(st: _Solve, noises, start: tuple[Array, Array, Array], gravity: float, preint,
+           max_iterations: int, on_iteration) -> _Solve:
+    """Solve for ``b_a``, ``p_MI`` and the gravity direction; re-preintegrate (up to three
+    solves) while the accel bias moves by more than 0.05 m/s^2. ``start``: the linear
+    start's ``(b_a, p_MI, gravity direction)``, the range priors' centres."""
+    b0, p0, g0 = start
+    n = len(st.data.dt)
+    for _relinearise in range(3):
+        def evaluate(v: gtsam.Values, data=st.data, b_lin=st.b_lin) -> BatchOutput:
+            e, Hb, Hp, Hg = velocity_factor(data, np.asarray(v.atVector(KEY_BA)),
+                                            np.asarray(v.atPoint3(KEY_P)), v.atUnit3(KEY_G),
+                                            gravity, b_lin)
+            return BatchOutput(list(e), [[Hb[k], Hp[k], Hg[k]] for k in range(len(e))])
+
+        batch = BatchFactors(evaluate, [[KEY_BA, KEY_P, KEY_G]] * n,
+                             {KEY_BA: "vector", KEY_P: "point3", KEY_G: "unit3"},
+                             [KEY_BA, KEY_P, KEY_G], noises)
+        graph = gtsam.NonlinearFactorGraph()
+        for f in batch.factors():
+            graph.add(f)
+        graph.add(gtsam.PriorFactorVector(
+            KEY_BA, b0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["accel_bias"])))
+        graph.add(gtsam.PriorFactorPoint3(
+            KEY_P, p0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["translation"])))
+        graph.add(gtsam.PriorFactorUnit3(
+            KEY_G, gtsam.Unit3(g0),
+            gtsam.noiseModel.Isotropic.Sigma(2, RANGE_SIGMA["gravity"])))
+        init = gtsam.Values()
+        init.insert(KEY_BA, st.b)
+        init.insert(KEY_P, gtsam.Point3(*st.p))
+        init.insert(KEY_G, gtsam.Unit3(st.g_dir))
+        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
+                          absolute_tol=ABS_TOL)
+        require_converged("velocity", rep, max_iterations)
+        st.graph, st.sol = graph, sol
+        st.iterations += rep.iterations
+        st.evaluations += batch.evaluations
+        st.b = np.asarray(sol.atVector(KEY_BA))
+        st.p = np.asarray(sol.atPoint3(KEY_P))
+        st.g_dir = sol.atUnit3(KEY_G).point3()
+        if np.linalg.norm(st.b - st.b_lin) < 0.05:
+            break
+        st.b_lin = st.b.copy()
+        dv, A = preint(st.b_lin)
+        d = st.data
+        st.data = _Data(d.dvM, d.LM, d.R_i, dv, A, d.dt)
+    return st
+
+
 def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spacing: float,
                        R_MI: Array, correct_fn, gravity: float, huber_k: float = 3.0,
                        max_iterations: int = 30, on_iteration=None) -> VelocityResult:
@@ -133,60 +197,20 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
                   + noise.mocap_rotation_sigma**2 * np.sum(dv**2, axis=1) / 2.0)
     noises = huber_isotropic(sig, huber_k)
     e_before = velocity_errors(data, b0, p0, g_free, b_lin)
-
-    p_est, b_est = p0, b0
-    g_dir = g_free / g_norm
-    iterations = evaluations = 0
-    for _relinearise in range(3):
-        def evaluate(v: gtsam.Values, data=data, b_lin=b_lin) -> BatchOutput:
-            e, Hb, Hp, Hg = velocity_factor(data, np.asarray(v.atVector(KEY_BA)),
-                                            np.asarray(v.atPoint3(KEY_P)), v.atUnit3(KEY_G),
-                                            gravity, b_lin)
-            return BatchOutput(list(e), [[Hb[k], Hp[k], Hg[k]] for k in range(len(e))])
-
-        batch = BatchFactors(evaluate, [[KEY_BA, KEY_P, KEY_G]] * n,
-                             {KEY_BA: "vector", KEY_P: "point3", KEY_G: "unit3"},
-                             [KEY_BA, KEY_P, KEY_G], noises)
-        graph = gtsam.NonlinearFactorGraph()
-        for f in batch.factors():
-            graph.add(f)
-        graph.add(gtsam.PriorFactorVector(
-            KEY_BA, b0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["accel_bias"])))
-        graph.add(gtsam.PriorFactorPoint3(
-            KEY_P, p0, gtsam.noiseModel.Isotropic.Sigma(3, RANGE_SIGMA["translation"])))
-        graph.add(gtsam.PriorFactorUnit3(
-            KEY_G, gtsam.Unit3(g_free / g_norm),
-            gtsam.noiseModel.Isotropic.Sigma(2, RANGE_SIGMA["gravity"])))
-        init = gtsam.Values()
-        init.insert(KEY_BA, b_est)
-        init.insert(KEY_P, gtsam.Point3(*p_est))
-        init.insert(KEY_G, gtsam.Unit3(g_dir))
-        sol, rep = run_lm(graph, init, max_iterations, on_iteration,
-                          absolute_tol=ABS_TOL)
-        require_converged("velocity", rep, max_iterations)
-        iterations += rep.iterations
-        evaluations += batch.evaluations
-        b_est = np.asarray(sol.atVector(KEY_BA))
-        p_est = np.asarray(sol.atPoint3(KEY_P))
-        g_dir = sol.atUnit3(KEY_G).point3()
-        if np.linalg.norm(b_est - b_lin) < 0.05:
-            break
-        b_lin = b_est.copy()
-        dv, A = preint(b_lin)
-        data = _Data(data.dvM, data.LM, R_i, dv, A, dt)
-
-    marg = marginals(graph, sol)
-    e_after = velocity_errors(data, b_est, p_est, gravity * g_dir, b_lin)
+    st = _solve(_Solve(b0, p0, g_free / g_norm, b_lin, data), noises,
+                (b0, p0, g_free / g_norm), gravity, preint, max_iterations, on_iteration)
+    marg = marginals(st.graph, st.sol)
+    e_after = velocity_errors(st.data, st.b, st.p, gravity * st.g_dir, st.b_lin)
     w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
     stats = StageStats(
         name="velocity", unit="m/s",
         rms_before=np.sqrt(np.mean(e_before**2, axis=0)).tolist(),
         rms_after=np.sqrt(np.mean(e_after**2, axis=0)).tolist(),
-        n_factors=n, n_residuals=n, outliers=int(np.sum(w < 0.5)), iterations=iterations,
+        n_factors=n, n_residuals=n, outliers=int(np.sum(w < 0.5)), iterations=st.iterations,
         seconds=time.perf_counter() - t0, chi2_per_dof=chi2 / max(1, 3 * n - 8),
-        batch_evaluations=evaluations)
+        batch_evaluations=st.evaluations)
     series = ResidualSeries(0.5 * (s.tau[i0] + s.tau[i1]), e_before, e_after, w, "m/s")
-    return VelocityResult(b_est, p_est, g_dir, g_norm,
+    return VelocityResult(st.b, st.p, st.g_dir, g_norm,
                           np.asarray(marg.marginalCovariance(KEY_BA)),
                           np.asarray(marg.marginalCovariance(KEY_P)),
                           np.asarray(marg.marginalCovariance(KEY_G)), stats, series)

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.effects import CLOCK_OFFSET, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import Theta
 from mocap_calib.core.position.graph import PositionInit, Prior, Take, TakeStart
@@ -66,8 +66,8 @@ class Estimate:
         sig = {"R_MI": np.sqrt(np.diag(fit.cov["rotation"])),
                "p_MI": np.sqrt(np.diag(fit.cov["translation"]))}
         t_d = None
-        if timed and "time_offset" in fit.cov:
-            sig["t_d"] = np.sqrt(np.diag(fit.cov["time_offset"]))
+        if timed and CLOCK_OFFSET.name in fit.cov:
+            sig["t_d"] = np.sqrt(np.diag(fit.cov[CLOCK_OFFSET.name]))
             t_d = float(fit.takes[0].delta - fit.takes[0].s.clock_shift)
         return cls(fit.R_MI, fit.p_MI, t_d, sig)
 
@@ -91,6 +91,6 @@ def z_pair(a: Estimate | Theta | PositionResult, b: Estimate | Theta | PositionR
 def sigmas(pos: PositionResult) -> dict[str, Array]:
     d = {"R_MI": np.sqrt(np.diag(pos.cov["rotation"])),
          "p_MI": np.sqrt(np.diag(pos.cov["translation"]))}
-    if "time_offset" in pos.cov:
-        d["t_d"] = np.sqrt(np.diag(pos.cov["time_offset"]))
+    if CLOCK_OFFSET.name in pos.cov:
+        d["t_d"] = np.sqrt(np.diag(pos.cov[CLOCK_OFFSET.name]))
     return d

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.effects import CLOCK_OFFSET, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import Prior
@@ -111,7 +111,7 @@ def _shifts(alt: PositionResult,
            "gyro_bias": alt.gyro_bias_mean - pos.gyro_bias_mean,
            "accel_bias": alt.accel_bias_mean - pos.accel_bias_mean,
            "gravity": np.asarray(gtsam.Unit3(pos.g_dir).localCoordinates(gtsam.Unit3(alt.g_dir)))}
-    if "time_offset" in pos.cov:
+    if CLOCK_OFFSET.name in pos.cov:
         raw["t_d"] = np.array([alt.delta - pos.delta])
     excess = {}
     for name, d in raw.items():

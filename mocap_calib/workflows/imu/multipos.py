@@ -17,6 +17,7 @@ from mocap_calib.core.intrinsics.multipos import (
     calibrate_multipos,
 )
 from mocap_calib.core.intrinsics.multipos.units import RawConversion
+from mocap_calib.core.model.effects import of_term
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.params import group, param
 from mocap_calib.core.policy import GRAVITY
@@ -273,13 +274,14 @@ def simulate_multipos_to_folder(out_dir: Path, *, seed: int = 0, rate_hz: float 
     from mocap_calib.sim.multipos import G_STD, CountsSpec, simulate_multipos
 
     effects = dict(effects or {})
-    other = [e for e in effects if e != "gyro_g_sensitivity"]
+    g_sens = of_term("gyro", "f").name  # the only effect a multi-position log simulates
+    other = [e for e in effects if e != g_sens]
     if other:
         raise InputError(f"--effect {other[0]} does not apply to --protocol multipos (only "
-                         "gyro_g_sensitivity; the intrinsics are always simulated)")
+                         f"{g_sens}; the intrinsics are always simulated)")
     G: float | list[float] | None = None
-    if "gyro_g_sensitivity" in effects:
-        value = effects["gyro_g_sensitivity"]
+    if g_sens in effects:
+        value = effects[g_sens]
         G = G_STD if value is None else (value[0] if len(value) == 1 else value)
     imu, truth = simulate_multipos(seed=seed, rate_hz=rate_hz, g_sensitivity=G,
                                    counts=CountsSpec() if counts else None)
