@@ -8,6 +8,7 @@ sigmas and its answer moves little under noise densities x3 and x1/3.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -37,31 +38,108 @@ def _calibrate(spec: InputSpec, factor: float = 1.0, verdict: bool = True):
     return calibrate(session.imu, session.mocap, opts)
 
 
+@pytest.fixture(scope="module")
+def broad() -> dict:
+    out = {}
+    for trial in BROAD:
+        csv: Path = shared_data(trial, "data.csv")
+        out[trial] = _calibrate(InputSpec(imu=csv, mocap=csv, columns="broad"))
+    return out
+
+
 @pytest.mark.parametrize("trial", BROAD)
-def test_broad_trial_calibrates_plausibly_without_a_given_clock(trial: str) -> None:
-    csv: Path = shared_data(trial, "data.csv")
-    r = _calibrate(InputSpec(imu=csv, mocap=csv, columns="broad"))
+def test_broad_trial_calibrates_plausibly_without_a_given_clock(broad, trial: str) -> None:
+    r = broad[trial]
     assert r.plausibility["verdict"] == "plausible", r.plausibility
+    # Measured 0.60, 0.19, 0.18 deg from identity.
     assert np.degrees(np.linalg.norm(so3.log(r.R_marker_imu))) < 1.0
-    # The authors synchronised the streams to a few ms: measured -3.75, -3.97, -4.04 ms
+    # The authors synchronised the streams to a few ms: measured -3.3, -3.8, -4.0 ms
     # (trials 15, 21, 27); a search that returned 0 would fail.
     assert r.time_offset == pytest.approx(-0.004, abs=0.001)
     assert r.clock["margin_z"] >= 3.0
-    # The segments were compared on every parameter (the verdict judges the values; measured
-    # largest pairwise z: 3.0, 5.9, 1.8 on R_MI).
+    # The segments were compared on every parameter, and where they disagree beyond 3
+    # combined sigmas the sigmas grew to cover it (never a failed check with the sigmas it
+    # contradicted).
     z = r.consistency["max_pairwise_z"]
     assert set(z) == {"R_MI", "p_MI", "t_d"}, z
-    assert all(np.isfinite(v) and v > 0.0 for v in z.values()), z
+    for name, v in z.items():
+        assert np.isfinite(v) and v > 0.0, z
+        if v > 3.0:
+            assert r.uncertainty[name]["consistency_factor"] >= v / 3.0 - 1e-3, r.uncertainty
 
 
-def test_euroc_segments_agree_and_noise_densities_barely_matter() -> None:
-    spec = InputSpec(mav0=(shared_data("euroc_V2_03_difficult", "mav0"),))
-    r = _calibrate(spec)
+def _pair_z(a, b) -> dict[str, float]:
+    rot = so3.log(a.R_marker_imu.T @ b.R_marker_imu)
+    return {"R_MI": float(np.max(np.abs(rot) / np.hypot(a.sigma_rotation, b.sigma_rotation))),
+            "p_MI": float(np.max(np.abs(a.translation - b.translation)
+                                 / np.hypot(a.sigma_translation, b.sigma_translation)))}
+
+
+def test_broad_trials_of_one_rig_roughly_agree(broad) -> None:
+    """One IMU and rigid body, three recordings. Measured pairwise: R_MI 1.4-5.7, p_MI
+    3.3-5.0 combined sigmas (before the mocap level fix and the effects-shown term: up to
+    6.6 and 10.3). Bound at 8 so that a regression to the old sigmas fails."""
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        z = _pair_z(broad[BROAD[a]], broad[BROAD[b]])
+        assert max(z.values()) < 8.0, (BROAD[a], BROAD[b], z)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 26's bar, not met yet: BROAD 15 p_MI x is "
+                   "-3.8 +- 0.3 mm, trials 21 / 27 say +1.3 / -1.0 mm (pairs up to 5.7 "
+                   "combined sigmas)")
+def test_broad_trials_agree_within_three_sigmas(broad) -> None:
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        z = _pair_z(broad[BROAD[a]], broad[BROAD[b]])
+        assert max(z.values()) <= 3.0, (BROAD[a], BROAD[b], z)
+
+
+def _gt_implied(mav0: Path) -> dict:
+    """T_MI implied by the dataset's own ground truth (scripts/euroc_reference.py: its IMU poses
+    against its Vicon poses; no calibration code involved)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    from euroc_reference import gt_implied
+
+    return gt_implied(mav0)
+
+
+@pytest.fixture(scope="module")
+def euroc() -> tuple[InputSpec, object, dict]:
+    mav0 = shared_data("euroc_V2_03_difficult", "mav0")
+    spec = InputSpec(mav0=(mav0,))
+    return spec, _calibrate(spec), _gt_implied(mav0)
+
+
+def test_euroc_lands_near_what_its_ground_truth_implies(euroc) -> None:
+    _, r, ref = euroc
     assert r.plausibility["verdict"] == "plausible", r.plausibility
     assert r.time_offset == pytest.approx(-0.200, abs=0.002)  # the 200 ms the clocks differ
+    rot = so3.log(ref["R_MI"].T @ r.R_marker_imu)
+    dp = r.translation - ref["p_MI"]
+    # Measured: 0.32 deg and (1.7, 4.3, -0.5) mm away, sigmas (0.13, 0.08, 0.08) deg and
+    # (3.0, 8.2, 2.8) mm. The reference has its own scatter (0.2-0.35 deg, 2-4 mm when mapped
+    # onto the marker), so each axis is asked to be within 3 of our sigmas, and the whole
+    # within 0.4 deg / 5 mm: an answer as far as the old 8.6 mm fails.
+    assert np.all(np.abs(rot) <= 3.0 * r.sigma_rotation), (np.degrees(rot), r.sigma_rotation)
+    assert np.all(np.abs(dp) <= 3.0 * r.sigma_translation), (1e3 * dp, r.sigma_translation)
+    assert np.degrees(np.linalg.norm(rot)) < 0.4
+    assert np.linalg.norm(dp) < 0.005
+
+
+@pytest.mark.xfail(strict=True, reason="issue 26's bar, not met yet: measured 0.32 deg and "
+                   "4.7 mm from the ground-truth-implied T_MI (mocap2gt: 0.28 deg / 5.1 mm "
+                   "shipped, 3.4 mm converged)")
+def test_euroc_within_the_issues_bar_of_its_ground_truth(euroc) -> None:
+    _, r, ref = euroc
+    assert np.degrees(np.linalg.norm(so3.log(ref["R_MI"].T @ r.R_marker_imu))) <= 0.3
+    assert np.linalg.norm(r.translation - ref["p_MI"]) <= 0.003
+
+
+def test_euroc_segments_agree_and_noise_densities_barely_matter(euroc) -> None:
+    spec, r, _ = euroc
     for name, z in r.consistency["max_pairwise_z"].items():
         assert z <= 3.0, f"segments disagree on {name}: {z:.2f} combined sigmas"
-    # The issue's bar: under noise densities x3 and x1/3 the answer moves less than 1 sigma ...
+    # Under noise densities x3 and x1/3 and the correlated mocap model the answer moves less
+    # than 1 (reported) sigma ...
     for factor, moved in r.sensitivity["moved_sigmas"].items():
         for name, z in moved.items():
             assert z <= 1.0, f"noise {factor}: {name} moves {z:.2f} sigmas"
@@ -75,8 +153,8 @@ def test_euroc_segments_agree_and_noise_densities_barely_matter() -> None:
                  "t_d": np.abs([o.time_offset - r.time_offset]) / r.sigma_time_offset}
         for name, z in moved.items():
             assert np.max(z) < 1.0, f"rerun x{factor:.3g}: {name} moves {np.max(z):.2f} sigmas"
-    # ... with sigmas that are not padded past use: the dataset's own ground truth implies
-    # T_MI within 0.4 deg and 3 mm of ours (scripts/real_data_study.py), and the segments'
-    # spread (above) would not allow them to be much smaller.
+    # ... with sigmas that are not padded past use: independent thirds of the session differ
+    # by up to 0.32 deg and 9.9 mm (scripts/real_data_study.py), so sigmas much larger than
+    # these would be padding.
     assert np.max(r.sigma_rotation) < np.radians(0.3)
-    assert np.max(r.sigma_translation) < 0.008
+    assert np.max(r.sigma_translation) < 0.010
