@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from test_html_report import Page
 
 from mocap_calib.cli.main import main
 from mocap_calib.io.formats.euroc import write_mav0
@@ -30,16 +31,17 @@ def _takes(tmp: Path, effects: dict) -> list[str]:
     return args
 
 
-def _diagnose(tmp: Path, args: list[str]) -> dict:
+def _diagnose(tmp: Path, args: list[str], *more: str) -> dict:
     out = tmp / "report.yaml"
     assert main(["diagnose", *args, "--start-model", "base+time_offset", "--out", str(out),
-                 "-q"]) == 0
+                 "-q", *more]) == 0
     return yaml.safe_load(out.read_text())
 
 
 @pytest.mark.slow
 def test_an_effect_both_takes_have_is_found_with_each_takes_evidence(tmp_path: Path) -> None:
-    d = _diagnose(tmp_path, _takes(tmp_path, {"accel_delay": [0.004]}))
+    html = tmp_path / "report.html"
+    d = _diagnose(tmp_path, _takes(tmp_path, {"accel_delay": [0.004]}), "--html", str(html))
     assert d["found"] == ["accel_delay"]
     added = next(s["added"] for s in d["steps"] if "added" in s)
     assert abs(added["accel_delay"] - 0.004) < 3 * added["sigma"] + 1e-5
@@ -50,6 +52,14 @@ def test_an_effect_both_takes_have_is_found_with_each_takes_evidence(tmp_path: P
         assert abs(t["value"] - 0.004) < 3 * t["sigma"] + 1e-5
     # Each take alone is less sure than both together.
     assert added["sigma"] < min(t["sigma"] for t in per_take)
+    # The HTML page has the same per-take evidence, keyed to the report's values.
+    page = Page(html.read_text(encoding="utf-8"))
+    step = next(i for i, s in enumerate(d["steps"]) if "added" in s)
+    cells = {c["data-key"]: c for c in page.cells}
+    for j in range(2):
+        assert cells[f"steps/{step}/added/takes/{j}/evidence"]["data-value"] == "true"
+        assert float(cells[f"steps/{step}/added/takes/{j}/value"]["data-value"]) == \
+            per_take[j]["value"]
     # The final calibration is the joint one: one accel_delay, each take's own clock offset.
     final = d["final_calibration"]
     assert [round(t["time_offset"], 4) for t in final["takes"]] == [td for _, td in TAKES]
