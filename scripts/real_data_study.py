@@ -6,7 +6,12 @@ the largest pairwise |difference| / combined sigma between the thirds for R_MI, 
 and how far (in sigmas) the answer moves when the noise densities are scaled. This is computed
 here from separate runs, independently of the result's own ``consistency`` section.
 
-Usage: python scripts/real_data_study.py [--json out.json] [--only euroc,broad21] [--no-thirds]
+The PX4 flight logs (``px4/*.ulg``, no mocap topic logged) are run through the command line
+as a user would: ``calibrate`` (its exit code and refusal line) and ``allan`` on their IMU (its
+answer, or exit code and refusal line).
+
+Usage: python scripts/real_data_study.py [--json out.json] [--only euroc,broad21,px4]
+       [--no-thirds]
 """
 
 from __future__ import annotations
@@ -14,6 +19,9 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -42,6 +50,53 @@ RECORDINGS = {
                                       "broad_27_disturbed_phone_vibration_B" / "data.csv",
                                       columns="broad")),
 }
+
+
+PX4_LOGS = ("sample.ulg", "sample_log_small.ulg")
+
+
+def _cli(*args: str) -> tuple[int, str]:
+    """``python -m mocap_calib ARGS`` as a user runs it: exit code and the last stderr line."""
+    p = subprocess.run([sys.executable, "-m", "mocap_calib", *args], capture_output=True,
+                       text=True, check=False)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    return p.returncode, lines[-1] if lines else ""
+
+
+def px4_logs() -> list[dict]:
+    """Per PX4 log: calibrate (exit, refusal line) and allan on its IMU (exit, the noise
+    densities or the refusal line)."""
+    import yaml
+
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in PX4_LOGS:
+            log = str(DATA / "px4" / name)
+            code, line = _cli("calibrate", "--imu", log, "--mocap", log, "--out",
+                              f"{tmp}/c.yaml", "-q")
+            rec: dict = {"recording": f"PX4 {name}", "calibrate": {"exit": code, "line": line}}
+            noise = Path(tmp) / f"{name}.yaml"
+            code, line = _cli("allan", "--imu", log, "--out", str(noise), "-q")
+            rec["allan"] = {"exit": code, "line": line}
+            if code == 0:
+                d = yaml.safe_load(noise.read_text())
+                rec["allan"].update({k: d.get(k) for k in (
+                    "gyroscope_noise_density", "accelerometer_noise_density",
+                    "gyroscope_random_walk", "accelerometer_random_walk")})
+            out.append(rec)
+    return out
+
+
+def px4_summary(reports: list[dict]) -> str:
+    """One block per PX4 log: what calibrate and allan said."""
+    lines = []
+    for rep in reports:
+        c, a = rep["calibrate"], rep["allan"]
+        lines.append(f"{rep['recording']}: calibrate exit {c['exit']}: {c['line']}")
+        what = (f"gyro N {a['gyroscope_noise_density']:.3g}, accel N "
+                f"{a['accelerometer_noise_density']:.3g}" if a["exit"] == 0 else a["line"])
+        lines.append(f"{rep['recording']}: allan exit {a['exit']}: {what}")
+    return "\n".join(lines)
 
 
 def run(session, opts: CalibrationOptions, start: float | None = None,
@@ -219,17 +274,22 @@ def summary(reports: list[dict]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", type=Path)
-    ap.add_argument("--only", default=",".join(RECORDINGS))
+    ap.add_argument("--only", default=",".join([*RECORDINGS, "px4"]))
     ap.add_argument("--no-thirds", action="store_true")
     ap.add_argument("--no-sensitivity", action="store_true")
     a = ap.parse_args()
     reports = []
     fulls: dict[str, dict] = {}
-    for key in a.only.split(","):
+    keys = a.only.split(",")
+    for key in (k for k in keys if k != "px4"):
         rep = study(key, not a.no_thirds, not a.no_sensitivity, fulls)
         print(json.dumps(rep, indent=1), flush=True)
         reports.append(rep)
     print(summary(reports))
+    if "px4" in keys:
+        px4 = px4_logs()
+        print(px4_summary(px4))
+        reports += px4
     broad = {k: v for k, v in fulls.items() if k.startswith("broad")}
     if len(broad) > 1:
         pairs = trials_agree(broad)

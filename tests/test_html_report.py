@@ -240,6 +240,11 @@ def test_calibration_page_shows_the_simulated_gaps_and_removed_spikes(
     assert int(page.ids["fig-gaps"]["data-removed-spikes"]) == removed
     assert int(page.ids["fig-residuals-position"]["data-removed-spikes"]) == removed
     assert page.ids["fig-residuals-position"]["data-spectrum"] == "yes"
+    # No IMU gaps simulated: none shaded, no table of them (tests/test_gaps_viz.py: with them).
+    assert d["imu_gaps"]["count"] == 0
+    assert page.ids["fig-gaps"]["data-imu-gaps"] == "0"
+    assert page.ids["fig-residuals-position"]["data-imu-gaps"] == "0"
+    assert "imu-gaps-table" not in page.ids
 
 
 def test_calibration_page_records_how_it_was_made(

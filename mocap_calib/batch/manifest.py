@@ -13,8 +13,11 @@
 
 Besides ``id`` (a folder name under OUT), ``imu_id`` (the IMU or airframe) and ``date``, a
 session takes any option of ``mocap-calib calibrate`` by its long name with underscores (the
-folder argument is ``mav0``). Relative paths are relative to the manifest's folder. Every
-problem (missing file, unknown key, duplicate id, wrong type) is one line.
+folder argument is ``mav0``). Several takes of one rig make one calibration (one result with a
+``takes:`` block, as ``calibrate --imu A --mocap A --imu B --mocap B``): ``imu: [a, b]`` with
+``mocap: [a, b]`` in the same order, or ``mav0: [a, b]``. Relative paths are relative to the
+manifest's folder. Every problem (missing file, unknown key, duplicate id, wrong type) is one
+line.
 """
 
 from __future__ import annotations
@@ -206,6 +209,10 @@ def _session(chk: _Checker, n: int, raw: Any, defaults: dict[str, Any],
         chk.bad(where, "no inputs", "give mav0 (a folder) or both imu and mocap")
     elif opts.get("mav0") is not None and (opts.get("imu") or opts.get("mocap")):
         chk.bad(where, "both mav0 and imu/mocap", "give either a mav0 folder or imu and mocap")
+    elif opts.get("mav0") is None and len(opts["imu"]) != len(opts["mocap"]):
+        chk.bad(where, f"{len(opts['imu'])} imu and {len(opts['mocap'])} mocap files",
+                "several takes are given as lists of pairs, in order: imu: [a, b] with mocap: "
+                "[a, b] (the same file twice when one file holds both streams)")
     try:
         request = from_flat(CalibrateRequest, opts)
     except InputError as err:  # a value out of range, an unknown effect: one line

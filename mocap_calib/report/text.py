@@ -54,8 +54,22 @@ def summary_table(r: CalibrationResult) -> str:
     rpy = None
     if r.rotation_wxyz is not None:
         rpy = np.degrees(so3.log(so3.quat_to_rotmat(r.rotation_wxyz)))
-    rows.append(("gyro_bias", _fmt(r.gyro_bias), _fmt(r.sigma_gyro_bias, digits=2), "rad/s"))
-    rows.append(("accel_bias", _fmt(r.accel_bias), _fmt(r.sigma_accel_bias, digits=2), "m/s^2"))
+    if r.takes:  # several takes: their own clock offsets and biases, not shared
+        for t in r.takes:
+            sg = t["sigma"]
+            rows.append((f"take {t['take']} gyro_bias", _fmt(t["gyro_bias"]),
+                         _fmt(sg["gyro_bias"], digits=2), "rad/s"))
+            rows.append((f"take {t['take']} accel_bias", _fmt(t["accel_bias"]),
+                         _fmt(sg["accel_bias"], digits=2), "m/s^2"))
+            rows.append((f"take {t['take']} time_offset",
+                         _fmt_time_ms(t["time_offset"], sg["time_offset"]),
+                         _fmt(None if sg["time_offset"] is None else 1e3 * sg["time_offset"],
+                              digits=2), "ms"))
+    else:
+        rows.append(("gyro_bias", _fmt(r.gyro_bias), _fmt(r.sigma_gyro_bias, digits=2),
+                     "rad/s"))
+        rows.append(("accel_bias", _fmt(r.accel_bias), _fmt(r.sigma_accel_bias, digits=2),
+                     "m/s^2"))
     rows.append(("R_MI (rotation vector)", _fmt(rpy), _fmt(r.sigma_rotation, np.degrees(1.0), 2),
                  "deg"))
     rows.append(("R_MI (quaternion wxyz)", _fmt(r.rotation_wxyz, digits=6), "", ""))
@@ -66,9 +80,10 @@ def summary_table(r: CalibrationResult) -> str:
         tilt = np.degrees(np.arccos(np.clip(-r.gravity_in_mocap[2], -1, 1)))
         rows.append(("mocap z tilt from vertical", f"{tilt:.4g}", "", "deg"))
     sto = None if r.sigma_time_offset is None else r.sigma_time_offset * 1e3
-    rows.append(("time_offset", _fmt_time_ms(r.time_offset, r.sigma_time_offset),
-                 "fixed" if sto is None and r.time_offset is not None else _fmt(sto, digits=2),
-                 "ms"))
+    if not r.takes:
+        rows.append(("time_offset", _fmt_time_ms(r.time_offset, r.sigma_time_offset),
+                     "fixed" if sto is None and r.time_offset is not None
+                     else _fmt(sto, digits=2), "ms"))
     for name, rec in r.effects.items():
         for key, val in rec.items():
             if key != "sigma":
@@ -179,11 +194,18 @@ def diagnose_table(report) -> str:
         if step.added is not None:
             lines.append(f"  -> added {step.added}: {_fmt(step.added_params, digits=3)}")
             lines.append(f"     1-sigma {_fmt(step.added_sigma, digits=2)}")
+            best = next(c for c in step.candidates if c.effect == step.added)
+            for t in best.takes or []:
+                lines.append(f"     take {t['take']}: {_fmt(t['value'], digits=3)} "
+                             f"(1-sigma {_fmt(t['sigma'], digits=2)}), log10 p "
+                             f"{t['log10_p']:.1f}: "
+                             + ("evidence there" if t["evidence"] else "no evidence alone"))
         lines.append("")
     lines.append(f"found: {', '.join(report.found) if report.found else 'none'}   "
                  f"(threshold log10 p < {report.threshold_log10_p:.2f})")
     for x in report.implausible:
-        lines.append(f"implausible (step {x['step']}, not added): {x['reason']}")
+        what = "tried again later" if x.get("takes_disagree") else "implausible"
+        lines.append(f"{what} (step {x['step']}, not added): {x['reason']}")
     lines += unexplained_lines(report.unexplained)
     for n in report.notes:
         lines.append(f"note: {n}")

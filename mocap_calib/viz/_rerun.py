@@ -21,6 +21,7 @@ Array = NDArray[np.float64]
 APPLICATION_ID = "mocap_calib"
 TIMELINE = "t"  # mocap time, s since the mocap origin (tau)
 ITERATION = "iteration"  # solver iterations of the position stage
+IMU_GAPS = "imu_gaps"  # one span series per IMU gap, shown on every plot of timeline t
 AXES = ("x", "y", "z")
 
 # Per-axis colours: saturated for "after" / measured, pale for "before" / predicted.
@@ -114,7 +115,8 @@ class Logger:
 
 
 def default_blueprint(stages: Sequence[str], has_rotation: bool,
-                      diagnose: Sequence[tuple[str, Sequence[str]]], has_solver: bool) -> Any:
+                      diagnose: Sequence[tuple[str, Sequence[str]]], has_solver: bool,
+                      has_imu_gaps: bool = False) -> Any:
     """The viewer layout: 3D scene and summary on the left, tabs of time series on the right.
 
     Args:
@@ -122,34 +124,39 @@ def default_blueprint(stages: Sequence[str], has_rotation: bool,
         has_rotation: the position stage has its rotation residuals.
         diagnose: per diagnose step, its entity name (``diagnose/<step>``) and its stages.
         has_solver: solver iterations were logged.
+        has_imu_gaps: ``imu_gaps/...`` spans were logged: every plot on the ``t`` timeline
+            shows them.
     """
     import_rerun()
     import rerun.blueprint as rrb
 
+    gaps = [f"+ /{IMU_GAPS}/**"] if has_imu_gaps else []
+
+    def view(origin: str, name: str, contents: Sequence[str] = ("+ $origin/**",)) -> Any:
+        return rrb.TimeSeriesView(origin=origin, name=name, contents=[*contents, *gaps])
+
     units = {"attitude": "deg", "velocity": "m/s", "position": "m"}
     res_views = []
     for st in stages:
-        res_views.append(rrb.TimeSeriesView(
-            origin=f"residuals/{st}", name=f"{st} residual ({units.get(st, '')})",
-            contents=["+ $origin/before/**", "+ $origin/after/**"]))
+        res_views.append(view(f"residuals/{st}", f"{st} residual ({units.get(st, '')})",
+                              ["+ $origin/before/**", "+ $origin/after/**"]))
     if has_rotation:
-        res_views.append(rrb.TimeSeriesView(origin="residuals/position/rotation",
-                                            name="position-stage attitude residual (deg)"))
+        res_views.append(view("residuals/position/rotation",
+                              "position-stage attitude residual (deg)"))
     # Query expressions only know a trailing "/**" wildcard: list the weight series.
-    res_views.append(rrb.TimeSeriesView(origin="residuals", name="robust weights (1 = inlier)",
-                                        contents=[f"+ $origin/{st}/weight" for st in stages]))
+    res_views.append(view("residuals", "robust weights (1 = inlier)",
+                          [f"+ $origin/{st}/weight" for st in stages]))
     imu_views = [
-        rrb.TimeSeriesView(origin="imu/gyro", name="gyro measured vs predicted (rad/s)",
-                           contents=["+ $origin/measured/**", "+ $origin/predicted/**"]),
-        rrb.TimeSeriesView(origin="imu/gyro/difference", name="gyro measured - predicted"),
-        rrb.TimeSeriesView(origin="imu/accel", name="accel measured vs predicted (m/s^2)",
-                           contents=["+ $origin/measured/**", "+ $origin/predicted/**"]),
-        rrb.TimeSeriesView(origin="imu/accel/difference", name="accel measured - predicted"),
+        view("imu/gyro", "gyro measured vs predicted (rad/s)",
+             ["+ $origin/measured/**", "+ $origin/predicted/**"]),
+        view("imu/gyro/difference", "gyro measured - predicted"),
+        view("imu/accel", "accel measured vs predicted (m/s^2)",
+             ["+ $origin/measured/**", "+ $origin/predicted/**"]),
+        view("imu/accel/difference", "accel measured - predicted"),
     ]
-    dr_views = [
-        rrb.TimeSeriesView(origin="dead_reckoning", name=f"dead-reckoning {q} error at the end",
-                           contents=[f"+ $origin/{k}/{q}_error" for k in ("before", "after")])
-        for q in ("position", "attitude")]
+    dr_views = [view("dead_reckoning", f"dead-reckoning {q} error at the end",
+                     [f"+ $origin/{k}/{q}_error" for k in ("before", "after")])
+                for q in ("position", "attitude")]
     tabs = [rrb.Vertical(*res_views, name="residuals"),
             rrb.Vertical(*imu_views, name="IMU"),
             rrb.Vertical(*dr_views, name="dead reckoning")]
@@ -160,8 +167,8 @@ def default_blueprint(stages: Sequence[str], has_rotation: bool,
                         "gravity_tilt")), name="solver"))
     if diagnose:
         tabs.append(rrb.Tabs(*(rrb.Vertical(
-            *(rrb.TimeSeriesView(origin=f"diagnose/{step}/{st}", name=f"{step}: {st}",
-                                 contents=["+ $origin/before/**", "+ $origin/after/**"])
+            *(view(f"diagnose/{step}/{st}", f"{step}: {st}",
+                   ["+ $origin/before/**", "+ $origin/after/**"])
               for st in step_stages), name=step) for step, step_stages in diagnose),
             name="diagnose"))
     left = rrb.Vertical(

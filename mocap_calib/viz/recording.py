@@ -17,6 +17,10 @@ Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 - ``solver/<cost|time_offset|gravity_tilt>``, ``solver/<p_MI|R_MI|gyro_bias|accel_bias>/<x|y|z>``:
   position-stage iterates on ``iteration``.
 - ``diagnose/<step>/<stage>/...``: optional extra residual series, laid out like ``residuals``.
+- ``imu_gaps/gap_<k>``: one span per IMU gap of the session shown (the first take's with
+  several), from the last sample before it to the first after it (mocap time), drawn as a
+  thick bar on the zero line of every time plot; its legend name says its length and whether
+  it was bridged or split the session. At most :data:`MAX_GAP_SPANS` are drawn.
 - ``summary`` (:func:`mocap_calib.report.text.summary_table`), ``checks`` (clock search,
   plausibility, segment consistency, noise sensitivity), ``guide``: text documents.
 
@@ -43,13 +47,22 @@ from mocap_calib.core.diagnosis.dead_reckoning import (
 from mocap_calib.core.diagnosis.predict import predict_imu
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
+from mocap_calib.core.policy import IMU_BRIDGE_MAX_S
 from mocap_calib.core.prepare.session import PreparedSession, prepare
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.state import ModelState
 from mocap_calib.core.stages.figures import ResidualSeries
 from mocap_calib.errors import InputError
 from mocap_calib.report.text import checks_lines, summary_table
-from mocap_calib.viz._rerun import AXIS_RGB, GRAY, ITERATION, TIMELINE, Logger, default_blueprint
+from mocap_calib.viz._rerun import (
+    AXIS_RGB,
+    GRAY,
+    IMU_GAPS,
+    ITERATION,
+    TIMELINE,
+    Logger,
+    default_blueprint,
+)
 
 Array = NDArray[np.float64]
 
@@ -58,6 +71,10 @@ POSE_RATE_HZ = 50.0
 #: Highest rate (Hz) of the IMU signal series: block means, which low-pass the raw signals to
 #: about the 10 Hz bandwidth of the prediction from (low-passed) mocap poses.
 IMU_RATE_HZ = 25.0
+#: Most IMU gap spans drawn (a log with more is summarised by the first ones).
+MAX_GAP_SPANS = 200
+#: Colours of the gap spans: bridged, split.
+GAP_RGB = ((250, 150, 30), (150, 40, 160))
 
 #: ``(label, {stage: ResidualSeries})`` per diagnose step (see ``diagnose_steps``).
 DiagnoseSteps = Sequence[tuple[str, Mapping[str, ResidualSeries]]]
@@ -80,6 +97,8 @@ _GUIDE = """\
   down-weighted as outliers.
 * **IMU**: measured raw gyro/accel vs what the calibrated model predicts from the mocap
   (block means at about 25 Hz); the difference should be noise around zero.
+* **IMU gaps** (`imu_gaps/`): thick bars on the zero line of every time plot, orange where a
+  gap was bridged, purple where it split the session; nothing is integrated across them.
 """
 
 
@@ -120,8 +139,10 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
     history = list(diag.iterations) if diag is not None else []
     steps = _named_steps(diagnose_steps or [])
     pos = residuals.get("position")
+    spans = imu_gap_spans(s, st.delta)
     blueprint = default_blueprint(list(residuals), pos is not None and pos.rotation_after
-                                  is not None, [(n, list(x)) for n, x in steps], bool(history))
+                                  is not None, [(n, list(x)) for n, x in steps], bool(history),
+                                  has_imu_gaps=len(spans) > 0)
 
     # rerun's writer writes ``path`` itself: the workflows give it a temporary file that
     # mocap_calib.io.atomic renames into place (no half-written recording).
@@ -138,12 +159,19 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
             _log_residuals(log, f"residuals/{stage}", series)
         _log_imu(log, s, st)
         _log_solver(log, history, s.clock_shift)
+        _log_imu_gaps(log, spans)
         for name, series_by_stage in steps:
             for stage, series in series_by_stage.items():
                 _log_residuals(log, f"diagnose/{name}/{stage}", series)
     finally:
         log.close()
     return path
+
+
+def imu_gap_spans(s: PreparedSession, delta: float) -> Array:
+    """(G, 2) mocap-time start and end of the session's IMU gaps: the last sample before each
+    and the first after it, moved to the mocap clock by ``delta`` (mocap minus IMU time)."""
+    return np.zeros((0, 2)) if s.imu_gaps is None else s.imu_gaps.spans(delta)
 
 
 def _stride(rate: float, max_rate: float) -> int:
@@ -291,6 +319,16 @@ def _log_imu(log: Logger, s: PreparedSession, st: ModelState) -> None:
         log.xyz(f"imu/{sensor}/predicted", tau, pm, f"{sensor} predicted", unit, pale=True,
                 width=2.5)
         log.xyz(f"imu/{sensor}/difference", tau, mm - pm, f"{sensor} measured - predicted", unit)
+
+
+def _log_imu_gaps(log: Logger, spans: Array) -> None:
+    """One two-point series per gap on the zero line, thick, coloured by what was done."""
+    for k, (a, b) in enumerate(spans[:MAX_GAP_SPANS]):
+        split = b - a > IMU_BRIDGE_MAX_S
+        path = f"{IMU_GAPS}/gap_{k:03d}"
+        log.style(path, f"IMU gap {k + 1}: {b - a:.3f} s, {'split' if split else 'bridged'}",
+                  GAP_RGB[int(split)], width=8.0)
+        log.scalars(path, np.array([a, b]), np.zeros(2))
 
 
 def _log_solver(log: Logger, history: Sequence[Mapping], clock_shift: float) -> None:

@@ -46,23 +46,37 @@ class DiagnoseRequest:
 
 
 def run_diagnosis(request: DiagnoseRequest, progress: ProgressFn | None = None):
-    """Read the inputs and run the model diagnosis; returns the report and what was read."""
-    from mocap_calib.core.diagnosis.diagnose import diagnose
+    """Read the inputs (several takes: repeated --imu/--mocap pairs or mav0 folders, as
+    ``calibrate``) and run the model diagnosis; returns the report and what was read (the
+    first take's, for the recording)."""
+    from mocap_calib.core.diagnosis.diagnose import diagnose_takes
+    from mocap_calib.core.pipeline.calibrate import Recording
 
     options = request.diagnosis
-    session = load_session(request.inputs, options.calibration.time_offset)
-    for note in session.notes:
+    specs = request.inputs.takes()
+    sessions = [load_session(spec, options.calibration.time_offset) for spec in specs]
+    notes = [n for s in sessions for n in s.notes]
+    for note in notes:
         if progress is not None:
             progress(note)
-    cal = replace(options.calibration, noise=request.noise.resolve(session.sensor_noise))
+    first = sessions[0]
+    cal = replace(options.calibration, noise=request.noise.resolve(first.sensor_noise))
     if request.plausible is not None:
         limits = load_plausible(request.plausible)
         cal = replace(cal, plausible=limits)
         options = replace(options, plausible=limits)
-    report = diagnose(session.imu, session.mocap, replace(options, calibration=cal),
-                      progress=progress)
-    report.final.session["inputs"] = list(session.notes)
-    return report, session
+    recordings = [Recording(s.imu, s.mocap, *_names(spec))
+                  for s, spec in zip(sessions, specs, strict=True)]
+    report = diagnose_takes(recordings, replace(options, calibration=cal), progress=progress)
+    report.final.session["inputs"] = notes
+    return report, first
+
+
+def _names(spec: InputSpec) -> tuple[str, str]:
+    """How a take's inputs are named in the report (as given)."""
+    if spec.mav0:
+        return str(spec.mav0[0]), str(spec.mav0[0])
+    return str(spec.imu[0]), str(spec.mocap[0])
 
 
 def diagnose_series(report) -> list[tuple[str, dict]]:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import gtsam
 import numpy as np
@@ -43,13 +44,22 @@ from mocap_calib.core.diagnosis.report import (
     DiagnoseStep,
     Residuals,
 )
-from mocap_calib.core.diagnosis.signature import unexplained_signature
+from mocap_calib.core.diagnosis.signature import unexplained_signature, why_unexplained
+from mocap_calib.core.diagnosis.takes import (
+    combine_noise,
+    combine_rms,
+    evidence_row,
+    homogeneity,
+    shared,
+    take_result,
+    take_state,
+)
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, CLOCK_OFFSET, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
-from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.pipeline.calibrate import Recording, calibrate_takes
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import (
@@ -66,7 +76,7 @@ from mocap_calib.errors import CalibrationError, InputError, Interrupted
 Array = NDArray[np.float64]
 
 __all__ = ["DiagnoseOptions", "DiagnoseReport", "DiagnoseStep", "CandidateScore", "Residuals",
-           "REPORT_KIND", "REPORT_VERSION", "diagnose", "plausibility"]
+           "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes", "plausibility"]
 
 
 def _effect_names(text: str) -> tuple[str, ...]:
@@ -148,27 +158,45 @@ def _drop(before: Residuals, after: Residuals, sensor: str) -> float:
 
 @dataclass
 class _Session:
-    """What every fit of one diagnosis shares."""
+    """What every fit of one diagnosis shares: every take's session and windows, their robust
+    weights and bias-model middles (one take: a single recording)."""
 
-    s: PreparedSession
-    windows: object
-    weights: Array
-    t_mid: float
+    takes: list[Take]
+    weights: list[Array]
+    t_mids: list[float]
     opts: DiagnoseOptions
     notes: list[str] = field(default_factory=list)
-    coarse_delta: float | None = None
+    coarse_deltas: list[float] | None = None
+
+    @property
+    def s(self) -> PreparedSession:
+        return self.takes[0].s
+
+    @property
+    def t_mid(self) -> float:
+        return self.t_mids[0]
+
+    def alone(self, k: int) -> _Session:
+        """Take ``k`` on its own (same options and weights)."""
+        return _Session([self.takes[k]], [self.weights[k]], [self.t_mids[k]], self.opts)
+
+    def dof_of(self, effect: str) -> int:
+        """Parameters an effect adds: the clock offset once per take, the rest once."""
+        return EFFECTS[effect].dim * (1 if shared(effect) else len(self.takes))
 
     def fit(self, m: Model, base: PositionResult, nz: NoiseModel,
             extra: dict[str, Array] | None = None, adapt: bool = False,
             covariance: bool = True) -> PositionResult:
-        start = TakeStart(base.delta, base.gyro_bias_mean, base.accel_bias_mean, base.knots)
+        starts = [TakeStart(tf.delta, tf.gyro_bias_mean, tf.accel_bias_mean, tf.knots)
+                  for tf in base.takes]
         for name, v in (extra or {}).items():
-            if EFFECTS[name].acts_on == "clock":
-                start.delta = float(v[0])
-        init = PositionInit(base.R_MI, base.p_MI, base.g_dir, base.g_mag, [start],
-                            {**base.effects, **(extra or {})})
-        return run_position_stage([Take(self.s, self.windows)], m, nz, init, robust=False,
-                                  adapt_noise=adapt, weights=[self.weights],
+            if EFFECTS[name].acts_on == "clock":  # v: every take's offset
+                for st, d in zip(starts, v, strict=True):
+                    st.delta = float(d)
+        init = PositionInit(base.R_MI, base.p_MI, base.g_dir, base.g_mag, starts,
+                            {**base.effects, **{k: v[:1] for k, v in (extra or {}).items()}})
+        return run_position_stage(self.takes, m, nz, init, robust=False,
+                                  adapt_noise=adapt, weights=self.weights,
                                   max_iterations=self.opts.calibration.max_iterations,
                                   covariance=covariance, window_blocks=False,
                                   axis_scale=base.axis_scale)
@@ -176,44 +204,94 @@ class _Session:
     def correlated(self, pos: PositionResult, m: Model) -> NoiseModel:
         """The mocap noise model (AR(1) and level) the windows' likelihood prefers at ``pos``:
         the tests compare likelihoods, and a white noise model would count correlated
-        residuals as independent evidence."""
-        pp = PositionProblem(self.s, m, pos.noise, self.windows, split=False)
-        pp.weights = self.weights
-        pp.mocap_axis_scale = pos.axis_scale.copy()
-        th = Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(), pos.g_mag,
-                   pos.delta, dict(pos.effects), pos.knots, self.t_mid)
-        return fit_mocap_correlation(pp, th).noise
+        residuals as independent evidence (several takes: each take's, combined)."""
+        out = []
+        for k, (take, w, t_mid) in enumerate(zip(self.takes, self.weights, self.t_mids,
+                                                 strict=True)):
+            tf = pos.takes[k]
+            pp = PositionProblem(take.s, m, pos.noise, take.windows, split=False)
+            pp.weights = w
+            pp.mocap_axis_scale = pos.axis_scale.copy()
+            th = Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(),
+                       pos.g_mag, tf.delta, dict(pos.effects), tf.knots, t_mid)
+            out.append(fit_mocap_correlation(pp, th).noise)
+        return combine_noise(out)
 
     def residuals(self, pos: PositionResult, m: Model, nz: NoiseModel) -> Residuals:
-        return Residuals.of(analyse_residuals(self.s, ModelState.from_position(pos, m, self.t_mid),
-                                              nz, cutoff_hz=self.opts.cutoff_hz))
+        """Low-band residuals against the floor (several takes: together; the first take's
+        series kept for plots)."""
+        ras = [analyse_residuals(tf.s, take_state(pos, k, m, self.t_mids[k]), nz,
+                                 cutoff_hz=self.opts.cutoff_hz)
+               for k, tf in enumerate(pos.takes)]
+        if len(ras) == 1:
+            return Residuals.of(ras[0])
+        return Residuals(*combine_rms(ras), analysis=ras[0])
 
     def start_values(self, cand: str) -> dict[str, Array]:
-        """Where a candidate's fit starts: the clock offset from the coarse search, the rest
+        """Where a candidate's fit starts: the clock offsets from the coarse search, the rest
         from the nested model's value (zero)."""
         eff = EFFECTS[cand]
         if eff.acts_on != "clock":
             return {}
-        if self.coarse_delta is None:
-            s = self.s
-            self.coarse_delta = search_clock(s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM,
-                                             s.clock_shift).time_offset + s.clock_shift
-        return {cand: np.array([self.coarse_delta])}
+        if self.coarse_deltas is None:
+            self.coarse_deltas = [
+                search_clock(s.u, s.gyro, s.accel, s.tau, s.R_WM, s.p_WM,
+                             s.clock_shift).time_offset + s.clock_shift
+                for s in (t.s for t in self.takes)]
+        return {cand: np.array(self.coarse_deltas)}
+
+    def holds(self, c: CandidateScore, model: Model,
+              fits: dict[str, tuple[PositionResult, Residuals]], current: PositionResult,
+              noise: NoiseModel, threshold: float) -> str | None:
+        """Several takes: refit the effect in each take alone (from the joint solution) and
+        record each take's evidence in ``c.takes``; the reason when the takes' estimates
+        disagree (None: it holds, or a single take)."""
+        if len(self.takes) == 1:
+            return None
+        m = model.with_effect(c.effect)
+        joint = fits[c.effect][0]
+        alone, rows = [], []
+        for k in range(len(self.takes)):
+            one = self.alone(k)
+            without = one.fit(model, take_result(current, k), noise, covariance=False)
+            f = one.fit(m, take_result(joint, k), noise)
+            sc = _test(one, c.effect, f, without, threshold)
+            params, sig = effect_estimate(f, c.effect, one.s.clock_shift)
+            rows.append(evidence_row(k, sc.log10_p, threshold, params, sig))
+            alone.append(f)
+        c.takes = rows
+        if not shared(c.effect):
+            return None
+        q, dof = homogeneity(alone, c.effect)
+        lp = _log10_sf(q, dof)
+        if lp < np.log10(self.opts.alpha):
+            return (f"the takes disagree on {c.effect} (chi2 {q:.1f} on {dof} dof, log10 p "
+                    f"{lp:.1f}): it does not hold across the takes")
+        return None
 
 
 def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None = None,
              progress: Callable[[str], None] | None = None) -> DiagnoseReport:
-    """Run the diagnosis loop (see the module docstring).
+    """Run the diagnosis loop (see the module docstring) on one recording.
 
     Args:
         imu: raw IMU samples; mocap: marker poses.
         options: see :class:`DiagnoseOptions`.
         progress: called with one-line messages.
     """
+    return diagnose_takes([Recording(imu, mocap)], options, progress)
+
+
+def diagnose_takes(recordings: list[Recording], options: DiagnoseOptions | None = None,
+                   progress: Callable[[str], None] | None = None) -> DiagnoseReport:
+    """The diagnosis of one rig from several takes: every fit is joint (shared ``T_MI``,
+    gravity and effects, each take its own clock offset and biases, as ``calibrate``), and an
+    effect is found only when it also holds across the takes (:mod:`.takes`); each take's own
+    evidence is reported with it."""
     opts = options or DiagnoseOptions()
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
-    ds, model, current = _start(imu, mocap, opts, say)
+    ds, model, current = _start(recordings, opts, say)
     noise = current.noise
     cur_res = ds.residuals(current, model, noise)
     found: list[str] = []
@@ -222,7 +300,8 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
     threshold = 0.0
     for _ in range(opts.max_steps):
         todo = [c for c in opts.candidates
-                if not model.has(c) and c not in {x["effect"] for x in implausible}]
+                if not model.has(c) and c not in {x["effect"] for x in implausible
+                                                  if not x.get("takes_disagree")}]
         if not todo:
             break
         threshold = float(np.log10(opts.alpha / len(todo)))
@@ -231,7 +310,9 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
         step = DiagnoseStep(str(model), cur_res, current.cost, current.dof, scores,
                             series={"position": current.series})
         steps.append(step)
-        best = _first_plausible(scores, opts.plausible, implausible, len(steps))
+        best = _first_plausible(scores, opts.plausible, implausible, len(steps),
+                                partial(ds.holds, model=model, fits=fits, current=current,
+                                        noise=noise, threshold=threshold))
         if best is None:
             break
         f, res = fits[best.effect]
@@ -251,13 +332,13 @@ def diagnose(imu: ImuSamples, mocap: MocapPoses, options: DiagnoseOptions | None
             cur_res = ds.residuals(current, model, noise)
         else:
             cur_res = res
-    report = _finish(imu, mocap, ds, model, current, steps, say)
+    report = _finish(recordings, ds, model, current, steps, say)
     report.found, report.implausible, report.threshold_log10_p = found, implausible, threshold
     report.seconds = time.perf_counter() - t0
     return report
 
 
-def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
+def _start(recordings: list[Recording], opts: DiagnoseOptions,
            say: Callable[[str], None]) -> tuple[_Session, Model, PositionResult]:
     """Fit the starting model, then refit it with frozen robust weights (so every later
     comparison uses the same cost) and its mocap noise re-estimated."""
@@ -269,28 +350,33 @@ def _start(imu: ImuSamples, mocap: MocapPoses, opts: DiagnoseOptions,
                        sensitivity=False, accept_implausible=True, effect_tests=False)
     say(f"fitting the starting model {model}")
     try:
-        start = calibrate(imu, mocap, cal_opts)
+        start = calibrate_takes(recordings, cal_opts)
     except InputError:  # the streams may not even overlap without the offset
         if model.timed:
             raise
         model = model.with_effect(CLOCK_OFFSET.name)
         notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
-        start = calibrate(imu, mocap, replace(cal_opts, model=model))
+        start = calibrate_takes(recordings, replace(cal_opts, model=model))
     tr = start.diagnostics.trace
-    ds = _Session(tr.session, tr.windows, tr.weights, float(tr.model_state.t_mid), opts, notes)
+    more = tr.position.takes[1:] if tr.position is not None else []
+    ds = _Session([Take(tr.session, tr.windows), *(tf.take for tf in more)],
+                  [tr.weights, *(tf.weights for tf in more)],
+                  [float(tr.model_state.t_mid), *(tf.take.t_mid for tf in more)], opts, notes)
     # From the model state, not the public result: that holds None for what is unobservable.
     st0: ModelState = tr.model_state
     g_mag0 = float(np.linalg.norm(st0.g_W))
     init0 = PositionInit(
         st0.R_MI, st0.p_MI, st0.g_W / g_mag0, g_mag0,
         [TakeStart(st0.delta, st0.bias[:, 0:3].mean(axis=0), st0.bias[:, 3:6].mean(axis=0),
-                   st0.bias)], dict(st0.effects))
+                   st0.bias),
+         *(TakeStart(tf.delta, tf.gyro_bias_mean, tf.accel_bias_mean, tf.knots) for tf in more)],
+        dict(st0.effects))
     # Every step first re-estimates the mocap noise with the current model (a missing effect
     # inflates it, so it is redone after each effect is added): its level, then its
     # correlation (the diagnosis models it; calibrate keeps it as a check only); the
     # candidates of the step are then fitted with it frozen.
-    white = run_position_stage([Take(ds.s, ds.windows)], model, tr.noise_used, init0,
-                               robust=False, adapt_noise=True, weights=[ds.weights])
+    white = run_position_stage(ds.takes, model, tr.noise_used, init0,
+                               robust=False, adapt_noise=True, weights=ds.weights)
     current = ds.fit(model, white, ds.correlated(white, model), adapt=True)
     return ds, model, current
 
@@ -332,7 +418,7 @@ def _test(ds: _Session, cand: str, f: PositionResult, current: PositionResult,
     """The candidate's statistic: the smaller of the noise-scaled likelihood ratio and the
     robust Wald statistic of its parameters against the nested model's values (the Wald only
     where the likelihood ratio alone would pass: it can only lower the statistic)."""
-    k = EFFECTS[cand].dim
+    k = ds.dof_of(cand)
     d = current.cost - f.cost
     scale = max(1.0, f.cost / max(f.dof, 1))
     lr = max(d, 0.0) / scale
@@ -353,61 +439,55 @@ def _test(ds: _Session, cand: str, f: PositionResult, current: PositionResult,
 
 
 def _first_plausible(scores: list[CandidateScore], limits: PlausibleLimits,
-                     implausible: list[dict], step: int) -> CandidateScore | None:
-    """The most significant candidate whose magnitude is plausible; the implausible ones on
-    the way are listed (never added)."""
+                     implausible: list[dict], step: int,
+                     holds: Callable[[CandidateScore], str | None] = lambda _c: None
+                     ) -> CandidateScore | None:
+    """The most significant candidate whose magnitude is plausible and that holds across the
+    takes; the others on the way are listed with the reason (never added)."""
     for c in scores:
         if not c.significant:
             continue
         problem = effect_problem(c.effect, c.params, limits)
-        if problem is None:
+        # Takes that disagree now may agree once the model has what is missing (their clock
+        # offsets, say): such a candidate is tried again at the next step.
+        disagree = holds(c) if problem is None else None
+        if problem is None and disagree is None:
             return c
-        c.implausible = problem
+        c.implausible = problem or disagree
         implausible.append({"step": step, "effect": c.effect, "value": c.params,
-                            "reason": problem})
+                            "reason": c.implausible,
+                            **({"takes_disagree": True} if disagree else {})})
     return None
 
 
-def _why_unexplained(res: Residuals, noise: NoiseModel, opts: DiagnoseOptions) -> list[str]:
-    """Why the data hold more than the model and the noise: the residual above the floor, or a
-    mocap noise no mocap system has (a slow model error taken for noise)."""
-    why = []
-    for sensor in ("gyro", "accel"):
-        if res.ratio(sensor) > opts.unexplained_ratio:
-            why.append(f"the {sensor} residual is {res.ratio(sensor):.2f} x the noise floor")
-    pos, rot = opts.typical_mocap_noise
-    if noise.mocap_position_sigma > pos or noise.mocap_rotation_sigma > rot:
-        corr = (f", correlated over {noise.mocap_noise_corr_time:g} s"
-                if noise.mocap_correlated else "")
-        why.append(f"the residuals imply mocap noise of {1e3 * noise.mocap_position_sigma:.2g} mm "
-                   f"and {np.degrees(noise.mocap_rotation_sigma):.2g} deg per sample{corr}, "
-                   f"beyond a mocap system's ({1e3 * pos:g} mm, {np.degrees(rot):g} deg): "
-                   "a slow error the model does not describe")
-    return why
-
-
-def _finish(imu: ImuSamples, mocap: MocapPoses, ds: _Session, model: Model,
+def _finish(recordings: list[Recording], ds: _Session, model: Model,
             current: PositionResult, steps: list[DiagnoseStep],
             say: Callable[[str], None]) -> DiagnoseReport:
-    """The final calibration with the model found, and the signature of any gap left."""
+    """The final calibration with the model found, and the signature of any gap left (the
+    first take's, with several)."""
     opts = ds.opts
     say(f"final calibration with {model}")
-    final = calibrate(imu, mocap, replace(opts.calibration, model=model, accept_implausible=True))
+    final = calibrate_takes(recordings, replace(opts.calibration, model=model,
+                                                accept_implausible=True))
     fx = final.diagnostics.trace
     # The noise floor is the diagnosis' noise model's (correlated mocap noise): the final
     # calibration's own is white, its level fitted to the innovations.
-    final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, current.noise,
-                                               cutoff_hz=opts.cutoff_hz))
+    if len(recordings) > 1 and fx.position is not None:
+        final_res = ds.residuals(fx.position, model, current.noise)
+    else:
+        final_res = Residuals.of(analyse_residuals(fx.session, fx.model_state, current.noise,
+                                                   cutoff_hz=opts.cutoff_hz))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
     unexplained = None
     # The final calibration (clock search, noise model chosen from the session) is what the
     # user gets; the gap it leaves, not the search's last step, decides what is unexplained.
-    why = _why_unexplained(final_res, current.noise, opts)
+    why = why_unexplained(final_res, current.noise, opts.unexplained_ratio,
+                          opts.typical_mocap_noise)
     if why and final_res.analysis is not None:
         say("describing the residual no candidate explains")
-        if fx.position is not None:
-            pos, s_final, st = fx.position, fx.session, fx.model_state
+        if fx.position is not None:  # several takes: the first one's
+            pos, s_final, st = take_result(fx.position, 0), fx.session, fx.model_state
         else:
             pos = current.with_covariance()
             s_final, st = ds.s, ModelState.from_position(pos, model, ds.t_mid)

@@ -44,6 +44,7 @@ class CandidateScore:
     sigma: object = None
     wald: float = 0.0
     implausible: str | None = None
+    takes: list[dict[str, Any]] | None = None  # several takes: each one's own test
 
     def to_dict(self) -> dict[str, Any]:
         d = {"effect": self.effect, "dof": self.dof, "delta_chi2": round(self.delta_chi2, 3),
@@ -53,6 +54,8 @@ class CandidateScore:
              "significant": self.significant, "residual_drop": round(self.residual_drop, 4)}
         if self.implausible:
             d["implausible"] = self.implausible
+        if self.takes:
+            d["takes"] = self.takes
         return d
 
     @classmethod
@@ -61,7 +64,8 @@ class CandidateScore:
                    float(d["noise_scale"]), float(d["statistic"]), float(d["log10_p"]),
                    bool(d["significant"]), float(d["residual_drop"]),
                    wald=float("nan") if d.get("wald_robust") is None
-                   else float(d["wald_robust"]), implausible=d.get("implausible"))
+                   else float(d["wald_robust"]), implausible=d.get("implausible"),
+                   takes=d.get("takes"))
 
 
 @dataclass
@@ -129,7 +133,8 @@ class DiagnoseStep:
             best = next(c for c in self.candidates if c.effect == self.added)
             d["added"] = {"effect": self.added, EFFECTS[self.added].param: self.added_params,
                           "sigma": self.added_sigma, "statistic": round(best.statistic, 3),
-                          "dof": best.dof, "log10_p": round(best.log10_p, 3)}
+                          "dof": best.dof, "log10_p": round(best.log10_p, 3),
+                          **({"takes": best.takes} if best.takes else {})}
             if self.residuals_after is not None:
                 d["residuals_after"] = self.residuals_after.to_dict()
         return d

@@ -21,7 +21,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis, lowpass, predict_imu
+from mocap_calib.core.diagnosis.report import Residuals
 from mocap_calib.core.model.effects import CLOCK_OFFSET
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.state import ModelState
@@ -110,3 +112,22 @@ def _clock_profile(s: PreparedSession, st: ModelState, pos: PositionResult,
     return {"t_s": [round(float(x), 2) for x in t], "t_d_ms": [round(1e3 * x, 4) for x in td],
             "sigma_ms": [round(1e3 * x, 4) for x in sig], "slope_ppm": round(1e6 * slope, 2),
             "largest_jump_sigmas": round(float(jumps.max()), 2) if len(jumps) else 0.0}
+
+
+def why_unexplained(res: Residuals, noise: NoiseModel, ratio: float,
+                    typical_mocap_noise: tuple[float, float]) -> list[str]:
+    """Why the data hold more than the model and the noise: the residual above the floor, or a
+    mocap noise no mocap system has (a slow model error taken for noise)."""
+    why = []
+    for sensor in ("gyro", "accel"):
+        if res.ratio(sensor) > ratio:
+            why.append(f"the {sensor} residual is {res.ratio(sensor):.2f} x the noise floor")
+    pos, rot = typical_mocap_noise
+    if noise.mocap_position_sigma > pos or noise.mocap_rotation_sigma > rot:
+        corr = (f", correlated over {noise.mocap_noise_corr_time:g} s"
+                if noise.mocap_correlated else "")
+        why.append(f"the residuals imply mocap noise of {1e3 * noise.mocap_position_sigma:.2g} mm "
+                   f"and {np.degrees(noise.mocap_rotation_sigma):.2g} deg per sample{corr}, "
+                   f"beyond a mocap system's ({1e3 * pos:g} mm, {np.degrees(rot):g} deg): "
+                   "a slow error the model does not describe")
+    return why

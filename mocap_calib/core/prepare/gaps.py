@@ -69,6 +69,12 @@ class ImuGaps:
         """Gaps longer than the bridging limit: they split the session into segments."""
         return self.lengths > IMU_BRIDGE_MAX_S
 
+    def spans(self, delta: float = 0.0) -> Array:
+        """(G, 2) each gap's last sample before and first after it, moved by ``delta`` (mocap
+        minus IMU time: on the mocap clock), for plots."""
+        return np.stack([self.before, self.after], axis=1) + delta if self.count else \
+            np.zeros((0, 2))
+
     def spans_clear(self, t0: Array, t1: Array) -> NDArray[np.bool_]:
         """Whether the spans ``[t0, t1]`` (IMU clock) stay clear of every gap (with the
         interpolant's margin)."""

@@ -61,11 +61,28 @@ def clock_png(lags: Array, score: Array, chosen: float, candidates: Sequence[tup
         return to_png(fig)
 
 
+#: Shading of the IMU gaps on time plots: bridged, split.
+IMU_GAP_COLORS = ("#fdae6b", "#bcbddc")
+
+
+def shade_imu_gaps(ax, spans: Array, split_s: float, label: bool = True) -> None:
+    """Shade the IMU gaps ``spans`` ((G, 2) mocap time) on a time axis; longer than
+    ``split_s``: split the session (another colour)."""
+    for kind in (False, True):
+        sel = [(a, b) for a, b in spans if (b - a > split_s) == kind]
+        for j, (a, b) in enumerate(sel):
+            ax.axvspan(a, b, color=IMU_GAP_COLORS[int(kind)], alpha=0.6, lw=0, zorder=0,
+                       label=(f"IMU gap, {'split' if kind else 'bridged'} ({len(sel)})"
+                              if label and j == 0 else None))
+
+
 def stage_png(name: str, s: ResidualSeries, removed_t: Array,
-              spectrum: tuple[Array, Array, Array, Array] | None) -> bytes:
+              spectrum: tuple[Array, Array, Array, Array] | None,
+              imu_gaps: Array | None = None, split_s: float = 0.5) -> bytes:
     """One stage: residuals before (grey) and after (per axis) over time, robust weights with
     the down-weighted samples and removed spikes below, and the residual spectra against the
-    noise floor (``spectrum``: freq, before, after, floor per axis)."""
+    noise floor (``spectrum``: freq, before, after, floor per axis); ``imu_gaps``: (G, 2)
+    mocap-time spans shaded on both time plots."""
     unit, k = SHOWN_UNIT.get(s.unit, (s.unit, 1.0))
     order = np.argsort(s.t, kind="stable")  # overlapping windows are not in time order
     t_all = s.t[order]
@@ -81,6 +98,9 @@ def stage_png(name: str, s: ResidualSeries, removed_t: Array,
         for i in range(3):
             ax.plot(*thin(t_all, k * s.after[order, i]), color=AXIS_COLORS[i], lw=0.6,
                     label=f"after {'xyz'[i]}")
+        if imu_gaps is not None and len(imu_gaps):
+            shade_imu_gaps(ax, imu_gaps, split_s)
+            shade_imu_gaps(w, imu_gaps, split_s, label=False)
         ax.set_ylabel(unit)
         ax.legend(loc="upper right", ncols=4)
         ax.set_title(f"{name} stage: residuals before and after the solve", y=1.0)
@@ -202,8 +222,9 @@ def trajectory_png(p_marker: Array, imu_segments: Sequence[Array], gap_points: A
 
 
 def gaps_png(tau: Array, gaps: Array, removed_t: Array, dr_t: Array, dr_before: Array,
-             dr_after: Array) -> bytes:
-    """Mocap coverage over time (gaps, removed spikes) and the dead-reckoning drift."""
+             dr_after: Array, imu_gaps: Array | None = None, split_s: float = 0.5) -> bytes:
+    """Mocap coverage over time (gaps, removed spikes), the IMU gaps ((G, 2) mocap time,
+    shaded on both plots) and the dead-reckoning drift."""
     with styled():
         fig = new_figure(9.5, 2.6, left=0.07, bottom=0.16, top=0.9, hspace=0.35)
         a1, a2 = fig.subplots(2, 1, sharex=True, height_ratios=[0.6, 1])
@@ -214,15 +235,21 @@ def gaps_png(tau: Array, gaps: Array, removed_t: Array, dr_t: Array, dr_before: 
         for tr in removed_t:
             a1.axvline(tr, color="#9467bd", lw=0.8)
         a1.set_yticks([])
+        n_imu = 0 if imu_gaps is None else len(imu_gaps)
+        if n_imu:
+            shade_imu_gaps(a1, imu_gaps, split_s, label=False)
+            shade_imu_gaps(a2, imu_gaps, split_s)
         a1.set_title(f"mocap coverage: {len(gaps)} gaps (red), {len(removed_t)} removed spikes "
-                     "(purple)", y=1.0)
+                     f"(purple); {n_imu} IMU gaps shaded (orange: bridged, lilac: split)",
+                     y=1.0)
         if len(dr_t):
             a2.plot(dr_t, 1e3 * np.maximum(dr_before, 1e-6), "o", color="#aaa", ms=3,
                     label="raw IMU")
             a2.plot(dr_t, 1e3 * np.maximum(dr_after, 1e-6), "o", color="#ff7f0e", ms=3,
                     label="calibrated")
             log_axes(a2, x=False)
-            a2.legend(loc="upper right", ncols=2)
+        if len(dr_t) or n_imu:
+            a2.legend(loc="upper right", ncols=4)
         a2.set_ylabel("2 s drift (mm)")
         a2.set_xlabel("mocap time (s)")
         return to_png(fig)

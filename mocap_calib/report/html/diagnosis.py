@@ -161,6 +161,30 @@ def _candidate_rows(steps: list[dict[str, Any]]) -> list[list[str | Cell]]:
     return rows
 
 
+def _value(key: str, v: Any, digits: int) -> str | Cell:
+    """A scalar as a keyed cell; a vector or matrix (or a mapping of them) as plain text."""
+    if v is None or isinstance(v, (int, float)):
+        return num(key, v, digits=digits)
+    return str(np.round(np.asarray(v, dtype=float), 6).tolist()) if not isinstance(v, dict) \
+        else ", ".join(f"{k} {np.round(np.asarray(x, dtype=float), 6).tolist()}"
+                       for k, x in v.items())
+
+
+def _take_rows(steps: list[dict[str, Any]]) -> list[list[str | Cell]]:
+    """Per effect added, each take's own estimate and test (several takes only)."""
+    rows: list[list[str | Cell]] = []
+    for i, s in enumerate(steps):
+        added = s.get("added") or {}
+        for j, t in enumerate(added.get("takes") or []):
+            p = f"steps/{i}/added/takes/{j}"
+            rows.append([str(i + 1) if j == 0 else "", added["effect"] if j == 0 else "",
+                         num(f"{p}/take", t["take"]), _value(f"{p}/value", t["value"], 4),
+                         _value(f"{p}/sigma", t["sigma"], 2),
+                         num(f"{p}/log10_p", t["log10_p"], digits=5),
+                         num(f"{p}/evidence", t["evidence"])])
+    return rows
+
+
 def unexplained_of(report: Any) -> Mapping[str, Any] | None:
     """The report's ``unexplained`` signature (attribute or to_dict key), if any."""
     u = getattr(report, "unexplained", None)
@@ -198,6 +222,13 @@ def diagnosis_steps_sections(report: DiagnoseReport) -> list[Section]:
               _candidate_rows(steps), f"Every candidate's likelihood-ratio test (threshold "
               f"log10 p < {thr:.3f}, Bonferroni over the candidates)"),
     ]
+    take_rows = _take_rows(steps)
+    if take_rows:
+        blocks.append(Table("diagnosis-takes", ("step", "effect", "take", "estimate",
+                                                "1-sigma", "log10 p alone", "evidence"),
+                            take_rows, "Several takes: each effect found, refitted in each "
+                            "take alone from the joint solution; evidence: that take's own "
+                            f"test passes the threshold (log10 p < {thr:.3f})"))
     if any(s.get("candidates") for s in steps):
         blocks.append(Figure("fig-diagnose-candidates", "Each candidate's -log10 p per step; "
                              "dashed: the threshold; green: added, orange: significant",

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.policy import IMU_BRIDGE_MAX_S
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.report.html import calib_plots as plots
 from mocap_calib.report.html.calibration import CalibrationExtras
@@ -28,6 +29,7 @@ def residuals_section(r: CalibrationResult, extras: CalibrationExtras) -> Sectio
                        ["Residual series are not available (the result was read from a file)."])
     trace = diag.trace
     removed = trace.session.removed_tau if trace is not None else np.zeros(0)
+    spans = imu_gap_spans(r)
     for name, s in diag.residuals.items():
         n_out = int(np.sum(s.weight < 0.5))
         sp = extras.stage_spectra.get(name)
@@ -37,9 +39,10 @@ def residuals_section(r: CalibrationResult, extras: CalibrationExtras) -> Sectio
             f"(colour) per axis over time; robust weights below, {n_out} down-weighted "
             f"samples marked, {len(removed)} removed mocap spikes as vertical lines; right: "
             "their spectra (Welch) against the white floor the stage's noise model assumes "
-            "(RMS after / sqrt(chi2/dof))", plots.stage_png(name, s, removed, spec),
+            f"(RMS after / sqrt(chi2/dof)); {len(spans)} IMU gaps shaded",
+            plots.stage_png(name, s, removed, spec, spans, IMU_BRIDGE_MAX_S),
             data={"stage": name, "outliers": str(n_out), "removed-spikes": str(len(removed)),
-                  "spectrum": "yes" if spec is not None else "no"}))
+                  "spectrum": "yes" if spec is not None else "no", **_span_data(spans)}))
     ra = extras.imu_analysis
     if ra is not None and len(ra.freq) > 2:
         span = extras.spectrum_span_s
@@ -63,6 +66,30 @@ def residuals_section(r: CalibrationResult, extras: CalibrationExtras) -> Sectio
     return Section("sec-residuals", "Residuals per stage and spectra", blocks)
 
 
+def imu_gap_spans(r: CalibrationResult) -> Array:
+    """(G, 2) the IMU gaps of the session the solver used (the first take's with several), on
+    the mocap clock (the estimated clock offset); none without the solver's trace."""
+    tr = r.diagnostics.trace if r.diagnostics is not None else None
+    if tr is None or tr.session.imu_gaps is None:
+        return np.zeros((0, 2))
+    return tr.session.imu_gaps.spans(tr.model_state.delta)
+
+
+def _span_data(spans: Array) -> dict[str, str]:
+    """The IMU gap spans as ``data-*`` attributes (mocap time, s)."""
+    return {"imu-gaps": str(len(spans)),
+            "imu-gap-starts-s": ",".join(f"{a:.4f}" for a in spans[:, 0]),
+            "imu-gap-ends-s": ",".join(f"{b:.4f}" for b in spans[:, 1])}
+
+
+def _imu_gaps_table(spans: Array) -> Table:
+    rows = [[f"{a:.3f}", f"{b:.3f}", f"{1e3 * (b - a):.0f}",
+             "split" if b - a > IMU_BRIDGE_MAX_S else "bridged"] for a, b in spans[:50]]
+    return Table("imu-gaps-table", ("gap start (s)", "gap end (s)", "length (ms)", "done"), rows,
+                 "IMU gaps (mocap time: last sample before, first after)"
+                 + (f" (first 50 of {len(spans)})" if len(spans) > 50 else ""))
+
+
 def gap_intervals(tau: Array, gap: float) -> Array:
     """(g, 2) start and end times of the mocap gaps (intervals longer than ``gap``)."""
     i = np.flatnonzero(np.diff(tau) > gap)
@@ -77,6 +104,7 @@ def trajectory_section(r: CalibrationResult, extras: CalibrationExtras) -> Secti
                        ["The trajectory is not available (the result was read from a file)."])
     s = trace.session
     gaps = gap_intervals(s.tau, s.gap)
+    spans = imu_gap_spans(r)
     i = np.flatnonzero(np.diff(s.tau) > s.gap)
     gap_pts = np.concatenate([s.p_WM[i], s.p_WM[i + 1]]) if len(i) else np.zeros((0, 3))
     rem = s.removed_tau
@@ -96,16 +124,19 @@ def trajectory_section(r: CalibrationResult, extras: CalibrationExtras) -> Secti
                plots.trajectory_png(s.p_WM, segs, gap_pts, rem_pts),
                data={"gaps": str(len(gaps)), "imu-segments": str(len(segs))}),
         Figure("fig-gaps", f"Mocap coverage over time: {len(gaps)} gaps longer than "
-               f"{1e3 * s.gap:.0f} ms, {len(rem)} removed spikes; IMU dead-reckoning drift after "
-               f"2 s per segment{drift}",
-               plots.gaps_png(s.tau, gaps, rem, dr_t, before, after),
+               f"{1e3 * s.gap:.0f} ms, {len(rem)} removed spikes; {len(spans)} IMU gaps shaded; "
+               f"IMU dead-reckoning drift after 2 s per segment{drift}",
+               plots.gaps_png(s.tau, gaps, rem, dr_t, before, after, spans, IMU_BRIDGE_MAX_S),
                data={"gaps": str(len(gaps)), "removed-spikes": str(len(rem)),
                      "gap-starts-s": ",".join(f"{a:.3f}" for a in gaps[:, 0]),
-                     "gap-ends-s": ",".join(f"{b:.3f}" for b in gaps[:, 1])}),
+                     "gap-ends-s": ",".join(f"{b:.3f}" for b in gaps[:, 1]),
+                     **_span_data(spans)}),
     ]
+    if len(spans):
+        blocks.append(_imu_gaps_table(spans))
     if len(gaps):
         rows = [[f"{a:.3f}", f"{b:.3f}", f"{1e3 * (b - a):.0f}"] for a, b in gaps[:50]]
         blocks.append(Table("gaps-table", ("gap start (s)", "gap end (s)", "length (ms)"), rows,
                             "Mocap gaps" + (f" (first 50 of {len(gaps)})" if len(gaps) > 50
                                             else "")))
-    return Section("sec-trajectory", "Trajectory and mocap gaps", blocks)
+    return Section("sec-trajectory", "Trajectory, mocap and IMU gaps", blocks)
