@@ -41,18 +41,19 @@ def test_nothing_is_shown_when_nothing_is_missing(seed: int) -> None:
     assert len(r.effect_tests["candidates"]) == 9  # every canonical effect but time_offset
 
 
-@pytest.mark.slow
-def test_model_auto_recovers_the_delay_and_matches_diagnose(tmp_path: Path) -> None:
+@pytest.mark.parametrize("seed,lag", [(4, 0.005), (9, 0.002)])
+def test_model_auto_recovers_the_delay_and_matches_diagnose(tmp_path: Path, seed: int,
+                                                             lag: float) -> None:
     out = tmp_path / "s"
-    assert main(["simulate", str(out), "--seed", "4", "--duration", "60", "-e",
-                 f"time_offset={T_D}", "-e", "accel_delay=0.005"]) == 0
+    assert main(["simulate", str(out), "--seed", str(seed), "--duration", "60", "-e",
+                 f"time_offset={T_D}", "-e", f"accel_delay={lag}"]) == 0
     assert main(["calibrate", str(out), "--model", "auto", "--out", str(tmp_path / "a.yaml"),
                  "-q"]) == 0
     a = yaml.safe_load((tmp_path / "a.yaml").read_text())
     assert a["model"] == "base+time_offset+accel_delay"
     assert a["model_selection"]["requested"] == "auto"
     assert abs(a["time_offset"] - T_D) < 0.2e-3
-    assert abs(a["effects"]["accel_delay"]["accel_delay"] - 0.005) < 0.5e-3
+    assert abs(a["effects"]["accel_delay"]["accel_delay"] - lag) < 0.5e-3
     assert main(["diagnose", str(out), "--out", str(tmp_path / "d.yaml"), "-q"]) == 0
     d = yaml.safe_load((tmp_path / "d.yaml").read_text())
     assert Model.parse(d["final_model"]).effects == Model.parse(a["model"]).effects

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from mocap_calib import IMPORTED_AT
 from mocap_calib.core.diagnosis.auto import calibrate_auto
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
@@ -69,7 +71,10 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
     """Read the inputs and calibrate (several takes together when given); returns the result
     and what was read (the first take's, for recordings and reports)."""
     opts = request.options
+    t0 = time.perf_counter()
+    startup = t0 - IMPORTED_AT
     sessions = [load_session(spec, opts.time_offset) for spec in request.inputs.takes()]
+    t_read = time.perf_counter() - t0
     for session in sessions:
         for note in session.notes:
             if progress is not None:
@@ -87,6 +92,12 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
     else:
         result = calibrate_takes(recordings, opts, progress=progress, on_iteration=on_iteration)
     result.session["inputs"] = [n for s in sessions for n in s.notes]
+    steps = result.solver.setdefault("step_seconds", {})
+    result.solver["step_seconds"] = {"startup": round(startup, 3), "read": round(t_read, 3),
+                                     **steps}
+    if progress is not None:
+        progress("time per step: " + ", ".join(
+            f"{k.replace('_', ' ')} {v:.1f} s" for k, v in result.solver["step_seconds"].items()))
     return result, first
 
 

@@ -27,6 +27,7 @@ The rule, per parameter and component (``uncertainty`` in the result lists every
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -64,9 +65,10 @@ MOCAP_MODEL_NOTE_SIGMA = 2.0
 
 def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionResult,
           opts: CalibrationOptions, clocks: list[ClockSearch | None],
-          say: Callable[[str], None], single_axis: Array | None = None) -> None:
+          say: Callable[[str], None], single_axis: Array | None = None) -> dict[str, float]:
     """Fill ``r``'s clock, plausibility, consistency, sensitivity and uncertainty sections and
-    set its sigmas by the rule (in place).
+    set its sigmas by the rule (in place). Returns the seconds the consistency and the
+    sensitivity steps took.
 
     Args:
         single_axis: the one rotation axis of degenerate motion (marker frame), if any: an
@@ -93,23 +95,27 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
                 "clock, or pass --accept-implausible to write it marked as such")
         r.notes.append(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
     cons, takes, sens = Consistency(), Consistency(), Sensitivity()
+    t0 = time.perf_counter()
     if opts.segments >= 2:
         say(f"consistency: {opts.segments} segments calibrated on their own")
         cons = segment_consistency(pos, opts.model, opts.segments, opts.max_iterations)
     if len(pos.takes) > 1:
         say(f"consistency: {len(pos.takes)} takes calibrated on their own")
         takes = take_consistency(pos, opts.model, opts.max_iterations)
+    t1 = time.perf_counter()
     if opts.sensitivity:
         say("sensitivity: IMU noise densities x3 and x1/3, correlated mocap noise")
         shown = tuple((r.effect_tests or {}).get("shown", ()))
         sens = noise_sensitivity(pos, opts.model, max_iterations=opts.max_iterations,
                                  priors=opts.priors, effects_shown=shown)
+    t2 = time.perf_counter()
     total = _apply_rule(r, cons, takes, sens)
     r.consistency = cons.to_dict()
     if takes.segments or takes.note:
         r.consistency["takes"] = takes.to_dict()
     r.sensitivity = sens.to_dict(total)
     _notes(r, cons, takes, sens, total)
+    return {"consistency": round(t1 - t0, 3), "sensitivity": round(t2 - t1, 3)}
 
 
 def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,

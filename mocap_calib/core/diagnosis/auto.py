@@ -5,6 +5,7 @@ several takes every take is diagnosed, and an effect is kept only when every tak
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from typing import Any
 
@@ -28,6 +29,7 @@ def calibrate_auto(recordings: list[Recording], options: CalibrationOptions,
     """Choose the model by the diagnosis, then calibrate with it; the result says which model
     and why (``model_selection``)."""
     say = progress or (lambda _m: None)
+    t0 = time.perf_counter()
     dopts = DiagnoseOptions(calibration=replace(options, model=Model()),
                             plausible=options.plausible)
     reports: list[DiagnoseReport] = []
@@ -54,6 +56,9 @@ def calibrate_auto(recordings: list[Recording], options: CalibrationOptions,
         result = calibrate_takes(recordings, replace(options, model=model), progress,
                                  on_iteration)
     result.model_selection = _selection(reports, found)
+    # The diagnosis' time, its final calibration's steps included once.
+    result.solver.setdefault("step_seconds", {})["model_selection"] = round(
+        time.perf_counter() - t0 - float(result.solver.get("total_seconds", 0.0)), 3)
     return result
 
 

@@ -106,6 +106,7 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
         except CalibrationError as err:  # which take it was, in the one line
             raise type(err)(f"{name}: {err}") from None
     interrupt.check()  # between stages: a stop a caller swallowed by mistake still stops
+    t_first = time.perf_counter()
     say("stage 3/3: position factors (all parameters jointly)")
     # The shared parameters start from the take with the most windows (its stages 1-2 saw
     # the most data); every take starts its own from its own stages.
@@ -133,13 +134,20 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
         result.imu_gaps = f.s.imu_gaps.to_dict()
     if len(fits) > 1:
         _with_takes(result, pos, fits, recordings)
+    t_pos = time.perf_counter()
     if opts.effect_tests:
         _effect_tests(result, pos, opts, say)
     interrupt.check()
+    t_eff = time.perf_counter()
     axis = mark_single_axis(result, f.s, pos.delta)
-    judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits], say, axis)
+    steps = judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits], say,
+                  axis)
     mark_undetermined(result)
     interrupt.check()
+    result.solver["step_seconds"] = {
+        "clock_and_stages_1_2": round(t_first - t0, 3), "position_stage": round(t_pos - t_first, 3),
+        "effect_tests": round(t_eff - t_pos, 3), **steps}
+    result.solver["total_seconds"] = round(time.perf_counter() - t0, 3)
     return result
 
 

@@ -138,6 +138,14 @@ def result_section(r: CalibrationResult, d: dict[str, Any]) -> Section:
                             "warning"))
     blocks.append(Notes("warnings", list(r.notes) or ["no warnings"],
                         "warning" if r.notes else "ok"))
+    steps = (d.get("solver") or {}).get("step_seconds") or {}
+    if steps:
+        rows: list[list[str | Cell]] = [
+            [k.replace("_", " "), num(f"solver/step_seconds/{k}", v, digits=3)]
+            for k, v in steps.items()]
+        rows.append(["total (calibration)",
+                     num("solver/total_seconds", d["solver"].get("total_seconds"), digits=3)])
+        blocks.append(Table("steps-table", ("step", "seconds"), rows, "Time per step"))
     return Section("sec-result", "Result", blocks)
 
 
