@@ -6,7 +6,7 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from mocap_calib import IMPORTED_AT
+import mocap_calib
 from mocap_calib.core.diagnosis.auto import calibrate_auto
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
@@ -72,7 +72,7 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
     and what was read (the first take's, for recordings and reports)."""
     opts = request.options
     t0 = time.perf_counter()
-    startup = t0 - IMPORTED_AT
+    startup = t0 - mocap_calib.IMPORTED_AT
     sessions = [load_session(spec, opts.time_offset) for spec in request.inputs.takes()]
     t_read = time.perf_counter() - t0
     for session in sessions:
