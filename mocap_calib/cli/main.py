@@ -26,9 +26,19 @@ app = typer.Typer(
 INTERNAL_ERROR_EXIT = 70
 
 
-def _register_commands() -> None:
-    # Imported for their side effect of adding commands to ``app``.
-    from mocap_calib.cli import commands  # noqa: F401
+@app.callback()
+def _group() -> None:
+    # A callback keeps the app a group of commands even when only one is registered.
+    pass
+
+
+def _register_commands(args: list[str] | None = None) -> None:
+    """The command named first in ``args`` only (start-up of that command's imports alone);
+    every command without ``args``, for the top-level help or an unknown name."""
+    from mocap_calib.cli.commands import COMMANDS, register
+
+    name = next((a for a in args or [] if not a.startswith("-")), None)
+    register((name,) if name in COMMANDS else COMMANDS)
 
 
 def _refuse_repeated(args: list[str]) -> None:
@@ -79,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     record_command_line(list(sys.argv[1:] if argv is None else argv))  # for the HTML reports
     try:
         with stop_on_signals():
-            _register_commands()
+            _register_commands(list(sys.argv[1:] if argv is None else argv))
             _refuse_repeated(list(sys.argv[1:] if argv is None else argv))
             app(args=argv, standalone_mode=False)
         code = 0

@@ -5,5 +5,9 @@ import importlib
 COMMANDS = ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift", "export",
             "groundtruth", "batch")
 
-for _name in COMMANDS:
-    importlib.import_module(f"{__name__}.{_name}")
+
+def register(names: tuple[str, ...] = COMMANDS) -> None:
+    """Register the commands ``names`` (importing a command's module imports what it runs:
+    a run registers only its own command, so that it does not pay for every other's imports)."""
+    for name in names:
+        importlib.import_module(f"{__name__}.{name}")

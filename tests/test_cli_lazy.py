@@ -1,0 +1,32 @@
+"""A command imports what it runs, not every other command's code (start-up time)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def _modules_after(args: list[str]) -> set[str]:
+    code = ("import sys\nfrom mocap_calib.cli.main import main\n"
+            f"main({args!r})\nprint(' '.join(sorted(sys.modules)))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return set(proc.stdout.split())
+
+
+def test_calibrate_does_not_import_the_other_commands() -> None:
+    mods = _modules_after(["calibrate", "--help"])
+    assert "mocap_calib.cli.commands.calibrate" in mods
+    for other in ("simulate", "multipos", "batch", "groundtruth", "allan"):
+        assert f"mocap_calib.cli.commands.{other}" not in mods, other
+    assert "mocap_calib.sim.flight" not in mods  # the simulator, only `simulate` needs it
+
+
+def test_the_top_level_help_lists_every_command() -> None:
+    proc = subprocess.run([sys.executable, "-m", "mocap_calib", "--help"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    for name in ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift",
+                 "export", "groundtruth", "batch"):
+        assert name in proc.stdout, name
