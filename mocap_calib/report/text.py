@@ -163,6 +163,32 @@ def checks_lines(r: CalibrationResult) -> list[str]:
                  for k in keys if any(k in moved[f] for f in moved)]
         out.append(f"sensitivity (noise densities {' / '.join(moved)}): moves "
                    f"{', '.join(parts)} sigma")
+    out += uncertainty_lines(r.uncertainty)
+    return out
+
+
+#: The sigma rule's terms (docs/conventions.md, ``uncertainty:``) and how they are shown.
+UNCERTAINTY_TERMS = (("statistical", "statistical"), ("imu_noise_shift", "IMU noise"),
+                     ("mocap_model_shift", "mocap model"),
+                     ("effects_shown_shift", "effects shown"), ("largest_move", "largest move"),
+                     ("total", "total"))
+#: Parameter group -> (shown unit, factor from the result's unit).
+UNCERTAINTY_UNITS = {"R_MI": ("deg", 180.0 / 3.141592653589793), "p_MI": ("mm", 1e3),
+                     "t_d": ("ms", 1e3)}
+
+
+def uncertainty_lines(unc: dict) -> list[str]:
+    """Per parameter group, the largest axis of each term of its sigma (which one dominates)."""
+    out = []
+    for key, (unit, k) in UNCERTAINTY_UNITS.items():
+        u = unc.get(key)
+        if not u:
+            continue
+        parts = [f"{label} {k * max(u[t]):.3g}" for t, label in UNCERTAINTY_TERMS
+                 if u.get(t) is not None]
+        factor = u.get("consistency_factor", 1.0)
+        grown = f" (statistical x{factor:.2f} for consistency)" if factor > 1.0 else ""
+        out.append(f"sigma of {key} ({unit}, largest axis): {', '.join(parts)}{grown}")
     return out
 
 

@@ -21,7 +21,7 @@ from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.report.html import calib_plots as plots
 from mocap_calib.report.html.page import Cell, Figure, Notes, Row, Section, Table
 from mocap_calib.report.html.tables import flat, get, kv_rows, num
-from mocap_calib.report.text import checks_lines
+from mocap_calib.report.text import UNCERTAINTY_TERMS, UNCERTAINTY_UNITS, checks_lines
 
 Array = NDArray[np.float64]
 DEG = float(np.degrees(1.0))
@@ -200,9 +200,35 @@ def checks_section(r: CalibrationResult, d: dict[str, Any]) -> Section:
     sens = _sensitivity_table(d.get("sensitivity") or {})
     if sens is not None:
         row.append(sens)
+    unc = _uncertainty_table(d.get("uncertainty") or {})
+    if unc is not None:
+        row.append(unc)
     blocks.append(Row(row))
     blocks += [b for b in cons if not (isinstance(b, Table) and b.id == "consistency-summary")]
     return Section("sec-checks", "Checks: plausibility, consistency, sensitivity", blocks)
+
+
+def _uncertainty_table(unc: dict[str, Any]) -> Table | None:
+    """Per parameter group and axis, every term of the reported sigma (the rule in
+    core/checks/verdict.py), so that a reader sees which one dominates."""
+    rows: list[list[str | Cell]] = []
+    for key, (unit, k) in UNCERTAINTY_UNITS.items():
+        u = unc.get(key)
+        if not u:
+            continue
+        for a in range(len(u["total"])):
+            rows.append([f"{key} ({unit})" if a == 0 else "", "xyz"[a] if len(u["total"]) > 1
+                         else ""]
+                        + [num(f"uncertainty/{key}/{t}/{a}", u[t][a], k, digits=3)
+                           if u.get(t) is not None else "-" for t, _ in UNCERTAINTY_TERMS]
+                        + [num(f"uncertainty/{key}/consistency_factor",
+                               u.get("consistency_factor"), digits=3) if a == 0 else ""])
+    if not rows:
+        return None
+    head = ["parameter", "axis", *(label for _, label in UNCERTAINTY_TERMS),
+            "consistency factor"]
+    return Table("uncertainty-table", head, rows, "Sigma: the terms of the rule "
+                 "(total = max(sqrt((factor x statistical)^2 + shifts^2), largest move))")
 
 
 def _sensitivity_table(sens: dict[str, Any]) -> Table | None:
