@@ -46,7 +46,17 @@ def local_run(fleet, tmp_path_factory):
 
 
 def _without_timing(path: Path) -> str:
-    return "".join(line for line in path.read_text().splitlines(True) if not TIMING.match(line))
+    """The file without its wall-clock lines and its ``step_seconds:`` block (every line
+    indented under it)."""
+    out, block = [], None
+    for line in path.read_text().splitlines(True):
+        indent = len(line) - len(line.lstrip())
+        if block is not None and indent > block:
+            continue
+        block = indent if line.strip() == "step_seconds:" else None
+        if block is None and not TIMING.match(line):
+            out.append(line)
+    return "".join(out)
 
 
 def _cli(*args: str, **kw) -> subprocess.Popen:
