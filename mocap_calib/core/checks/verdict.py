@@ -124,7 +124,7 @@ def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,
     term under ``r.uncertainty``."""
     total: dict[str, Array] = {}
     r.uncertainty = {}
-    imu = tuple(k for k in sens.shift if k != MOCAP_AR1)
+    imu = tuple(k for k in sens.shift if k not in (MOCAP_AR1, EFFECTS_SHOWN))
     for param, attr in _SIGMAS.items():
         v = getattr(r, attr)
         if v is None:

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CLOCK_OFFSET, Model
+from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import Prior
@@ -101,13 +101,28 @@ class Sensitivity:
         return d
 
 
-def _shifts(alt: PositionResult,
-            pos: PositionResult) -> tuple[dict[str, Array], dict[str, Array]]:
+def gyro_frame(pos: PositionResult) -> Array:
+    """R_GI: the gyro's axes against the IMU (accelerometer) frame that the model's gyro matrix
+    implies (the rotation of its polar decomposition; identity without one). A model without
+    that matrix reports R_MI close to the gyro's frame, which dominates the attitude; so a model
+    with it is compared in that frame (``R_MI R_GI^T``), not across two frame definitions."""
+    R = np.eye(3)
+    for name, theta in pos.effects.items():
+        eff = EFFECTS[name]
+        if eff.acts_on == "w" and eff.about_identity:
+            U, _, Vt = np.linalg.svd(np.eye(3) + eff.matrix(theta))
+            R = (U @ Vt) @ R
+    return R
+
+
+def _shifts(alt: PositionResult, pos: PositionResult
+            ) -> tuple[dict[str, Array], dict[str, Array]]:
     """Per parameter and component, the part of |alt - pos| that the reweighting itself does
     not explain, and the plain |alt - pos|. Two estimates from the same data under different
     weights differ by chance with variance about |var_alt - var| (Hausman); only the excess is a
     systematic shift."""
-    raw = {"R_MI": so3.log(pos.R_MI.T @ alt.R_MI), "p_MI": alt.p_MI - pos.p_MI,
+    R_alt = alt.R_MI @ gyro_frame(alt).T @ gyro_frame(pos)
+    raw = {"R_MI": so3.log(pos.R_MI.T @ R_alt), "p_MI": alt.p_MI - pos.p_MI,
            "gyro_bias": alt.gyro_bias_mean - pos.gyro_bias_mean,
            "accel_bias": alt.accel_bias_mean - pos.accel_bias_mean,
            "gravity": np.asarray(gtsam.Unit3(pos.g_dir).localCoordinates(gtsam.Unit3(alt.g_dir)))}
