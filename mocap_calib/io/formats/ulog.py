@@ -245,7 +245,9 @@ def _mocap_instance(ulog: Any, path: Path, topic: str | None, notes: list[str]) 
                 notes.append(f"{src}: no {MOCAP_TOPICS[0]} in the log; using {name}")
             return pick_instance(found, name, wanted, "--mocap-topic", src)
     shown = names if topic is None else candidates[0]
-    raise input_error(f"no {shown} data in the log (logged topics read: {logged_topics(ulog)})",
+    read = logged_topics(ulog)  # the reader asks the log for the mocap topics only
+    raise input_error(f"no {shown} data in the log"
+                      + ("" if read == "none" else f" (logged topics read: {read})"),
                       f"log the mocap topic ({names}) on the vehicle (SDLOG_PROFILE), or pass "
                       "the file that holds it", src)
 
