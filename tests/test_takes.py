@@ -102,3 +102,14 @@ def test_a_take_too_short_is_named(tmp_path: Path, capsys: pytest.CaptureFixture
     err = capsys.readouterr().err
     assert code == 3 and err.count("\n") == 1
     assert f"take 2 ({short})" in err and "only 6.0 s long" in err
+
+
+def test_a_note_names_its_take() -> None:
+    """With several takes, a take's notes (its IMU gaps here) say which take they are about."""
+    sims = [simulate_flight(SimConfig(seed=s, duration=40.0, rig_seed=RIG, effects={
+        "time_offset": [td], **({"imu_dropouts": [10]} if k == 1 else {})}))
+        for k, (s, td) in enumerate(TAKES)]
+    r = calibrate_takes([Recording(s.imu, s.mocap) for s in sims],
+                        CalibrationOptions(segments=0, sensitivity=False, effect_tests=False))
+    gaps = [n for n in r.notes if "IMU gaps" in n]
+    assert gaps and all(n.startswith("take 2: IMU gaps") for n in gaps), r.notes

@@ -127,7 +127,9 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
                                model_state=ModelState.from_position(pos, model, f.t_mid),
                                noise_used=pos.noise, windows=pos.windows, weights=pos.weights,
                                clock=f.clock, position=pos))
-    notes = [n for f in fits for n in f.notes]
+    # With several takes, each note says which take it is about (gaps, removed samples...).
+    notes = [n if len(fits) == 1 else f"take {k + 1}: {n}"
+             for k, f in enumerate(fits) for n in f.notes]
     result = _package(pos, f.s, opts, [f.att.stats, f.vel.stats, pos.stats], notes,
                       f.session_info, diag, time.perf_counter() - t0)
     if f.s.imu_gaps is not None:
