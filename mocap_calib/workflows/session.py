@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -61,6 +62,35 @@ class MocapFormat:
                                      show_default=False)
 
 
+# How the IMU log is read: one declaration each, for every request that reads one.
+def columns_option() -> Any:
+    return param(None, COLUMNS_HELP, show_default=False)
+
+
+def time_unit_option() -> Any:
+    return param(None, "time-stamp unit (default: the format's own)", choices=TIME_UNITS,
+                 show_default=False)
+
+
+def gyro_unit_option() -> Any:
+    return param(None, "gyro unit (default: the format's own)", choices=GYRO_UNITS,
+                 show_default=False)
+
+
+def accel_unit_option() -> Any:
+    return param(None, "accelerometer unit (default: the format's own)", choices=ACCEL_UNITS,
+                 show_default=False)
+
+
+def imu_topic_option() -> Any:
+    return param(None, IMU_TOPIC_HELP, show_default=False)
+
+
+def stamp_option() -> Any:
+    return param("header", "bag stamps: header (message header.stamp) or receive (the bag's "
+                 "record time)", choices=STAMPS)
+
+
 @dataclass
 class InputSpec:
     """Where the two streams come from and how to read them."""
@@ -84,16 +114,12 @@ class InputSpec:
         unit="s", lo=0.0, lo_open=True, show_default=False)
     pose_source: str = param("auto", "with a mav0 folder: which poses to read (auto: vicon0 if "
                              "present)", choices=("auto", "vicon0", "groundtruth"))
-    columns: str | None = param(None, COLUMNS_HELP, show_default=False)
-    time_unit: str | None = param(None, "time-stamp unit (default: the format's own)",
-                                  choices=TIME_UNITS, show_default=False)
-    gyro_unit: str | None = param(None, "gyro unit (default: the format's own)",
-                                  choices=GYRO_UNITS, show_default=False)
-    accel_unit: str | None = param(None, "accelerometer unit (default: the format's own)",
-                                   choices=ACCEL_UNITS, show_default=False)
-    imu_topic: str | None = param(None, IMU_TOPIC_HELP, show_default=False)
-    stamp: str = param("header", "bag stamps: header (message header.stamp) or receive (the "
-                       "bag's record time)", choices=STAMPS)
+    columns: str | None = columns_option()
+    time_unit: str | None = time_unit_option()
+    gyro_unit: str | None = gyro_unit_option()
+    accel_unit: str | None = accel_unit_option()
+    imu_topic: str | None = imu_topic_option()
+    stamp: str = stamp_option()
     poses: MocapFormat = group(MocapFormat, "Input")
 
     def __post_init__(self) -> None:

@@ -17,12 +17,12 @@ from mocap_calib.core.prepare.crop import crop_imu
 from mocap_calib.errors import InputError
 from mocap_calib.io.loader import load_imu_file
 from mocap_calib.workflows.session import (
-    ACCEL_UNITS,
-    COLUMNS_HELP,
-    GYRO_UNITS,
-    IMU_TOPIC_HELP,
-    STAMPS,
-    TIME_UNITS,
+    accel_unit_option,
+    columns_option,
+    gyro_unit_option,
+    imu_topic_option,
+    stamp_option,
+    time_unit_option,
 )
 
 ProgressFn = Callable[[str], None]
@@ -42,16 +42,12 @@ class ImuSpec:
         None, "IMU log: CSV (EuRoC imu0/data.csv layout, or generic with --columns), a mav0 "
         "folder, ROS 1 bag, ROS 2 bag folder (db3 or MCAP), .mcap, or PX4 .ulg",
         metavar="PATH", show_default=False)
-    columns: str | None = param(None, COLUMNS_HELP, show_default=False)
-    time_unit: str | None = param(None, "time-stamp unit (default: the format's own)",
-                                  choices=TIME_UNITS, show_default=False)
-    gyro_unit: str | None = param(None, "gyro unit (default: the format's own)",
-                                  choices=GYRO_UNITS, show_default=False)
-    accel_unit: str | None = param(None, "accelerometer unit (default: the format's own)",
-                                   choices=ACCEL_UNITS, show_default=False)
-    imu_topic: str | None = param(None, IMU_TOPIC_HELP, show_default=False)
-    stamp: str = param("header", "bag stamps: header (message header.stamp) or receive (the "
-                       "bag's record time)", choices=STAMPS)
+    columns: str | None = columns_option()
+    time_unit: str | None = time_unit_option()
+    gyro_unit: str | None = gyro_unit_option()
+    accel_unit: str | None = accel_unit_option()
+    imu_topic: str | None = imu_topic_option()
+    stamp: str = stamp_option()
     raw: bool = param(False, "the readings are raw sensor counts (e.g. a 16-bit MEMS part's "
                       "registers); results in SI units and in imu_tk's form", decls=("--raw",))
     accel: Path | None = param(
