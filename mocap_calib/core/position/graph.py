@@ -9,6 +9,7 @@ within the take, none between takes).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -224,11 +225,14 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
             factor_keys.append([key if key is not None else key_knot(knot0[k] + w)
                                 for key, _ in cols])
             col_keys.append(cols)
-    pg_ref: list[PositionGraph] = []
+    # A weak reference: the graph (C++) holds the factors' callbacks, which hold this
+    # closure; a strong one would be a cycle through C++ that the collector cannot see, and
+    # every refit's arrays would live until the process ends.
+    pg_ref: list[weakref.ref[PositionGraph]] = []
     evals: list[list[Any]] = []  # every evaluation's per-take outputs, latest last
 
     def evaluate(values: gtsam.Values) -> BatchOutput:
-        outs = [pp.evaluate(th) for pp, th in zip(problems, pg_ref[0].thetas(values),
+        outs = [pp.evaluate(th) for pp, th in zip(problems, _alive(pg_ref[0]).thetas(values),
                                                    strict=True)]
         evals.append(outs)
         del evals[:-2]
@@ -255,7 +259,14 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
     _add_range_priors(graph, model, init, knot0)
     _add_user_priors(graph, priors or [], shared, model, takes, knot0)
     pg = PositionGraph(graph, values, batch, problems, takes, knot0, model, init, shared, evals)
-    pg_ref.append(pg)
+    pg_ref.append(weakref.ref(pg))
+    return pg
+
+
+def _alive(ref: weakref.ref[PositionGraph]) -> PositionGraph:
+    pg = ref()
+    if pg is None:  # only GTSAM holding factors of a graph nobody keeps could get here
+        raise RuntimeError("position graph evaluated after it was released")
     return pg
 
 
