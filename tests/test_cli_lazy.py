@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 
 def _modules_after(args: list[str]) -> set[str]:
@@ -30,3 +31,21 @@ def test_the_top_level_help_lists_every_command() -> None:
     for name in ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift",
                  "export", "groundtruth", "batch"):
         assert name in proc.stdout, name
+
+
+
+def test_reading_a_csv_does_not_load_pyarrow(tmp_path: Path) -> None:
+    """pandas would import pyarrow (~65 MB resident) although the readers never use it; it
+    stays importable for the rerun recording."""
+    from mocap_calib.io.formats.euroc import write_euroc_imu
+    from mocap_calib.sim.flight import SimConfig, simulate_flight
+
+    csv = write_euroc_imu(tmp_path / "imu.csv", simulate_flight(SimConfig(duration=5.0)).imu)
+    code = ("import sys\nfrom mocap_calib.io.formats.euroc import read_euroc_imu\n"
+            f"n = len(read_euroc_imu({str(csv)!r}).t)\nloaded = 'pyarrow' in sys.modules\n"
+            "import pyarrow\nprint(n, loaded)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    n, loaded = proc.stdout.split()
+    assert int(n) > 900 and loaded == "False"

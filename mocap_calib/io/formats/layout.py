@@ -10,12 +10,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from mocap_calib.errors import input_error
 from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.columns import COLUMNS_FIX
+from mocap_calib.io.pandas_csv import pd
 
 Array = NDArray[np.float64]
 

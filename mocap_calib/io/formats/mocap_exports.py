@@ -31,12 +31,12 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import MocapPoses
 from mocap_calib.errors import InputError, input_error
 from mocap_calib.io.checks import Lines, validate_mocap
+from mocap_calib.io.pandas_csv import pd
 
 EXPORT_FORMATS = ("motive", "vicon-nexus", "vicon-tracker")
 ROTATIONS = ("helical", "euler-xyz")

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from mocap_calib.errors import InputError
 from mocap_calib.io.checks import TIME_NAMES, TIME_UNITS, Lines, time_unit_hint
+from mocap_calib.io.pandas_csv import pd
 
 IntArray = NDArray[np.int64]
 _INT64_MAX = np.iinfo(np.int64).max
