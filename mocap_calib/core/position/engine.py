@@ -178,7 +178,8 @@ class PositionProblem:
         (without the Jacobian columns) runs per model."""
         win = self.win
         out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
-        for c in self.chunks:
+
+        def chunk(c: NDArray[np.int64]) -> None:  # writes only its windows' entries
             tau, R_WM = win.tau[c], win.R_WM[c]
             h = np.diff(tau, axis=1)
             inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
@@ -190,6 +191,13 @@ class PositionProblem:
             for i, nz in enumerate(noises):
                 wh = self._whitening(th, c, packed, R0, nz)
                 out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, Rbar, r, R_WM)
+
+        pool = chunk_pool()
+        if len(self.chunks) > 1 and pool is not None:
+            list(pool.map(chunk, self.chunks))
+        else:
+            for c in self.chunks:
+                chunk(c)
         return out
 
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
