@@ -195,3 +195,22 @@ def test_imu_samples_select_keeps_the_origin() -> None:
     imu = ImuSamples(_times(10), np.zeros((10, 3)), np.zeros((10, 3)), 123, "x")
     sub = imu.select(np.arange(10) > 2)
     assert sub.time_origin_ns == 123 and sub.t[0] == pytest.approx(0.015)
+
+
+def test_local_derivative_is_exact_on_a_quadratic_and_never_spans_a_gap() -> None:
+    """The local quadratic fit (compiled) recovers a quadratic's value and slope exactly on
+    uneven spacing; fits at the ends or across a gap are marked invalid."""
+    from mocap_calib.core.prepare.session import local_derivative
+
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.uniform(0.008, 0.012, 400))
+    t[200:] += 0.3  # a gap
+    y = np.column_stack([1.0 + 2.0 * t - 0.7 * t**2, -3.0 * t**2, np.full_like(t, 4.0)])
+    dy = np.column_stack([2.0 - 1.4 * t, -6.0 * t, np.zeros_like(t)])
+    value, deriv, valid = local_derivative(t, y, 4, 0.05)
+    expect = np.ones(400, bool)
+    expect[:4] = expect[-4:] = False
+    expect[196:204] = False  # windows that would reach over the gap
+    np.testing.assert_array_equal(valid, expect)
+    np.testing.assert_allclose(value[valid], y[valid], atol=1e-9)
+    np.testing.assert_allclose(deriv[valid], dy[valid], atol=1e-7)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.jit import kernel
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, refuse_dead
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
@@ -216,18 +217,77 @@ def local_derivative(t: Array, y: Array, half: int,
     Returns:
         value (M, d), derivative (M, d), valid (M,).
     """
-    M = len(t)
-    idx = np.arange(M)[:, None] + np.arange(-half, half + 1)
-    valid = (idx[:, 0] >= 0) & (idx[:, -1] < M)
-    idx = np.clip(idx, 0, M - 1)
-    dt = t[idx] - t[:, None]
-    big = np.diff(t) > gap
-    cum = np.concatenate([[0], np.cumsum(big)])
-    valid &= cum[idx[:, -1]] == cum[idx[:, 0]]
-    # Normal equations of y = a + b dt + c dt^2, per sample.
-    V = np.stack([np.ones_like(dt), dt, dt * dt], axis=-1)
-    VtV = np.einsum("mki,mkj->mij", V, V)
-    VtV[~valid] = np.eye(3)
-    Vty = np.einsum("mki,mkd->mid", V, y[idx])
-    coef = np.linalg.solve(VtV, Vty)
-    return coef[:, 0], coef[:, 1], valid
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    seg = np.concatenate([[0], np.cumsum(np.diff(t) > gap)]).astype(np.int64)
+    value, deriv = np.zeros_like(y), np.zeros_like(y)
+    valid = np.zeros(len(t), dtype=np.bool_)
+    _local_quadratic(t, y, int(half), seg, value, deriv, valid)
+    return value, deriv, valid
+
+
+@kernel
+def _local_quadratic(t, y, half, seg, value, deriv, valid):  # pragma: no cover  (compiled)
+    """Per sample, least squares of ``y = a + b dt + c dt^2`` over the samples within
+    ``half`` of it (indices clipped at the ends; a fit at the ends or across a gap is marked
+    invalid and solved with identity normal equations, as before it was compiled)."""
+    M, d = y.shape
+    A = np.zeros((3, 3))
+    B = np.zeros((3, d))
+    for m in range(M):
+        lo, hi = m - half, m + half
+        ok = lo >= 0 and hi < M
+        if ok:
+            ok = seg[hi] == seg[lo]
+        valid[m] = ok
+        A[:, :] = 0.0
+        B[:, :] = 0.0
+        for k in range(lo, hi + 1):
+            kk = min(max(k, 0), M - 1)
+            dt = t[kk] - t[m]
+            v0, v1, v2 = 1.0, dt, dt * dt
+            A[0, 0] += v0 * v0
+            A[0, 1] += v0 * v1
+            A[0, 2] += v0 * v2
+            A[1, 1] += v1 * v1
+            A[1, 2] += v1 * v2
+            A[2, 2] += v2 * v2
+            for c in range(d):
+                yk = y[kk, c]
+                B[0, c] += v0 * yk
+                B[1, c] += v1 * yk
+                B[2, c] += v2 * yk
+        A[1, 0], A[2, 0], A[2, 1] = A[0, 1], A[0, 2], A[1, 2]
+        if not ok:
+            A[:, :] = 0.0
+            for i in range(3):
+                A[i, i] = 1.0
+        _solve3(A, B, value[m], deriv[m])
+
+
+@kernel
+def _solve3(A, B, x0_out, x1_out):  # pragma: no cover  (compiled)
+    """``A X = B`` (3 x 3, columns of ``B``) by Gaussian elimination with partial pivoting;
+    rows 0 and 1 of ``X`` into ``x0_out`` and ``x1_out`` (``A`` and ``B`` are overwritten)."""
+    d = B.shape[1]
+    for col in range(3):
+        piv = col
+        for r in range(col + 1, 3):
+            if abs(A[r, col]) > abs(A[piv, col]):
+                piv = r
+        if piv != col:
+            for j in range(3):
+                A[col, j], A[piv, j] = A[piv, j], A[col, j]
+            for c in range(d):
+                B[col, c], B[piv, c] = B[piv, c], B[col, c]
+        for r in range(col + 1, 3):
+            f = A[r, col] / A[col, col]
+            for j in range(col, 3):
+                A[r, j] -= f * A[col, j]
+            for c in range(d):
+                B[r, c] -= f * B[col, c]
+    for c in range(d):
+        x2 = B[2, c] / A[2, 2]
+        x1 = (B[1, c] - A[1, 2] * x2) / A[1, 1]
+        x0_out[c] = (B[0, c] - A[0, 1] * x1 - A[0, 2] * x2) / A[0, 0]
+        x1_out[c] = x1
