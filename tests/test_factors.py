@@ -121,3 +121,41 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
         scale = np.abs(g_ana).max()
         np.testing.assert_allclose(g_num, g_ana, atol=1e-2 * scale + 1e-3,
                                    err_msg=f"key {gtsam.DefaultKeyFormatter(key)}")
+
+
+def test_batch_cache_follows_the_values_between_and_within_passes() -> None:
+    """The batch reads the shared keys once per GTSAM pass: every pass at new values (error,
+    linearize, a subset of factors in a Python loop) must still see the new values, never a
+    cached evaluation of other ones."""
+    import gtsam
+
+    from mocap_calib.core.graph import BatchFactors, BatchOutput
+
+    n = 50
+
+    def evaluate(v: gtsam.Values) -> BatchOutput:  # factor i: x_shared + y_i - i
+        x = float(v.atVector(0)[0])
+        return BatchOutput([np.array([x + float(v.atVector(1 + i)[0]) - i]) for i in range(n)],
+                           [[np.eye(1), np.eye(1)] for _ in range(n)])
+
+    batch = BatchFactors(evaluate, [[0, 1 + i] for i in range(n)],
+                         {k: "vector" for k in range(n + 1)}, [0],
+                         gtsam.noiseModel.Unit.Create(1))
+    graph = gtsam.NonlinearFactorGraph()
+    factors = batch.factors()
+    for f in factors:
+        graph.add(f)
+
+    def values(x: float, y: float) -> gtsam.Values:
+        v = gtsam.Values()
+        v.insert(0, np.array([x]))
+        for i in range(n):
+            v.insert(1 + i, np.array([y + i]))
+        return v
+
+    for x, y in [(0.0, 0.0), (1.0, 0.0), (1.0, 2.0), (-3.0, 2.0)]:
+        assert graph.error(values(x, y)) == pytest.approx(0.5 * n * (x + y) ** 2)
+    # Single factors called out of order, and in increasing order at changing values.
+    for i, x in [(7, 1.0), (3, 2.0), (9, -1.0), (10, 5.0), (49, 0.5)]:
+        assert factors[i].error(values(x, 0.0)) == pytest.approx(0.5 * x**2)
+    assert batch.evaluations < 4 + 5 + 2

@@ -74,8 +74,6 @@ class BatchFactors:
     _own_fp: list[bytes] = field(default_factory=list, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     _own_keys: list[list[int]] = field(default_factory=list, repr=False)
-    _pass_fp: bytes = b""  # the shared keys' fingerprint of the current pass
-    _last: int = -1  # the factor called last
 
     def __post_init__(self) -> None:
         shared = set(self.shared)
@@ -95,16 +93,7 @@ class BatchFactors:
                 # Stopping: GTSAM only needs to return (see core/interrupt.py); zero errors
                 # end its iteration at once and the check after it raises.
                 return np.zeros_like(self._cache.errors[i]), self._cache.jacobians[i]
-            # GTSAM evaluates a graph's factors one after the other in their order at one set
-            # of values (linearize, error): a call to a factor at or before the last one
-            # called starts a new pass, the only place the values can have changed. The
-            # shared keys (every factor's) are read once per pass instead of per factor
-            # (at 60 min, ~300k calls of 3-5 us in stages 1-2); the factor's own keys are
-            # still read at every call.
-            if i <= self._last or not self._pass_fp:
-                self._pass_fp = self._fingerprint(values, self.shared) or b"-"
-            self._last = i
-            shared_fp = self._pass_fp
+            shared_fp = self._fingerprint(values, self.shared)
             own_fp = self._fingerprint(values, self._own_keys[i])
             if (self._cache is None or shared_fp != self._shared_fp
                     or own_fp != self._own_fp[i]):
@@ -120,7 +109,6 @@ class BatchFactors:
         """Forget the cached evaluation (the factors changed without the values changing)."""
         with self._lock:
             self._cache = None
-            self._last, self._pass_fp = -1, b""
 
     def factors(self) -> list[gtsam.CustomFactor]:
         """The CustomFactors, to add to a graph."""
