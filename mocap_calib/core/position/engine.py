@@ -78,6 +78,9 @@ ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
 #: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
 #: longer than the correlation of real mocap noise, short enough for many blocks per session.
 SCORE_BLOCK_S = 1.0
+#: Jacobian columns (and the residual) a chunk's ``chunk_steps`` are sized for: the base
+#: model with a clock offset (rotation, translation, gravity, clock, knot).
+CHUNK_COLUMNS = 16
 
 
 class PositionProblem:
@@ -88,8 +91,10 @@ class PositionProblem:
         model: active effects.
         noise: noise densities.
         windows: from :func:`make_windows`.
-        chunk_steps: windows are processed in chunks of about this many samples: their
-            arrays (a few kB a sample) are what an evaluation holds in memory at a time.
+        chunk_steps: windows are processed in chunks of about this many samples for the
+            calibration's usual :data:`CHUNK_COLUMNS` columns (fewer with more): their arrays
+            (a few kB a sample, growing with the columns) are what an evaluation holds in
+            memory at a time.
         split: split into two chunks at least (for the threads); off for small problems
             evaluated many times, where one batch costs less than two.
     """
@@ -101,7 +106,10 @@ class PositionProblem:
         self.noise = noise
         self.win = windows
         self.layout = layout_for(model)
-        self.chunks = split_windows(windows.count, windows.steps, chunk_steps, split)
+        # The sensitivities grow with the columns: the effect tests' model (50+ columns)
+        # would hold 3-4x the memory per chunk of the base model's.
+        steps = max(500, chunk_steps * CHUNK_COLUMNS // (self.layout.dim + 1))
+        self.chunks = split_windows(windows.count, windows.steps, steps, split)
         self.weights = np.ones(windows.idx.shape)
         self._local = threading.local()  # per-thread work buffers
         self.freeze = False
