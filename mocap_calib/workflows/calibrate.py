@@ -7,7 +7,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mocap_calib
-from mocap_calib.core.diagnosis.auto import calibrate_auto
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import (
@@ -88,6 +87,10 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
     recordings = [Recording(s.imu, s.mocap, *_names(spec))
                   for s, spec in zip(sessions, request.inputs.takes(), strict=True)]
     if opts.model.auto:
+        # The diagnosis (and its filters, scipy.signal) only for `--model auto`: ~50 MB and
+        # ~0.3 s of start-up that a default run does not need.
+        from mocap_calib.core.diagnosis.auto import calibrate_auto
+
         result = calibrate_auto(recordings, opts, progress=progress, on_iteration=on_iteration)
     else:
         result = calibrate_takes(recordings, opts, progress=progress, on_iteration=on_iteration)

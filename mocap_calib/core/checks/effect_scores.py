@@ -21,11 +21,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats as sps
 
 from mocap_calib.core.graph import information_matrix
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
+from mocap_calib.core.model.stats import chi2_isf, chi2_logsf, f_logsf
 from mocap_calib.core.position.graph import (
     PositionInit,
     Take,
@@ -196,7 +196,7 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     n_w, k = len(s), len(e)
     log10_ps = []
     try:  # model-based: chi-square
-        log10_ps.append(float(sps.chi2.logsf(float(g @ np.linalg.solve(V_model, g)), k)))
+        log10_ps.append(float(chi2_logsf(float(g @ np.linalg.solve(V_model, g)), k)))
     except np.linalg.LinAlgError:
         pass
     if n_w > k + 1:  # the windows' own spread: Hotelling's T^2 (few windows, F tails)
@@ -204,12 +204,12 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
         try:
             t2 = float(g @ np.linalg.solve(n_w * S, g))  # n mean' S^-1 mean, g = n mean
             f = t2 * (n_w - k) / ((n_w - 1) * k)
-            log10_ps.append(float(sps.f.logsf(f, k, n_w - k)))
+            log10_ps.append(float(f_logsf(f, k, n_w - k)))
         except np.linalg.LinAlgError:
             pass
     # The weaker evidence of the two counts.
     log10_p = max(log10_ps) / np.log(10.0) if log10_ps else 0.0
-    T = float(sps.chi2.isf(10.0**log10_p, k)) if log10_p > -300 else float("inf")
+    T = float(chi2_isf(10.0**log10_p, k)) if log10_p > -300 else float("inf")
     step = np.linalg.solve(V_model, g)
     value = eff.report_value(step[:eff.dim] if eff.acts_on == "clock" else step)
     problem = effect_problem(name, value, limits or PlausibleLimits())

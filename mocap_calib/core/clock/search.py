@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 
 from mocap_calib.core import interrupt
+from mocap_calib.core.clock.filters import correlate_full, median5, peaks_apart, savgol
 from mocap_calib.core.model import so3
 from mocap_calib.core.policy import GRAVITY, gap_threshold
 from mocap_calib.errors import ObservabilityError
@@ -118,7 +118,7 @@ def _smooth(y: Array, n: int) -> Array:
     """Median then Savitzky-Golay: single-sample spikes out, differentiation noise down."""
     if len(y) <= max(7, n):
         return y
-    return signal.savgol_filter(signal.medfilt(y, 5), n | 1, 2)
+    return savgol(median5(y), n | 1, 2)
 
 
 @dataclass
@@ -147,7 +147,7 @@ def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM:
     if len(grid) > 4 * win and np.std(xf) >= MIN_FORCE_STD:
         pos = np.stack([np.interp(grid, tau, p_WM[:, i]) for i in range(3)], axis=1)
         n = max(7, int(round(0.1 / dt)) | 1)
-        acc = signal.savgol_filter(pos, n, 3, deriv=2, delta=dt, axis=0)
+        acc = savgol(pos, n, 3, deriv=2, delta=dt)
         idx = np.clip(np.searchsorted(tau, grid), 1, len(tau) - 1)
         in_gap = (tau[idx] - tau[idx - 1]) > gap_m
         # A gap corrupts the derivative around it: blank a filter length on both sides.
@@ -169,7 +169,7 @@ def _correlation(x: Array, y: Array, dt: float) -> tuple[Array, Array, Array]:
     calls two rest periods (both constant) perfectly correlated. Lags with too little overlap,
     or an overlap in which either signal barely varies, are NaN."""
     def xc(a: Array, b: Array) -> Array:
-        return signal.correlate(a, b, mode="full", method="fft")
+        return correlate_full(a, b)
 
     ones_x, ones_y = np.ones_like(x), np.ones_like(y)
     n = np.maximum(np.rint(xc(ones_y, ones_x)), 1.0)
@@ -186,7 +186,7 @@ def _correlation(x: Array, y: Array, dt: float) -> tuple[Array, Array, Array]:
 def _correlation_time(z: Array, dt: float) -> float:
     """Integral time scale (s) of a mean-removed signal: its autocorrelation summed up to the
     first zero crossing (the span over which samples are not independent)."""
-    ac = signal.correlate(z, z, mode="full", method="fft")[len(z) - 1:]
+    ac = correlate_full(z, z)[len(z) - 1:]
     ac = ac / max(ac[0], 1e-300)
     first_neg = np.flatnonzero(ac <= 0.0)
     stop = int(first_neg[0]) if len(first_neg) else len(ac)
@@ -272,8 +272,8 @@ def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
     k = int(np.argmax(zz))
     step = float(td[1] - td[0]) if len(td) > 1 else 0.0
     # Other peaks: local maxima further than the separation from the best.
-    peaks, _ = signal.find_peaks(np.where(np.isfinite(zz), zz, -1e9),
-                                 distance=max(1, int(PEAK_SEPARATION_S / max(step, 1e-9))))
+    peaks = peaks_apart(np.where(np.isfinite(zz), zz, -1e9),
+                        max(1, int(PEAK_SEPARATION_S / max(step, 1e-9))))
     far = [p for p in peaks if abs(td[p] - td[k]) > PEAK_SEPARATION_S and np.isfinite(zz[p])]
     far.sort(key=lambda p: -zz[p])
     second = far[0] if far else None

@@ -31,7 +31,6 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy import special
-from scipy import stats as sps
 
 from mocap_calib.core import interrupt
 from mocap_calib.core.clock.search import search_clock
@@ -56,6 +55,7 @@ from mocap_calib.core.diagnosis.takes import (
 )
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, CLOCK_OFFSET, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
+from mocap_calib.core.model.stats import chi2_logsf
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
@@ -131,7 +131,7 @@ def _log10_sf(t: float, k: int) -> float:
     a = k/2 << x = t/2, so a few terms are exact to double precision. (Wilson-Hilferty, used
     before, is off by hundreds of decades there for 1 dof and ranked a 1-dof effect with
     T = 4562 below one with T = 1142.)"""
-    lp = float(sps.chi2.logsf(t, k))
+    lp = float(chi2_logsf(t, k))
     if np.isfinite(lp):
         return lp / np.log(10.0)
     a, x = 0.5 * k, 0.5 * t

@@ -28,7 +28,6 @@ from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats as sps
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS, GRAVITY_MAGNITUDE, Model
@@ -47,6 +46,7 @@ from mocap_calib.core.model.preint import (
     integrate_pieces,
     pieces,
 )
+from mocap_calib.core.model.stats import chi2_median, chi2_ppf
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.kalman import (
     Rows,
@@ -74,7 +74,7 @@ from mocap_calib.core.prepare.session import PreparedSession
 Array = NDArray[np.float64]
 
 #: Robust kernel threshold on a sample's whitened 6-D innovation norm (chi, 6 dof, 99.9%).
-ROBUST_C = float(np.sqrt(sps.chi2.ppf(0.999, 6)))
+ROBUST_C = float(np.sqrt(chi2_ppf(0.999, 6)))
 #: Length (s) of the blocks of consecutive samples whose scores the sandwich covariance sums:
 #: longer than the correlation of real mocap noise, short enough for many blocks per session.
 SCORE_BLOCK_S = 1.0
@@ -332,7 +332,7 @@ class PositionProblem:
         use = self._level_samples(skip)
         if use.sum() < 50:
             return 1.0, 1.0
-        med = float(sps.chi2.median(3))
+        med = float(chi2_median(3))
         return (float(np.median(out.q_rot[use])) / med, float(np.median(out.q_pos[use])) / med)
 
     def _level_samples(self, skip: int) -> NDArray[np.bool_]:
@@ -353,7 +353,7 @@ class PositionProblem:
         use = self._level_samples(skip)
         if use.sum() < 50 or out.e_white is None:
             return np.ones(6)
-        med = float(sps.chi2.median(1))
+        med = float(chi2_median(1))
         return np.median(out.e_white[use] ** 2, axis=0) / med
 
     def scale_mocap_noise(self, s_rot: float, s_pos: float) -> None:

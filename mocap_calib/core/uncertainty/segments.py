@@ -13,11 +13,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats as sps
 
 from mocap_calib.core import interrupt
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.stats import chi2_sf
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.uncertainty.refit import Estimate, refit, z_pair
 from mocap_calib.errors import CalibrationError, Interrupted
@@ -91,7 +91,7 @@ class Consistency:
         if r is None or len(self.segments) < 2:
             return 1.0
         dof = (len(self.segments) - 1) * {"R_MI": 3, "p_MI": 3, "t_d": 1}[param]
-        return float(sps.chi2.sf(r * r * dof, dof))
+        return float(chi2_sf(r * r * dof, dof))
 
 
 def _thirds(pos: PositionResult, k: int) -> list[list[IntArray]]:
