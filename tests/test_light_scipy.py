@@ -58,4 +58,5 @@ def test_clock_filters_match_scipy_signal() -> None:
     z = np.round(np.cumsum(rng.normal(size=5000)), 1)  # plateaus and ties
     z[100:130] = -1e9
     for d in (1, 2, 10, 100):
-        np.testing.assert_array_equal(filters.peaks_apart(z, d), signal.find_peaks(z, distance=d)[0])
+        np.testing.assert_array_equal(filters.peaks_apart(z, d),
+                                      signal.find_peaks(z, distance=d)[0])

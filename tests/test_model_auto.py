@@ -62,3 +62,23 @@ def test_model_auto_recovers_the_delay_and_matches_diagnose(tmp_path: Path, seed
         assert abs(f[key] - a[key]) <= 0.5 * a["sigma"][key]
     dp = np.abs(np.array(f["T_marker_imu"]["translation"]) - a["T_marker_imu"]["translation"])
     assert np.all(dp <= 0.5 * np.array(a["sigma"]["translation"]))
+
+
+def test_effect_tests_on_spread_windows_of_a_long_session(monkeypatch: pytest.MonkeyPatch
+                                                          ) -> None:
+    """Beyond MAX_TEST_WINDOWS the tests use that many windows spread over the session
+    (their cost stays flat): a hidden delay is still named, its estimate as close."""
+    from types import SimpleNamespace
+
+    from mocap_calib.core.checks import effect_scores as es
+
+    takes = [SimpleNamespace(windows=SimpleNamespace(count=c)) for c in (500, 220)]
+    picked = es._spread(SimpleNamespace(takes=takes))
+    assert [len(w) for w in picked] == [167, 73] and picked[0][[0, -1]].tolist() == [0, 499]
+    monkeypatch.setattr(es, "MAX_TEST_WINDOWS", 12)  # (8 of 18: too few for the spread test)
+    sim = simulate_flight(SimConfig(seed=4, duration=90.0, effects={
+        "time_offset": [T_D], "accel_delay": [0.004]}))
+    r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, sensitivity=False))
+    assert r.solver["windows"] > 12
+    assert r.effect_tests["shown"] == ["accel_delay"]
+    assert abs(r.effect_tests["candidates"][0]["one_step_estimate"] - 0.004) < 0.5e-3
