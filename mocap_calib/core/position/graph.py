@@ -232,10 +232,12 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
     evals: list[list[Any]] = []  # every evaluation's per-take outputs, latest last
 
     def evaluate(values: gtsam.Values) -> BatchOutput:
+        # Only the latest evaluation is kept (who needs an earlier one holds it): the old one
+        # goes first, so that two sets of (windows x samples) outputs never coexist here.
+        evals.clear()
         outs = [pp.evaluate(th) for pp, th in zip(problems, _alive(pg_ref[0]).thetas(values),
                                                    strict=True)]
         evals.append(outs)
-        del evals[:-2]
         e = np.concatenate([compress(o.gram)[0] for o in outs])
         H = np.concatenate([compress(o.gram)[1] for o in outs])
         jac = [[H[w][:, sl] for _, sl in col_keys[w]] for w in range(len(col_keys))]
