@@ -66,7 +66,8 @@ class Whitening:
     """What the filter of a chunk of windows is made of, apart from the residuals: the steps'
     increments and the nominal start attitudes (the transitions; the kernel chains the
     attitudes as ``compose`` does), the noise parameters, the lever-arm matrix and the robust
-    weights. A frozen whitening keeps the one of its recording: 51 numbers a step."""
+    weights. A frozen whitening keeps the one of its recording: 51 numbers a step (single
+    precision)."""
 
     inc: Array  # (W, m, 51) packed step increments
     R0: Array  # (W, 3, 3) nominal attitude at each window's start
