@@ -223,10 +223,12 @@ def test_frozen_whitening_is_the_recorded_dense_likelihood(short_session, noise)
         r1 = frozen.raw_r[w, :m1].reshape(-1)
         A1 = np.concatenate([frozen.raw_J[w, :m1].reshape(6 * m1, -1), r1[:, None]], axis=1)
         dense = A1.T @ np.linalg.solve(C0, A1)
-        np.testing.assert_allclose(frozen.gram[w], dense, rtol=1e-6,
-                                   atol=1e-9 * np.abs(dense).max())
+        # The record keeps the increments in single precision (the dense covariance here is
+        # built from the double-precision ones): agreement to ~1e-7 relative, not 1e-12.
+        np.testing.assert_allclose(frozen.gram[w], dense, rtol=1e-5,
+                                   atol=1e-7 * np.abs(dense).max())
         e_dense = np.linalg.solve(np.linalg.cholesky(C0), r1).reshape(m1, 6)
-        np.testing.assert_allclose(frozen.e_white[w, :m1], e_dense, rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(frozen.e_white[w, :m1], e_dense, rtol=1e-5, atol=1e-6)
         # ... which is not the whitening at the new point (the test can tell them apart).
         assert np.abs(fresh.e_white[w, :m1] - e_dense).max() > 1e-3
 
