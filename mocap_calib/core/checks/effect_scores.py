@@ -44,7 +44,7 @@ ALPHA = 0.01
 #: cost per window): beyond this many windows (20 min of 5 s windows) they use that many,
 #: spread over the session. An effect that matters is shown long before (its statistic
 #: grows with the data), and the tests' cost stays flat in the session's length (60 min:
-#: 5.7 -> ~1.9 s).
+#: 5.7 -> 2.2 s).
 MAX_TEST_WINDOWS = 240
 
 
