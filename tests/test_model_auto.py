@@ -78,7 +78,13 @@ def test_effect_tests_on_spread_windows_of_a_long_session(monkeypatch: pytest.Mo
     monkeypatch.setattr(es, "MAX_TEST_WINDOWS", 12)  # (8 of 18: too few for the spread test)
     sim = simulate_flight(SimConfig(seed=4, duration=90.0, effects={
         "time_offset": [T_D], "accel_delay": [0.004]}))
-    r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, sensitivity=False))
+    said: list[str] = []
+    r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, sensitivity=False),
+                  progress=said.append)
     assert r.solver["windows"] > 12
+    assert any(f"(12 of {r.solver['windows']} windows, spread over the session)" in m
+               for m in said)
+    assert r.effect_tests["windows"] == r.solver["windows"]
+    assert r.effect_tests["windows_tested"] == 12
     assert r.effect_tests["shown"] == ["accel_delay"]
     assert abs(r.effect_tests["candidates"][0]["one_step_estimate"] - 0.004) < 0.5e-3

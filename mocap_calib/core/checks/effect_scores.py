@@ -135,6 +135,11 @@ def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | N
     return out
 
 
+def windows_tested(pos: PositionResult) -> int:
+    """How many of the session's windows the tests use (see :data:`MAX_TEST_WINDOWS`)."""
+    return sum(len(w) for w in _spread(pos))
+
+
 def _spread(pos: PositionResult) -> list[NDArray[np.int64]]:
     """Per take, the windows the tests use: all of them up to :data:`MAX_TEST_WINDOWS` in
     all, else that many spread evenly over every take (in proportion to its windows)."""

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
 from mocap_calib.core.checks.degenerate import mark_single_axis, mark_undetermined
-from mocap_calib.core.checks.effect_scores import ALPHA, effect_scores
+from mocap_calib.core.checks.effect_scores import ALPHA, effect_scores, windows_tested
 from mocap_calib.core.checks.verdict import judge
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS
@@ -156,13 +156,17 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
 def _effect_tests(r: CalibrationResult, pos: PositionResult, opts: CalibrationOptions,
                   say: ProgressFn) -> None:
     """Score tests of the effects the model lacks; those the data show are named (in place)."""
-    say("effects the model lacks: score tests at the solution")
+    total, tested = sum(t.windows.count for t in pos.takes), windows_tested(pos)
+    say("effects the model lacks: score tests at the solution"
+        + (f" ({tested} of {total} windows, spread over the session)" if tested < total
+           else ""))
     scores = effect_scores(pos, opts.model, opts.plausible)
     if not scores:
         return
     shown = [s for s in scores if s.shown]
     r.effect_tests = {"alpha": ALPHA, "candidates": [s.to_dict() for s in scores],
-                      "shown": [s.effect for s in shown]}
+                      "shown": [s.effect for s in shown],
+                      "windows": total, "windows_tested": tested}
     if shown:
         line = ("effects the data show (not in the model): "
                 + ", ".join(f"{s.effect} (log10 p {s.log10_p:.1f})" for s in shown)
