@@ -36,21 +36,19 @@ def savgol(x: Array, window: int, order: int, deriv: int = 0, delta: float = 1.0
     weights = np.linalg.pinv(j[:, None] ** np.arange(order + 1))[deriv] * scale
     out = np.empty_like(flat)
     out[half:len(flat) - half] = sliding_window_view(flat, window, axis=0) @ weights
+    # The ends: the polynomial fitted to the first / last `window` samples, its `deriv`-th
+    # derivative (d^deriv/dk^deriv of sum c_i k^i) at the samples the centred fit cannot reach.
     k = np.arange(window, dtype=float)
-    V = k[:, None] ** np.arange(order + 1)
     powers = np.arange(order + 1)
-    for rows, at in ((slice(0, window), k[:half]), (slice(len(flat) - window, len(flat)),
-                                                     k[window - half:])):
-        coef = np.linalg.lstsq(V, flat[rows], rcond=None)[0]  # (order+1, d)
-        # d^deriv/dk^deriv of sum c_i k^i at the edge samples.
-        fall = np.array([np.prod(np.arange(i - deriv + 1, i + 1)) if i >= deriv else 0.0
-                         for i in powers])
+    V = k[:, None] ** powers
+    fall = np.array([np.prod(np.arange(i - deriv + 1, i + 1)) if i >= deriv else 0.0
+                     for i in powers])
+    n = len(flat)
+    for fit, at, dest in ((slice(0, window), k[:half], slice(0, half)),
+                          (slice(n - window, n), k[window - half:], slice(n - half, n))):
+        coef = np.linalg.lstsq(V, flat[fit], rcond=None)[0]  # (order+1, d)
         D = np.where(powers >= deriv, fall * at[:, None] ** np.maximum(powers - deriv, 0), 0.0)
-        vals = D @ coef / delta**deriv
-        if rows.start == 0:
-            out[:half] = vals
-        else:
-            out[len(flat) - half:] = vals
+        out[dest] = D @ coef / delta**deriv
     return out.reshape(x.shape)
 
 
