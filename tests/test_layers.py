@@ -25,14 +25,14 @@ CORE_DIR = PACKAGE_DIR / "core"
 #: Every layer may import the standard library, ``mocap_calib.errors`` and itself.
 LAYERS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "core": ((), ("numpy", "scipy", "gtsam", "allantools", "numba")),
-    "io": (("core",), ("numpy", "pandas", "yaml", "rosbags", "pyulog")),
+    "io": (("core",), ("numpy", "yaml", "rosbags", "pyulog")),
     "sim": (("core",), ("numpy", "scipy")),
     "report": (("core",), ("numpy", "matplotlib")),
     "export": (("core", "io"), ("numpy", "yaml")),
     "viz": (("core", "report"), ("numpy", "rerun")),
     "workflows": (("core", "io", "sim", "report", "export", "viz"),
-                  ("numpy", "scipy", "pandas", "yaml", "gtsam")),
-    "batch": (("core", "io", "report", "workflows"), ("numpy", "pandas", "yaml", "dask",
+                  ("numpy", "scipy", "yaml", "gtsam")),
+    "batch": (("core", "io", "report", "workflows"), ("numpy", "yaml", "dask",
                                                        "distributed")),
     "cli": (("workflows", "batch"), ("typer", "click")),
 }

@@ -57,7 +57,7 @@ from mocap_calib.io.formats.layout import (
     Layout,
     name_key,
     numeric_column,
-    read_frame,
+    read_table,
     sniff_layout,
 )
 from mocap_calib.io.formats.stamps import parse_stamps
@@ -65,7 +65,7 @@ from mocap_calib.io.tables import format_floats, write_table
 
 # Re-exported: the reader's building blocks used to live here.
 __all__ = ["BROAD", "PRESETS", "WHITESPACE", "ColumnMap", "Layout", "format_floats",
-           "name_key", "numeric_column", "parse_columns", "parse_stamps", "read_frame",
+           "name_key", "numeric_column", "parse_columns", "parse_stamps", "read_table",
            "read_generic", "read_indexed", "resolve_column", "sniff_layout", "write_table"]
 
 Array = NDArray[np.float64]
@@ -107,12 +107,12 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
     indices = [time]
     for group in (gyro, accel, quat, position):
         indices += list(group or ())
-    frame = read_frame(layout, indices, time)
+    table = read_table(layout, indices, time)
     lines = layout.lines()
-    ns = parse_stamps(frame[time], time_unit, layout.label(time), lines, layout.decimal)
+    ns = parse_stamps(table.text[time], time_unit, layout.label(time), lines, layout.decimal)
 
     def block(cols: Sequence[int]) -> Array:
-        return np.stack([numeric_column(frame, c, layout, lines) for c in cols], axis=1)
+        return np.stack([numeric_column(table, c, layout, lines) for c in cols], axis=1)
 
     imu = mocap = None
     if gyro is not None and accel is not None:

@@ -18,7 +18,7 @@ from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS
 from mocap_calib.errors import input_error
 from mocap_calib.io.checks import TIME_UNITS, Lines, check_increasing, check_unit, validate_imu
-from mocap_calib.io.formats.layout import numeric_column, read_frame, sniff_layout
+from mocap_calib.io.formats.layout import numeric_column, read_table, sniff_layout
 from mocap_calib.io.formats.stamps import parse_stamps
 
 Array = NDArray[np.float64]
@@ -36,10 +36,10 @@ def read_triad(path: Path | str, time_unit: str = "s") -> tuple[IntArray, Array,
         raise input_error(f"has {layout.n_fields} columns, not imu_tk's 't x y z'",
                           "pass an imu_tk data file (timestamp and three values per line)",
                           layout.source, layout.skip + 1)
-    frame = read_frame(layout, [0, 1, 2, 3], 0)
+    table = read_table(layout, [0, 1, 2, 3], 0)
     lines = layout.lines()
-    ns = parse_stamps(frame[0], time_unit, layout.label(0), lines, layout.decimal)
-    xyz = np.stack([numeric_column(frame, c, layout, lines) for c in (1, 2, 3)], axis=1)
+    ns = parse_stamps(table.text[0], time_unit, layout.label(0), lines, layout.decimal)
+    xyz = np.stack([numeric_column(table, c, layout, lines) for c in (1, 2, 3)], axis=1)
     bad = ~np.isfinite(xyz).all(axis=1)
     if bad.any():
         raise lines.error("row has a NaN, infinite or missing value", "fix or delete that row",

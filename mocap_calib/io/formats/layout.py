@@ -1,10 +1,18 @@
 """Layout sniffing and table reading of delimited text files (shared by the generic, EuRoC,
-TUM and imu_tk readers): delimiter, header, first data row, decimal mark; numeric columns
-parsed with one-line errors naming the line."""
+TUM, imu_tk and mocap-export readers): delimiter, header, first data row, decimal mark; numeric
+columns parsed with one-line errors naming the line.
+
+The rows are parsed with numpy, not pandas: importing pandas costs ~64 MB of resident memory, a
+fifth of a short session's whole run. Clean files go through numpy's C parser; a file it refuses
+(an empty cell, ``NA``, a word in a column, a short row) is read again row by row, so that each
+problem is named at its line. The rules: a ``#`` starts a comment, blank lines are skipped, a row
+with more fields than the first data row is an error, missing trailing fields and empty or
+``NA``-like cells are NaN."""
 
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,11 +23,10 @@ from numpy.typing import NDArray
 from mocap_calib.errors import input_error
 from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.columns import COLUMNS_FIX
-from mocap_calib.io.pandas_csv import pd
 
 Array = NDArray[np.float64]
 
-#: pandas separator for whitespace-delimited files.
+#: The separator of whitespace-delimited files (runs of spaces or tabs).
 WHITESPACE = r"\s+"
 _HEAD_LINES = 200
 
@@ -30,7 +37,7 @@ class Layout:
 
     Attributes:
         path: The file.
-        sep: pandas separator: ``","``, ``";"`` or :data:`WHITESPACE`.
+        sep: The separator: ``","``, ``";"`` or :data:`WHITESPACE`.
         skip: Raw lines before the first data row.
         names: Header names (leading ``#`` and spaces stripped), or None without a header.
         header_line: 1-based line of the header, or None.
@@ -162,61 +169,157 @@ def sniff_layout(path: Path | str) -> Layout:
                       "check that this is a delimited text file of numbers", source)
 
 
-def read_frame(layout: Layout, indices: Collection[int], time_index: int) -> pd.DataFrame:
-    """Read the given columns (the time column as text, for exact stamps) with pandas.
+#: Cells read as NaN (missing values as spreadsheets and loggers write them).
+NA_CELLS = frozenset({"", "nan", "NaN", "-nan", "-NaN", "NA", "N/A", "n/a", "#N/A", "NULL",
+                      "null", "None", "<NA>"})
+
+
+class RaggedRow(Exception):
+    """A data row with more fields than the first one (``row`` is its 0-based data row)."""
+
+    def __init__(self, row: int) -> None:
+        super().__init__(row)
+        self.row = row
+
+
+@dataclass(frozen=True)
+class Table:
+    """Some columns of a file's data rows.
+
+    Attributes:
+        numbers: 0-based column -> (N,) float64, NaN where a cell is empty, NA or no number.
+        bad: 0-based column -> (first data row, its text) of a cell that is no number.
+        text: 0-based column -> (N,) its cells as stripped text (the columns asked for as text).
+    """
+
+    numbers: dict[int, Array]
+    bad: dict[int, tuple[int, str]]
+    text: dict[int, NDArray[np.str_]]
+
+
+def data_lines(text: str, skip: int, decimal: str = ".") -> list[str]:
+    """The data lines of a file's ``text``: after ``skip`` raw lines, comments cut, blank lines
+    dropped (the row numbering of :class:`~mocap_calib.io.checks.Lines`); a ``,`` decimal mark
+    becomes ``.`` (the delimiter is then ``;``)."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    lines = text.split("\n")[skip:]
+    if any("#" in line for line in lines):
+        lines = [line.partition("#")[0] for line in lines]
+    lines = [line for line in lines if line and not line.isspace()]
+    if decimal != ".":
+        lines = [line.replace(decimal, ".") for line in lines]
+    return lines
+
+
+def parse_rows(lines: list[str], sep: str | None, n_fields: int, numeric: Collection[int],
+               text: Collection[int] = (), ragged_ok: bool = False) -> Table:
+    """Parse data lines into a :class:`Table`.
+
+    Args:
+        lines: The data lines (:func:`data_lines`).
+        sep: The delimiter, or None for runs of whitespace.
+        n_fields: Fields of the first data row; a longer row raises :class:`RaggedRow` unless
+            ``ragged_ok``.
+        numeric: Columns wanted as numbers.
+        text: Columns wanted as text.
+        ragged_ok: Rows may be longer than the first (extra fields are ignored).
+
+    Raises:
+        RaggedRow: a row has more fields than ``n_fields``.
+    """
+    numeric = sorted(set(numeric))
+    values = None
+    if not ragged_ok:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # "input contained no data"
+                values = np.loadtxt(lines, delimiter=sep, dtype=np.float64, comments=None,
+                                    ndmin=2, quotechar=None)
+        except ValueError:
+            values = None
+        if values is not None and len(lines) and values.shape[1] != n_fields:
+            values = None
+    if values is not None:
+        numbers = {c: np.ascontiguousarray(values[:, c]) if len(lines) else np.zeros(0)
+                   for c in numeric}
+        bad: dict[int, tuple[int, str]] = {}
+    else:
+        numbers, bad = _parse_slowly(lines, sep, n_fields, numeric, ragged_ok)
+    cells = {c: np.array([_field(line, sep, c) for line in lines], dtype=str) for c in text}
+    return Table(numbers, bad, cells)
+
+
+def _field(line: str, sep: str | None, i: int) -> str:
+    parts = line.split(sep, i + 1)
+    return parts[i].strip() if len(parts) > i else ""
+
+
+def _parse_slowly(lines: list[str], sep: str | None, n_fields: int, numeric: list[int],
+                  ragged_ok: bool) -> tuple[dict[int, Array], dict[int, tuple[int, str]]]:
+    """Row by row: NaN for missing and NA cells, the first non-number of each column kept."""
+    out = {c: np.full(len(lines), np.nan) for c in numeric}
+    bad: dict[int, tuple[int, str]] = {}
+    for r, line in enumerate(lines):
+        fields = line.split(sep)
+        if len(fields) > n_fields and not ragged_ok:
+            raise RaggedRow(r)
+        for c in numeric:
+            if c >= len(fields):
+                continue
+            cell = fields[c].strip()
+            if cell in NA_CELLS:
+                continue
+            try:
+                if "_" in cell:  # Python's float() reads 1_000; no CSV writer means that
+                    raise ValueError(cell)
+                out[c][r] = float(cell)
+            except ValueError:
+                bad.setdefault(c, (r, cell))
+    return out, bad
+
+
+def read_table(layout: Layout, indices: Collection[int], time_index: int) -> Table:
+    """Read the given columns (the time column as text, for exact stamps).
 
     Args:
         layout: The file's layout.
         indices: 0-based columns to read.
-        time_index: The time column (kept as strings).
+        time_index: The time column (kept as text).
 
     Returns:
-        A frame whose columns are labelled by their 0-based index.
+        The columns, by their 0-based index.
     """
     for i in indices:
         if i >= layout.n_fields:
             raise input_error(f"column {i} does not exist (the first data row has "
                               f"{layout.n_fields} columns)", COLUMNS_FIX, layout.source,
                               layout.skip + 1)
-    # All columns are read (not usecols) so that a row with extra fields is an error.
-    kwargs: dict = {"sep": layout.sep, "header": None, "skiprows": layout.skip, "comment": "#",
-                    "dtype": {time_index: str}, "encoding": "utf-8",
-                    "encoding_errors": "replace"}
-    if layout.sep != WHITESPACE:
-        kwargs["skipinitialspace"] = True
-    if layout.decimal != ".":
-        kwargs["decimal"] = layout.decimal
     try:
-        frame = pd.read_csv(layout.path, **kwargs)
-    except pd.errors.ParserError as err:
-        m = re.search(r"line (\d+)", str(err))
-        raise input_error("row does not split into the same columns as the first data row",
-                          "check the delimiter and that every row has the same columns",
-                          layout.source, int(m.group(1)) if m else None) from None
-    except (ValueError, UnicodeError) as err:
-        raise input_error(f"cannot parse the file ({err})",
-                          "check that this is a delimited text file of numbers",
-                          layout.source) from None
-    if frame.shape[1] <= max(indices):
-        raise input_error(f"column {max(indices)} does not exist (the file has "
-                          f"{frame.shape[1]} columns)", COLUMNS_FIX, layout.source,
-                          layout.skip + 1)
-    return frame[sorted(set(indices))]
+        with open(layout.path, encoding="utf-8-sig", errors="replace") as f:
+            text = f.read()
+    except OSError as err:
+        raise input_error(f"cannot read the file ({err.strerror})", "check the path and its "
+                          "permissions", layout.source) from None
+    lines = data_lines(text, layout.skip, layout.decimal)
+    del text
+    sep = None if layout.sep == WHITESPACE else layout.sep
+    try:
+        # All columns are parsed (not only those asked for) so that a longer row is an error.
+        return parse_rows(lines, sep, layout.n_fields, indices, text=[time_index])
+    except RaggedRow as err:
+        raise layout.lines().error("row does not split into the same columns as the first "
+                                   "data row", "check the delimiter and that every row has "
+                                   "the same columns", err.row) from None
 
 
-def numeric_column(frame: pd.DataFrame, index: int, layout: Layout, lines: Lines) -> Array:
-    """Column ``index`` of ``frame`` as float64, raising at the first value that is no number.
+def numeric_column(table: Table, index: int, layout: Layout, lines: Lines) -> Array:
+    """Column ``index`` as float64, raising at the first value that is no number.
 
     Empty fields and ``nan`` become NaN (the stream checks decide whether that is allowed).
     """
-    col = frame[index]
-    if pd.api.types.is_numeric_dtype(col.dtype):
-        return col.to_numpy(dtype=np.float64)
-    text = col.str.replace(",", ".", regex=False) if layout.decimal == "," else col
-    coerced = pd.to_numeric(text, errors="coerce")
-    bad = (coerced.isna() & col.notna()).to_numpy()
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise lines.error(f"column {layout.label(index)} holds {col.iloc[i]!r}, not a number",
-                          "fix or delete that line", i)
-    return coerced.to_numpy(dtype=np.float64)
+    if index in table.bad:
+        row, cell = table.bad[index]
+        raise lines.error(f"column {layout.label(index)} holds {cell!r}, not a number",
+                          "fix or delete that line", row)
+    return table.numbers[index]

@@ -36,7 +36,7 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import MocapPoses
 from mocap_calib.errors import InputError, input_error
 from mocap_calib.io.checks import Lines, validate_mocap
-from mocap_calib.io.pandas_csv import pd
+from mocap_calib.io.formats.layout import data_lines, parse_rows
 
 EXPORT_FORMATS = ("motive", "vicon-nexus", "vicon-tracker")
 ROTATIONS = ("helical", "euler-xyz")
@@ -113,22 +113,21 @@ def _pick_body(names: list[str], wanted: str | None, path: Path, noun: str) -> s
                       "pass --rigid-body with one of those", str(path))
 
 
-def _numbers(path: Path, skip: int, cols: list[int]) -> pd.DataFrame:
+def _numbers(path: Path, skip: int, cols: list[int]) -> dict[int, np.ndarray]:
     """Columns ``cols`` of the data rows, as floats (empty cells are NaN)."""
     try:
-        frame = pd.read_csv(path, skiprows=skip, header=None, usecols=cols, dtype=str,
-                            skip_blank_lines=True, keep_default_na=False, encoding="utf-8-sig")
-    except (ValueError, pd.errors.ParserError) as err:
-        raise input_error(f"cannot parse the data rows ({' '.join(str(err).split())[:100]})",
-                          "re-export the take as CSV", str(path)) from None
-    out = frame.apply(lambda c: pd.to_numeric(c.str.strip().replace("", "nan"),
-                                              errors="coerce"))
-    bad = frame.ne("") & out.isna()
-    if bad.to_numpy().any():
-        r, c = np.argwhere(bad.to_numpy())[0]
-        raise input_error(f"line {skip + r + 1}: '{frame.iat[r, c]}' is not a number",
+        with open(path, encoding="utf-8-sig", errors="replace") as f:
+            lines = data_lines(f.read(), skip)
+    except OSError as err:
+        raise input_error(f"cannot read the file ({err.strerror})",
+                          "check the path and its permissions", str(path)) from None
+    table = parse_rows(lines, ",", max(cols) + 1, cols, ragged_ok=True)
+    if table.bad:
+        c = min(table.bad, key=lambda k: table.bad[k][0])
+        r, cell = table.bad[c]
+        raise input_error(f"line {skip + r + 1}: '{cell}' is not a number",
                           "fix or delete that row", str(path))
-    return out
+    return table.numbers
 
 
 def _stamps_from_frames(frames: np.ndarray, rate: float) -> np.ndarray:
@@ -193,15 +192,15 @@ def _read_motive(path: Path, head: list[list[str]], opts: ExportOptions,
     data = _numbers(path, axis_i + 1, sorted(set(used)))
     label = f"{path} [{name}]"
     if rate is not None and rate > 0:
-        ns = _stamps_from_frames(data[0].to_numpy(), rate)
+        ns = _stamps_from_frames(data[0], rate)
     elif time_j is not None:
-        ns = np.round(data[time_j].to_numpy() * 1e9).astype(np.int64)
+        ns = np.round(data[time_j] * 1e9).astype(np.int64)
     else:
         raise input_error("no frame rate and no time column in the file (frame numbers only)",
                           "pass --mocap-rate HZ (the clock offset to the IMU is then found by "
                           "the clock search)", str(path))
-    q_xyzw = np.stack([data[cols[k]].to_numpy() for k in need[:4]], axis=1)
-    p = np.stack([data[cols[k]].to_numpy() for k in need[4:]], axis=1) * _LENGTH[unit.lower()]
+    q_xyzw = np.stack([data[cols[k]] for k in need[:4]], axis=1)
+    p = np.stack([data[cols[k]] for k in need[4:]], axis=1) * _LENGTH[unit.lower()]
     origin = _capture_start_ns(meta, notes, label)
     notes.append(f"{label}: Motive export, {unit.lower()}, y-up world kept as the mocap world")
     poses = validate_mocap(ns + origin, np.ascontiguousarray(q_xyzw[:, [3, 0, 1, 2]]), p,
@@ -278,12 +277,13 @@ def _read_vicon(path: Path, head: list[list[str]], fmt: str, opts: ExportOptions
         notes.append(f"{path}: --mocap-rate {opts.mocap_rate:g} Hz overrides the file's "
                      f"{file_rate:g} Hz")
     data = _numbers(path, 5, [0, *range(j, j + 6)])
-    frames = data[0].to_numpy()
-    R = _vicon_rotation(data[list(range(j, j + 3))].to_numpy() * rot_scale, form)
+    frames = data[0]
+    R = _vicon_rotation(np.stack([data[c] for c in range(j, j + 3)], axis=1) * rot_scale,
+                        form)
     q = np.full((len(R), 4), np.nan)
     ok = np.isfinite(R).all(axis=(1, 2))
     q[ok] = so3.rotmat_to_quat(R[ok])
-    p = data[list(range(j + 3, j + 6))].to_numpy() * _LENGTH[pos_unit]
+    p = np.stack([data[c] for c in range(j + 3, j + 6)], axis=1) * _LENGTH[pos_unit]
     label = f"{path} [{name}]"
     notes.append(f"{label}: Vicon {fmt.split('-')[1].title()} export at {rate:g} Hz, {form} "
                  f"rotations, {pos_unit}; stamps are frame / rate (no absolute time)")
