@@ -189,7 +189,8 @@ class Table:
     Attributes:
         numbers: 0-based column -> (N,) float64, NaN where a cell is empty, NA or no number.
         bad: 0-based column -> (first data row, its text) of a cell that is no number.
-        text: 0-based column -> (N,) its cells as stripped text (the columns asked for as text).
+        text: 0-based column -> (N,) its cells as text, unstripped (the columns asked for as
+            text).
     """
 
     numbers: dict[int, Array]
@@ -246,13 +247,17 @@ def parse_rows(lines: list[str], sep: str | None, n_fields: int, numeric: Collec
         bad: dict[int, tuple[int, str]] = {}
     else:
         numbers, bad = _parse_slowly(lines, sep, n_fields, numeric, ragged_ok)
-    cells = {c: np.array([_field(line, sep, c) for line in lines], dtype=str) for c in text}
+    cells = {c: np.array(_cells(lines, sep, c), dtype=str) for c in text}
     return Table(numbers, bad, cells)
 
 
-def _field(line: str, sep: str | None, i: int) -> str:
-    parts = line.split(sep, i + 1)
-    return parts[i].strip() if len(parts) > i else ""
+def _cells(lines: list[str], sep: str | None, i: int) -> list[str]:
+    """Field ``i`` of every line, unstripped ("" where a row is shorter)."""
+    if i == 0:  # the usual time column: 3x faster than splitting every field
+        if sep is None:
+            return [line.split(None, 1)[0] for line in lines]
+        return [line.partition(sep)[0] for line in lines]
+    return [parts[i] if len(parts := line.split(sep, i + 1)) > i else "" for line in lines]
 
 
 def _parse_slowly(lines: list[str], sep: str | None, n_fields: int, numeric: list[int],
