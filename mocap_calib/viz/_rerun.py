@@ -6,6 +6,7 @@ is actually written, so the CLI and the core start without loading the viewer SD
 
 from __future__ import annotations
 
+import copy
 import errno
 from collections.abc import Sequence
 from types import ModuleType
@@ -59,6 +60,22 @@ class Logger:
             raise OSError(errno.EIO, f"rerun cannot write it: {err}") from None
         if name:
             self.rec.send_recording_name(name)
+        self.prefix = ""
+
+    def at(self, prefix: str) -> Logger:
+        """The same stream, every entity path under ``prefix/`` (another take's series)."""
+        other = copy.copy(self)
+        other.prefix = f"{self.prefix}{prefix.strip('/')}/"
+        return other
+
+    def path(self, path: str) -> str:
+        return f"{self.prefix}{path}"
+
+    def log(self, path: str, *args: Any, **kwargs: Any) -> None:
+        self.rec.log(self.path(path), *args, **kwargs)
+
+    def send_columns(self, path: str, **kwargs: Any) -> None:
+        self.rec.send_columns(self.path(path), **kwargs)
 
     def close(self) -> None:
         """Flush everything and close the file.
@@ -77,8 +94,8 @@ class Logger:
     # ------------------------------------------------------------------ series
     def style(self, path: str, name: str, color: Sequence[int], width: float = 1.5) -> None:
         """Static line style (legend name, colour, width) of one scalar series."""
-        self.rec.log(path, self.rr.SeriesLines(names=[name], colors=[list(color)],
-                                               widths=[width]), static=True)
+        self.log(path, self.rr.SeriesLines(names=[name], colors=[list(color)],
+                                           widths=[width]), static=True)
 
     def scalars(self, path: str, t: Array, values: Array, *, timeline: str = TIMELINE,
                 sequence: bool = False) -> None:
@@ -95,8 +112,8 @@ class Logger:
         t = np.asarray(t)
         index = (rr.TimeColumn(timeline, sequence=t.astype(np.int64)) if sequence
                  else rr.TimeColumn(timeline, duration=t.astype(np.float64)))
-        self.rec.send_columns(path, indexes=[index],
-                              columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
+        self.send_columns(path, indexes=[index],
+                          columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)))
 
     def xyz(self, prefix: str, t: Array, values: Array, label: str, unit: str, *,
             pale: bool = False, timeline: str = TIMELINE, sequence: bool = False,
@@ -111,12 +128,13 @@ class Logger:
     def text(self, path: str, text: str, markdown: bool = False) -> None:
         """A static text document."""
         media = self.rr.MediaType.MARKDOWN if markdown else self.rr.MediaType.TEXT
-        self.rec.log(path, self.rr.TextDocument(text, media_type=media), static=True)
+        self.log(path, self.rr.TextDocument(text, media_type=media), static=True)
 
 
 def default_blueprint(stages: Sequence[str], has_rotation: bool,
                       diagnose: Sequence[tuple[str, Sequence[str]]], has_solver: bool,
-                      has_imu_gaps: bool = False) -> Any:
+                      has_imu_gaps: bool = False,
+                      other_takes: Sequence[tuple[int, bool]] = ()) -> Any:
     """The viewer layout: 3D scene and summary on the left, tabs of time series on the right.
 
     Args:
@@ -126,14 +144,49 @@ def default_blueprint(stages: Sequence[str], has_rotation: bool,
         has_solver: solver iterations were logged.
         has_imu_gaps: ``imu_gaps/...`` spans were logged: every plot on the ``t`` timeline
             shows them.
+        other_takes: with several takes, (take number, has IMU gaps) of the second take on:
+            each gets a tab with its own scene and series (entities under ``takes/<k>/``).
     """
     import_rerun()
     import rerun.blueprint as rrb
 
-    gaps = [f"+ /{IMU_GAPS}/**"] if has_imu_gaps else []
+    tabs = _series_tabs(rrb, "", stages, has_rotation, has_imu_gaps)
+    if has_solver:
+        tabs.append(rrb.Grid(
+            *(rrb.TimeSeriesView(origin=f"solver/{k}", name=f"{k} (timeline: iteration)")
+              for k in ("cost", "p_MI", "R_MI", "time_offset", "gyro_bias", "accel_bias",
+                        "gravity_tilt")), name="solver"))
+    if diagnose:
+        gaps = [f"+ /{IMU_GAPS}/**"] if has_imu_gaps else []
+        tabs.append(rrb.Tabs(*(rrb.Vertical(
+            *(rrb.TimeSeriesView(origin=f"diagnose/{step}/{st}", name=f"{step}: {st}",
+                                 contents=["+ $origin/before/**", "+ $origin/after/**", *gaps])
+              for st in step_stages), name=step) for step, step_stages in diagnose),
+            name="diagnose"))
+    for k, gaps_k in other_takes:
+        prefix = f"takes/{k}/"
+        tabs.append(rrb.Vertical(
+            rrb.Spatial3DView(origin=f"{prefix}world", name=f"take {k}: trajectory, IMU frame"),
+            rrb.Tabs(*_series_tabs(rrb, prefix, stages, has_rotation, gaps_k)),
+            row_shares=[2, 3], name=f"take {k}"))
+    scene = "trajectory, IMU frame, dead reckoning"
+    left = rrb.Vertical(
+        rrb.Spatial3DView(origin="world", name=f"take 1: {scene}" if other_takes else scene),
+        rrb.Tabs(rrb.TextDocumentView(origin="summary", name="summary"),
+                 rrb.TextDocumentView(origin="guide", name="guide")),
+        row_shares=[3, 2])
+    return rrb.Blueprint(rrb.Horizontal(left, rrb.Tabs(*tabs), column_shares=[2, 3]),
+                         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)
+
+
+def _series_tabs(rrb: Any, prefix: str, stages: Sequence[str], has_rotation: bool,
+                 has_imu_gaps: bool) -> list[Any]:
+    """The residual, IMU and dead-reckoning tabs of one take (its entities under ``prefix``)."""
+    gaps = [f"+ /{prefix}{IMU_GAPS}/**"] if has_imu_gaps else []
 
     def view(origin: str, name: str, contents: Sequence[str] = ("+ $origin/**",)) -> Any:
-        return rrb.TimeSeriesView(origin=origin, name=name, contents=[*contents, *gaps])
+        return rrb.TimeSeriesView(origin=f"{prefix}{origin}", name=name,
+                                  contents=[*contents, *gaps])
 
     units = {"attitude": "deg", "velocity": "m/s", "position": "m"}
     res_views = []
@@ -157,24 +210,6 @@ def default_blueprint(stages: Sequence[str], has_rotation: bool,
     dr_views = [view("dead_reckoning", f"dead-reckoning {q} error at the end",
                      [f"+ $origin/{k}/{q}_error" for k in ("before", "after")])
                 for q in ("position", "attitude")]
-    tabs = [rrb.Vertical(*res_views, name="residuals"),
+    return [rrb.Vertical(*res_views, name="residuals"),
             rrb.Vertical(*imu_views, name="IMU"),
             rrb.Vertical(*dr_views, name="dead reckoning")]
-    if has_solver:
-        tabs.append(rrb.Grid(
-            *(rrb.TimeSeriesView(origin=f"solver/{k}", name=f"{k} (timeline: iteration)")
-              for k in ("cost", "p_MI", "R_MI", "time_offset", "gyro_bias", "accel_bias",
-                        "gravity_tilt")), name="solver"))
-    if diagnose:
-        tabs.append(rrb.Tabs(*(rrb.Vertical(
-            *(view(f"diagnose/{step}/{st}", f"{step}: {st}",
-                   ["+ $origin/before/**", "+ $origin/after/**"])
-              for st in step_stages), name=step) for step, step_stages in diagnose),
-            name="diagnose"))
-    left = rrb.Vertical(
-        rrb.Spatial3DView(origin="world", name="trajectory, IMU frame, dead reckoning"),
-        rrb.Tabs(rrb.TextDocumentView(origin="summary", name="summary"),
-                 rrb.TextDocumentView(origin="guide", name="guide")),
-        row_shares=[3, 2])
-    return rrb.Blueprint(rrb.Horizontal(left, rrb.Tabs(*tabs), column_shares=[2, 3]),
-                         rrb.TimePanel(timeline=TIMELINE), collapse_panels=False)

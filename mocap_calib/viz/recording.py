@@ -17,10 +17,13 @@ Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 - ``solver/<cost|time_offset|gravity_tilt>``, ``solver/<p_MI|R_MI|gyro_bias|accel_bias>/<x|y|z>``:
   position-stage iterates on ``iteration``.
 - ``diagnose/<step>/<stage>/...``: optional extra residual series, laid out like ``residuals``.
-- ``imu_gaps/gap_<k>``: one span per IMU gap of the session shown (the first take's with
-  several), from the last sample before it to the first after it (mocap time), drawn as a
-  thick bar on the zero line of every time plot; its legend name says its length and whether
-  it was bridged or split the session. At most :data:`MAX_GAP_SPANS` are drawn.
+- ``imu_gaps/gap_<k>``: one span per IMU gap of the session, from the last sample before it
+  to the first after it (mocap time), drawn as a thick bar on the zero line of every time
+  plot; its legend name says its length and whether it was bridged or split the session. At
+  most :data:`MAX_GAP_SPANS` are drawn.
+- ``takes/<k>/...``: with several takes, the second take on: its own ``world``,
+  ``dead_reckoning``, ``residuals``, ``imu`` and ``imu_gaps`` as above (its time on its own
+  mocap clock), each in a tab "take k"; the paths above are the first take's.
 - ``summary`` (:func:`mocap_calib.report.text.summary_table`), ``checks`` (clock search,
   plausibility, segment consistency, noise sensitivity), ``guide``: text documents.
 
@@ -140,32 +143,48 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
     steps = _named_steps(diagnose_steps or [])
     pos = residuals.get("position")
     spans = imu_gap_spans(s, st.delta)
+    # With several takes, the second on: their own session, state and residuals.
+    others = [(k, d.trace, d.residuals)
+              for k, d in enumerate(diag.takes[1:] if diag is not None else [], start=2)
+              if d.trace is not None]
+    other_spans = {k: imu_gap_spans(tr.session, tr.model_state.delta) for k, tr, _ in others}
     blueprint = default_blueprint(list(residuals), pos is not None and pos.rotation_after
                                   is not None, [(n, list(x)) for n, x in steps], bool(history),
-                                  has_imu_gaps=len(spans) > 0)
+                                  has_imu_gaps=len(spans) > 0,
+                                  other_takes=[(k, len(other_spans[k]) > 0) for k, _, _ in others])
 
     # rerun's writer writes ``path`` itself: the workflows give it a temporary file that
     # mocap_calib.io.atomic renames into place (no half-written recording).
     path.parent.mkdir(parents=True, exist_ok=True)
     log = Logger(str(path), blueprint, name=f"mocap-calib {result.model}")
     try:
-        log.rec.log("world", log.rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        log.log("world", log.rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         log.text("summary", summary_table(result))
         log.text("checks", "\n".join(checks_lines(result)) or "no checks were run")
         log.text("guide", _GUIDE, markdown=True)
-        _log_world(log, s, st)
-        _log_dead_reckoning(log, dead_reckoning(s, st))
-        for stage, series in residuals.items():
-            _log_residuals(log, f"residuals/{stage}", series)
-        _log_imu(log, s, st)
+        _log_take(log, s, st, residuals, spans)
         _log_solver(log, history, s.clock_shift)
-        _log_imu_gaps(log, spans)
+        for k, tr, res in others:
+            _log_take(log.at(f"takes/{k}"), tr.session, tr.model_state, res, other_spans[k])
         for name, series_by_stage in steps:
             for stage, series in series_by_stage.items():
                 _log_residuals(log, f"diagnose/{name}/{stage}", series)
     finally:
         log.close()
     return path
+
+
+def _log_take(log: Logger, s: PreparedSession, st: ModelState,
+              residuals: Mapping[str, ResidualSeries], spans: Array) -> None:
+    """One take's scene, dead reckoning, residuals, IMU series and gaps."""
+    if log.prefix:
+        log.log("world", log.rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    _log_world(log, s, st)
+    _log_dead_reckoning(log, dead_reckoning(s, st))
+    for stage, series in residuals.items():
+        _log_residuals(log, f"residuals/{stage}", series)
+    _log_imu(log, s, st)
+    _log_imu_gaps(log, spans)
 
 
 def imu_gap_spans(s: PreparedSession, delta: float) -> Array:
@@ -234,34 +253,34 @@ def _log_world(log: Logger, s: PreparedSession, st: ModelState) -> None:
     strips = [x for x in strips if len(x) > 1]
     extent = float(np.max(np.ptp(s.p_WM, axis=0))) if len(s.p_WM) else 1.0
     axis_len = float(np.clip(0.05 * extent, 0.05, 0.3))
-    log.rec.log("world/mocap/trajectory",
-                rr.LineStrips3D(strips, colors=[GRAY], radii=rr.components.Radius.ui_points(1.0)),
-                static=True)
+    log.log("world/mocap/trajectory",
+            rr.LineStrips3D(strips, colors=[GRAY], radii=rr.components.Radius.ui_points(1.0)),
+            static=True)
 
     time = [rr.TimeColumn(TIMELINE, duration=tau)]
-    log.rec.send_columns("world/marker", indexes=time,
-                         columns=rr.Transform3D.columns(translation=p_WM,
-                                                        quaternion=_quat_xyzw(R_WM)))
-    log.rec.send_columns("world/imu", indexes=time,
-                         columns=rr.Transform3D.columns(translation=p_WI,
-                                                        quaternion=_quat_xyzw(R_WI)))
-    log.rec.log("world/marker", rr.TransformAxes3D(axis_len), static=True)
-    log.rec.log("world/imu", rr.TransformAxes3D(0.6 * axis_len), static=True)
+    log.send_columns("world/marker", indexes=time,
+                     columns=rr.Transform3D.columns(translation=p_WM,
+                                                    quaternion=_quat_xyzw(R_WM)))
+    log.send_columns("world/imu", indexes=time,
+                     columns=rr.Transform3D.columns(translation=p_WI,
+                                                    quaternion=_quat_xyzw(R_WI)))
+    log.log("world/marker", rr.TransformAxes3D(axis_len), static=True)
+    log.log("world/imu", rr.TransformAxes3D(0.6 * axis_len), static=True)
     p_IM = -st.R_MI.T @ st.p_MI  # marker origin in the IMU frame
-    log.rec.log("world/imu/lever",
-                rr.LineStrips3D([[np.zeros(3), p_IM]], colors=[(255, 200, 0)],
-                                labels=[f"T_MI lever {1e3 * np.linalg.norm(st.p_MI):.1f} mm"]),
-                static=True)
+    log.log("world/imu/lever",
+            rr.LineStrips3D([[np.zeros(3), p_IM]], colors=[(255, 200, 0)],
+                            labels=[f"T_MI lever {1e3 * np.linalg.norm(st.p_MI):.1f} mm"]),
+            static=True)
 
     g_dir = st.g_W / np.linalg.norm(st.g_W)
     tilt = float(np.degrees(np.arccos(np.clip(-g_dir[2], -1.0, 1.0))))
     L = max(0.3 * extent, 0.2)
     centre = np.mean(s.p_WM, axis=0)
-    log.rec.log("world/gravity",
-                rr.Arrows3D(vectors=[L * g_dir, [0.0, 0.0, -L]], origins=[centre, centre],
-                            colors=[(255, 140, 0), GRAY],
-                            labels=[f"gravity (tilt {tilt:.2f} deg)", "mocap -z"]),
-                static=True)
+    log.log("world/gravity",
+            rr.Arrows3D(vectors=[L * g_dir, [0.0, 0.0, -L]], origins=[centre, centre],
+                        colors=[(255, 140, 0), GRAY],
+                        labels=[f"gravity (tilt {tilt:.2f} deg)", "mocap -z"]),
+            static=True)
 
 
 def _log_dead_reckoning(log: Logger, dr: DeadReckoning | None) -> None:
@@ -276,11 +295,11 @@ def _log_dead_reckoning(log: Logger, dr: DeadReckoning | None) -> None:
              ("before", dr.p_before, AXIS_RGB[0], "raw IMU"),
              ("after", dr.p_after, AXIS_RGB[2], "calibrated IMU"))
     for name, p, color, label in parts:
-        log.rec.send_columns(
-            f"world/dead_reckoning/{name}", indexes=time,
-            columns=rr.LineStrips3D.columns(strips=list(p), colors=[color] * n,
-                                            labels=[label] * n,
-                                            radii=[rr.components.Radius.ui_points(2.0)] * n))
+        log.send_columns(
+        f"world/dead_reckoning/{name}", indexes=time,
+        columns=rr.LineStrips3D.columns(strips=list(p), colors=[color] * n,
+                                        labels=[label] * n,
+                                        radii=[rr.components.Radius.ui_points(2.0)] * n))
     for which, color in (("before", AXIS_RGB[0]), ("after", AXIS_RGB[2])):
         path = f"dead_reckoning/{which}/position_error"
         log.style(path, f"{which}: position error after {DR_LENGTH_S:g} s [m]", color)

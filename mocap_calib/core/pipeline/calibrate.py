@@ -12,7 +12,7 @@ Each stage starts from the previous one's result; no user guess is needed.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -119,14 +119,16 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
                              opts.priors, opts.robust, opts.max_iterations,
                              adapt_noise=opts.adapt_noise, on_iteration=on_iteration,
                              progress=say)
-    f = fits[0]
-    diag = Diagnostics(
-        residuals={"attitude": f.att.series, "velocity": f.vel.series, "position": pos.series},
-        iterations=pos.history,
+    takes = [Diagnostics(
+        residuals={"attitude": f.att.series, "velocity": f.vel.series,
+                   "position": pos.takes[k].series},
         trace=CalibrationTrace(session=f.s,
-                               model_state=ModelState.from_position(pos, model, f.t_mid),
-                               noise_used=pos.noise, windows=pos.windows, weights=pos.weights,
-                               clock=f.clock, position=pos))
+                               model_state=ModelState.from_position(pos, model, f.t_mid, k),
+                               noise_used=pos.noise, windows=pos.takes[k].windows,
+                               weights=pos.takes[k].weights, clock=f.clock, position=pos))
+        for k, f in enumerate(fits)]
+    diag = replace(takes[0], iterations=pos.history, takes=takes if len(takes) > 1 else [])
+    f = fits[0]
     # With several takes, each note says which take it is about (gaps, removed samples...).
     notes = [n if len(fits) == 1 else f"take {k + 1}: {n}"
              for k, f in enumerate(fits) for n in f.notes]

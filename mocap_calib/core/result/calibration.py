@@ -54,6 +54,9 @@ class Diagnostics:
     residuals: dict[str, ResidualSeries] = field(default_factory=dict)
     iterations: list[dict[str, Any]] = field(default_factory=list)
     trace: CalibrationTrace | None = None
+    #: With several takes, each take's own residuals and trace in input order (the first is
+    #: the fields above); empty with one take.
+    takes: list[Diagnostics] = field(default_factory=list)
 
 
 @dataclass

@@ -51,11 +51,13 @@ class ModelState:
     bias_sigma: Array | None = None
 
     @classmethod
-    def from_position(cls, pos, model: Model, t_mid: float) -> ModelState:
-        """The state a position-stage result (``stage_position.PositionResult``) describes."""
-        return cls(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=pos.delta,
-                   model=model, effects=pos.effects, bias_t=pos.windows.start.copy(),
-                   bias=pos.knots.copy(), t_mid=t_mid, bias_sigma=pos.knot_sigma.copy())
+    def from_position(cls, pos, model: Model, t_mid: float, take: int = 0) -> ModelState:
+        """The state a position-stage result (``stage_position.PositionResult``) describes
+        for its take ``take`` (the shared parameters with that take's clock and biases)."""
+        tk = pos.takes[take]
+        return cls(R_MI=pos.R_MI, p_MI=pos.p_MI, g_W=pos.g_mag * pos.g_dir, delta=tk.delta,
+                   model=model, effects=pos.effects, bias_t=tk.windows.start.copy(),
+                   bias=tk.knots.copy(), t_mid=t_mid, bias_sigma=tk.knot_sigma.copy())
 
     def bias_at(self, tau: Array) -> Array:
         """(n, 6) bias at mocap times ``tau`` (linear between knots, constant outside)."""

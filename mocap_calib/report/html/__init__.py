@@ -30,8 +30,10 @@ from mocap_calib.report.html.sections import (
     calibration_sections,
     diagnosis_sections,
     multipos_sections,
+    take_sections,
 )
 
 __all__ = ["Cell", "Figure", "InputFile", "Notes", "Provenance", "Row", "Section", "Table",
            "render_html", "prefixed", "calibration_sections",
-           "diagnosis_sections", "multipos_sections", "allan_sections", "batch_sections"]
+           "diagnosis_sections", "multipos_sections", "allan_sections", "batch_sections",
+           "take_sections"]

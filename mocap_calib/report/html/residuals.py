@@ -67,8 +67,9 @@ def residuals_section(r: CalibrationResult, extras: CalibrationExtras) -> Sectio
 
 
 def imu_gap_spans(r: CalibrationResult) -> Array:
-    """(G, 2) the IMU gaps of the session the solver used (the first take's with several), on
-    the mocap clock (the estimated clock offset); none without the solver's trace."""
+    """(G, 2) the IMU gaps of the session the solver used (the take whose diagnostics ``r``
+    carries), on the mocap clock (the estimated clock offset); none without the solver's
+    trace."""
     tr = r.diagnostics.trace if r.diagnostics is not None else None
     if tr is None or tr.session.imu_gaps is None:
         return np.zeros((0, 2))

@@ -6,7 +6,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from mocap_calib.report.html.page import Cell, Row, Section, Table
+from mocap_calib.report.html.page import Cell, Row, Section, Table, prefixed
 
 if TYPE_CHECKING:
     from mocap_calib.core.diagnosis.diagnose import DiagnoseReport
@@ -36,6 +36,19 @@ def calibration_sections(result: CalibrationResult,
     ex = extras or CalibrationExtras()
     return [result_section(result, d), checks_section(result, d), clock_section(result, d),
             residuals_section(result, ex), trajectory_section(result, ex)]
+
+
+def take_sections(view: CalibrationResult, take: int,
+                  extras: CalibrationExtras | None = None) -> list[Section]:
+    """Another take's residuals and trajectory: ``view`` is the result with that take's
+    diagnostics (``result.diagnostics.takes[take - 1]``); ids and titles name the take."""
+    from mocap_calib.report.html.calibration import CalibrationExtras
+    from mocap_calib.report.html.residuals import residuals_section, trajectory_section
+
+    ex = extras or CalibrationExtras()
+    sections = prefixed([residuals_section(view, ex), trajectory_section(view, ex)],
+                        f"take{take}-")
+    return [replace(s, title=f"Take {take}: {s.title}") for s in sections]
 
 
 def diagnosis_sections(report: DiagnoseReport,

@@ -126,10 +126,17 @@ def calibration_verdict(result: CalibrationResult) -> tuple[str, str] | None:
 def write_calibration_html(path: Path, result: CalibrationResult, inputs: Sequence[Path | None],
                            clock: RunClock) -> Path:
     """The ``calibrate --html`` page."""
-    from mocap_calib.report.html import calibration_sections
+    from mocap_calib.report.html import calibration_sections, take_sections
 
     extras = calibration_extras(result)
     sections = calibration_sections(result, extras)
+    others = result.diagnostics.takes[1:] if result.diagnostics else []
+    if others:  # several takes: the sections drawn from the solver's series are the first's
+        sections = [replace(s, title=f"Take 1: {s.title}")
+                    if s.id in ("sec-residuals", "sec-trajectory") else s for s in sections]
+    for k, d in enumerate(others, start=2):
+        view = replace(result, diagnostics=d)
+        sections += take_sections(view, k, calibration_extras(view))
     sub = (f"model {result.model}; {result.session.get('duration_s', '?')} s of session, "
            f"{result.session.get('imu_samples', '?')} IMU samples, "
            f"{result.session.get('mocap_samples', '?')} mocap poses")
