@@ -153,14 +153,14 @@ class PositionProblem:
         """Windows ``c`` (consecutive) into their slice of ``out``; returns the filter's model
         when ``out`` stores it."""
         win = self.win
-        tau, R_WM = win.tau[c], win.R_WM[c]
+        tau, (R_WM, p_WM) = win.tau[c], win.poses(c)
         h = np.diff(tau, axis=1)  # padded steps have h = 0
         inc, _, dwf = self._imu_steps(th, c, tau, h)
         # Nominal trajectory; the start velocity is a fixed guess (a diffuse nuisance).
         R0 = R_WM[:, 0] @ th.R_MI
-        Rbar, pbar, _ = compose(inc, h, R0, win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
+        Rbar, pbar, _ = compose(inc, h, R0, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
                                 th.g_mag * th.g_dir)
-        rows = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar)
+        rows = self._residuals(th, R_WM, p_WM, Rbar, pbar)
         now = self._whitening(th, c, inc.pack(), R0)
         # A frozen whitening (see freeze_whitening) is the recorded one; the first evaluation
         # after freezing records its own. The record keeps the increments in single precision
@@ -194,13 +194,13 @@ class PositionProblem:
         out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
 
         def chunk(c: NDArray[np.int64]) -> None:  # writes only its windows' entries
-            tau, R_WM = win.tau[c], win.R_WM[c]
+            tau, (R_WM, p_WM) = win.tau[c], win.poses(c)
             h = np.diff(tau, axis=1)
             inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
             R0 = R_WM[:, 0] @ th.R_MI
-            Rbar, pbar, _ = compose(inc, h, R0, win.p_WM[c, 0] + R_WM[:, 0] @ th.p_MI,
+            Rbar, pbar, _ = compose(inc, h, R0, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI,
                                     win.v0[c], th.g_mag * th.g_dir)
-            r = self._residuals(th, R_WM, win.p_WM[c], Rbar, pbar).r
+            r = self._residuals(th, R_WM, p_WM, Rbar, pbar).r
             packed = inc.pack()
             for i, nz in enumerate(noises):
                 wh = self._whitening(th, c, packed, R0, nz)

@@ -282,13 +282,14 @@ def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUnce
 
 
 class _History:
-    """Records every LM iterate (and the first evaluation, for the "before" figures)."""
+    """Records every LM iterate (and the first evaluation's innovations, for the "before"
+    figures: only those, not the whole evaluation, are kept for the stage)."""
 
     def __init__(self, pg: PositionGraph, on_iteration: IterationHook | None) -> None:
         self.pg = pg
         self.on_iteration = on_iteration
         self.records: list[dict[str, Any]] = []
-        self.first_eval: Any = None
+        self.first_innovations: list[Array] | None = None
 
     def __call__(self, it: int, v: gtsam.Values, err: float) -> None:
         th = self.pg.theta(v)
@@ -297,8 +298,8 @@ class _History:
                "gyro_bias": th.knots[:, 0:3].mean(axis=0).tolist(),
                "accel_bias": th.knots[:, 3:6].mean(axis=0).tolist()}
         self.records.append(rec)
-        if self.first_eval is None and self.pg.evals:
-            self.first_eval = self.pg.evals[-1]
+        if self.first_innovations is None and self.pg.evals:
+            self.first_innovations = [o.innovation for o in self.pg.evals[-1]]
         if self.on_iteration is not None:
             self.on_iteration("position", rec["iteration"], rec, float(err))
 
@@ -308,7 +309,7 @@ class _Fit:
     values: gtsam.Values
     iterations: int
     noise_scale: Array
-    out0: Any  # per take, the evaluation at the start values (the "before" figures)
+    innovations0: list[Array] | None  # per take, the innovations at the start values
     rounds: int = 1
     linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
 
@@ -380,7 +381,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
     pg.for_each("freeze_whitening", False)
     noise_scale = np.ones(2)
     values = pg.values
-    out0 = None
+    out0: list[Array] | None = None
     k = 0
     at = values
     for k in range(steps):
@@ -388,12 +389,13 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
         lin = pg.graph.linearize(at)
         interrupt.check()  # a signal during the evaluation only set the request
         outs = pg.evals[-1]
-        out0 = outs if out0 is None else out0
+        out0 = [o.innovation for o in outs] if out0 is None else out0
         values = values.retract(lin.optimize())
         if k == steps - 1 or (k >= 1 and settled is not None
                               and settled(pg.theta(at), pg.theta(values))):
             break
         _settle(pg, outs, adapt_noise, robust, noise_scale)
+        del outs  # not alive while the next step evaluates
         pg.batch.invalidate()
     return _Fit(values, k + 1, noise_scale, out0, k + 1, linearized_at=at)
 
@@ -407,7 +409,8 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     changes (or the cost moves by less than :data:`COST_SETTLED`) one LM run goes to
     convergence."""
     graph, batch = pg.graph, pg.batch
-    iterations, sol, out0 = 0, pg.values, None
+    iterations, sol = 0, pg.values
+    out0: list[Array] | None = None
     noise_scale = np.ones(2)
     prev_cost = None
     final = rounds <= 1
@@ -424,7 +427,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         # levels and weights, until the last.
         limit = max_iterations if (final or rnd == 1) else SETTLING_ITERATIONS
         sol, rep = run_lm(graph, sol, limit, hook)
-        out0 = hook.first_eval if out0 is None else out0
+        out0 = hook.first_innovations if out0 is None else out0
         iterations += rep.iterations
         outs = _evaluate_at(pg, sol)
         if final:
@@ -434,6 +437,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
         prev_cost = cost
         final = (not changed) or (small and moved < np.log(1.05)) or rnd >= rounds - 1
+        del outs  # not alive while the next round evaluates (60 min: 37 MB)
         batch.invalidate()
     require_converged("position", rep, max_iterations)
     return _Fit(sol, iterations, noise_scale, out0, rnd)
@@ -447,7 +451,7 @@ def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float
              ) -> tuple[StageStats, list[ResidualSeries], float, int]:
     """Stage statistics over every take, each take's residual series, chi2/dof."""
     layout = pg.problem.layout
-    out0 = fit.out0 if fit.out0 is not None else outs
+    inn0 = fit.innovations0 if fit.innovations0 is not None else [o.innovation for o in outs]
     masks = [p.win.mask for p in pg.problems]
     wts = [p.weights for p in pg.problems]
     n_res = int(sum(m.sum() for m in masks))
@@ -463,7 +467,7 @@ def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float
     pos_after = [o.innovation[..., 3:6] for o in outs]
     stats = StageStats(
         name="position", unit="m",
-        rms_before=rms([o.innovation[..., 3:6] for o in out0], masks),
+        rms_before=rms([x[..., 3:6] for x in inn0], masks),
         rms_after=rms(pos_after, masks), rms_after_inliers=rms(pos_after, inl),
         n_factors=W, n_residuals=n_res,
         outliers=int(sum(int(np.sum(m & (w < 0.5))) for m, w in zip(masks, wts, strict=True))),
@@ -471,9 +475,9 @@ def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float
         rms_rotation_deg=np.degrees(rms([o.innovation[..., 0:3] for o in outs], masks)).tolist(),
         batch_evaluations=pg.batch.evaluations)
     series = [ResidualSeries(
-        t=p.win.tau[m], before=b.innovation[..., 3:6][m], after=a.innovation[..., 3:6][m],
+        t=p.win.tau[m], before=b[..., 3:6][m], after=a.innovation[..., 3:6][m],
         weight=p.weights[m], unit="m",
-        rotation_before=np.degrees(b.innovation[..., 0:3][m]),
+        rotation_before=np.degrees(b[..., 0:3][m]),
         rotation_after=np.degrees(a.innovation[..., 0:3][m]))
-        for p, m, b, a in zip(pg.problems, masks, out0, outs, strict=True)]
+        for p, m, b, a in zip(pg.problems, masks, inn0, outs, strict=True)]
     return stats, series, chi2, dof

@@ -19,14 +19,31 @@ Array = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class Windows:
-    """Padded window arrays (W windows, up to m steps each)."""
+    """Padded window arrays (W windows, up to m steps each). The poses stay the session's
+    (``R_source``, ``p_source``: not copied per window, 36 MB at 60 min); a chunk of windows
+    gathers its own (:meth:`poses`)."""
 
     idx: NDArray[np.int64]  # (W, m+1) mocap sample index
     mask: NDArray[np.bool_]  # (W, m+1) real sample
     tau: Array  # (W, m+1)
-    R_WM: Array  # (W, m+1, 3, 3)
-    p_WM: Array  # (W, m+1, 3)
+    R_source: Array  # (N, 3, 3) the session's mocap rotations R_WM
+    p_source: Array  # (N, 3) the session's mocap positions p_WM
     v0: Array  # (W, 3) IMU velocity guess at the window start (diffuse prior's mean)
+
+    def poses(self, c: NDArray[np.int64] | slice = slice(None)) -> tuple[Array, Array]:
+        """(len(c), m+1, 3, 3) R_WM and (len(c), m+1, 3) p_WM of windows ``c``."""
+        idx = self.idx[c]
+        return self.R_source[idx], self.p_source[idx]
+
+    @property
+    def R_WM(self) -> Array:
+        """(W, m+1, 3, 3) every window's rotations (a copy: chunks use :meth:`poses`)."""
+        return self.R_source[self.idx]
+
+    @property
+    def p_WM(self) -> Array:
+        """(W, m+1, 3) every window's positions (a copy)."""
+        return self.p_source[self.idx]
 
     @property
     def count(self) -> int:
@@ -39,16 +56,16 @@ class Windows:
         W, m1 = self.idx.shape
         cols = np.arange(0, m1, k)
         mask = self.mask[:, cols]
-        return Windows(self.idx[:, cols], mask, self.tau[:, cols], self.R_WM[:, cols],
-                       self.p_WM[:, cols], self.v0)
+        return Windows(self.idx[:, cols], mask, self.tau[:, cols], self.R_source,
+                       self.p_source, self.v0)
 
     def subset(self, which: NDArray[np.int64]) -> Windows:
         """The windows ``which`` (indices), in that order (all of them in order: these, not
         a copy: a refit of the whole session would copy ~45 MB at 60 min)."""
         if len(which) == self.count and np.array_equal(which, np.arange(self.count)):
             return self
-        return Windows(self.idx[which], self.mask[which], self.tau[which], self.R_WM[which],
-                       self.p_WM[which], self.v0[which])
+        return Windows(self.idx[which], self.mask[which], self.tau[which], self.R_source,
+                       self.p_source, self.v0[which])
 
     @property
     def steps(self) -> int:
@@ -104,7 +121,7 @@ def make_windows(s: PreparedSession, delta: float, length: float, max_rate: floa
                 windows.append(sel[part])
     if not windows:
         return Windows(np.zeros((0, 2), np.int64), np.zeros((0, 2), bool), np.zeros((0, 2)),
-                       np.zeros((0, 2, 3, 3)), np.zeros((0, 2, 3)), np.zeros((0, 3)))
+                       s.R_WM, s.p_WM, np.zeros((0, 3)))
     m1 = max(len(w) for w in windows)
     W = len(windows)
     idx = np.zeros((W, m1), np.int64)
@@ -113,7 +130,7 @@ def make_windows(s: PreparedSession, delta: float, length: float, max_rate: floa
         idx[i, : len(w)] = w
         idx[i, len(w):] = w[-1]
         mask[i, : len(w)] = True
-    return Windows(idx, mask, s.tau[idx], s.R_WM[idx], s.p_WM[idx], v_imu[idx[:, 0]])
+    return Windows(idx, mask, s.tau[idx], s.R_WM, s.p_WM, v_imu[idx[:, 0]])
 
 
 @dataclass
