@@ -231,3 +231,25 @@ def test_size_effect_forward_follows_the_formula_and_correct_inverts_it() -> Non
                      sensitivities=False)
         np.testing.assert_allclose((c2.f - c.f) / eps, c.df["accel_size_effect"][..., k],
                                    atol=1e-6)
+
+
+def test_preintegration_in_chunks_gives_the_same_numbers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Spans are preintegrated in chunks (memory); chunk boundaries change nothing, even where
+    chunks pad their steps to different numbers of pieces."""
+    from mocap_calib.core.model import preint
+
+    rng = np.random.default_rng(3)
+    u = np.cumsum(rng.uniform(0.004, 0.006, 2000))
+    gyro, accel = rng.normal(0, 1, (2000, 3)), rng.normal(0, 9.8, (2000, 3))
+    edges = np.sort(rng.uniform(u[5], u[-5], 120))
+    tau0, tau1 = edges[:-1], edges[1:]
+
+    def run() -> preint.StepIncrements:
+        return preint.preintegrate_spans(u, gyro, accel, tau0, tau1, 0.0013,
+                                         lambda g, a, t: (g - 0.01, a + 0.1))
+
+    whole = run()
+    monkeypatch.setattr(preint, "SPAN_CHUNK", 7)
+    chunked = run()
+    for f in ("dR", "dv", "dp", "A", "C", "B", "D"):
+        np.testing.assert_array_equal(getattr(chunked, f), getattr(whole, f), err_msg=f)
