@@ -27,6 +27,19 @@ def long_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def _wait_for_handlers(pid: int, timeout: float = 60.0) -> bool:
+    """Wait until process ``pid`` catches SIGTERM (Python alone does not: the command's
+    stop_on_signals does), from the caught-signal mask in /proc."""
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        status = Path(f"/proc/{pid}/status").read_text()
+        mask = next(int(x.split()[1], 16) for x in status.splitlines() if x.startswith("SigCgt:"))
+        if mask >> (signal.SIGTERM - 1) & 1:
+            return True
+        time.sleep(0.002)
+    return False
+
+
 @pytest.mark.parametrize(("sig", "code", "when", "command"), [
     (signal.SIGINT, 130, "start", "calibrate"),  # while starting up and reading the inputs
     (signal.SIGINT, 130, "stage 3/3", "calibrate"),  # while solving
@@ -52,8 +65,8 @@ def test_signal_stops_without_writing(long_session: Path, tmp_path: Path, sig: i
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
-    if when == "start":
-        time.sleep(1.0)  # past Python's own start-up, before the first stage
+    if when == "start":  # as soon as the command's handlers are in force, before any stage
+        assert _wait_for_handlers(proc.pid), "".join(lines)
     else:
         assert reached.wait(60), "".join(lines)
     assert proc.poll() is None, "the run finished before the signal"
