@@ -82,3 +82,16 @@ def test_exponent_stamps_go_through_floats_and_bad_ones_are_refused() -> None:
                         (["99999999999999999999"], "overflow")):
         with pytest.raises(InputError, match=what):
             parse_stamps(np.array(cells), "ns", "t", Lines("x"))
+
+
+def test_quoted_fields_are_read_like_pandas(tmp_path: Path) -> None:
+    """Some exporters quote every field: the numbers are read, not refused as a header."""
+    path = tmp_path / "quoted.csv"
+    path.write_text('"t","a","b"\n"1.5","0.25","-3"\n"2.5","","1e-3"\n')
+    layout = sniff_layout(path)
+    table = read_table(layout, [0, 1, 2], 0)
+    ref = _pandas(path, layout)
+    for c in (1, 2):
+        np.testing.assert_array_equal(table.numbers[c], ref[c].to_numpy(dtype=float))
+    assert parse_stamps(table.text[0], "s", "t", Lines("x")).tolist() == [1_500_000_000,
+                                                                         2_500_000_000]

@@ -83,9 +83,11 @@ def _detect_sep(line: str) -> str:
 
 
 def _split(line: str, sep: str) -> list[str]:
+    """Fields, stripped of spaces and of the double quotes some exporters put around every
+    field."""
     if sep == WHITESPACE:
-        return line.split()
-    return [t.strip() for t in line.split(sep)]
+        return [t.strip('"') for t in line.split()]
+    return [t.strip().strip('"') for t in line.split(sep)]
 
 
 def _header_names(line: str, sep: str, n_fields: int) -> tuple[str, ...]:
@@ -236,7 +238,7 @@ def parse_rows(lines: list[str], sep: str | None, n_fields: int, numeric: Collec
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # "input contained no data"
                 values = np.loadtxt(lines, delimiter=sep, dtype=np.float64, comments=None,
-                                    ndmin=2, quotechar=None)
+                                    ndmin=2, quotechar='"')
         except ValueError:
             values = None
         if values is not None and len(lines) and values.shape[1] != n_fields:
@@ -272,7 +274,7 @@ def _parse_slowly(lines: list[str], sep: str | None, n_fields: int, numeric: lis
         for c in numeric:
             if c >= len(fields):
                 continue
-            cell = fields[c].strip()
+            cell = fields[c].strip().strip('"')
             if cell in NA_CELLS:
                 continue
             try:

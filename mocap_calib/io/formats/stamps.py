@@ -35,7 +35,7 @@ def parse_stamps(raw: Text, unit: str, label: str, lines: Lines,
     digits = len(str(factor)) - 1
     if len(raw) == 0:
         return np.zeros(0, dtype=np.int64)
-    s = np.strings.strip(np.asarray(raw, dtype=str))
+    s = np.strings.strip(np.asarray(raw, dtype=str), ' \t\r\n\v\f"')  # spaces and quotes
     if decimal != ".":
         s = np.strings.replace(s, decimal, ".")
     missing = np.isin(s, list(NA_CELLS))
