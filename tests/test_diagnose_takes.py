@@ -63,6 +63,11 @@ def test_an_effect_both_takes_have_is_found_with_each_takes_evidence(tmp_path: P
     # The final calibration is the joint one: one accel_delay, each take's own clock offset.
     final = d["final_calibration"]
     assert [round(t["time_offset"], 4) for t in final["takes"]] == [td for _, td in TAKES]
+    # The final calibration's residuals and trajectory are drawn for each take.
+    text = html.read_text(encoding="utf-8")
+    for sec in ("take2-sec-residuals", "take2-sec-trajectory"):
+        assert f'id="{sec}"' in text
+    assert "Final calibration: Take 1: " in text and "Final calibration: Take 2: " in text
 
 
 @pytest.mark.slow

@@ -123,20 +123,31 @@ def calibration_verdict(result: CalibrationResult) -> tuple[str, str] | None:
     return None if v is None else (f"plausibility: {v}", "ok" if v == "plausible" else "bad")
 
 
+def _every_take(sections: list[Section], result: CalibrationResult,
+                title: str = "") -> list[Section]:
+    """With several takes, the sections drawn from the solver's series (residuals,
+    trajectory) are the first take's: say so, and add every other take's (titles after
+    ``title``, the prefix the page gives the result's sections)."""
+    from mocap_calib.report.html import take_sections
+
+    others = result.diagnostics.takes[1:] if result.diagnostics else []
+    if not others:
+        return sections
+    out = [replace(s, title=f"{title}Take 1: {s.title.removeprefix(title)}")
+           if s.id in ("sec-residuals", "sec-trajectory") else s for s in sections]
+    for k, d in enumerate(others, start=2):
+        view = replace(result, diagnostics=d)
+        out += [replace(s, title=title + s.title)
+                for s in take_sections(view, k, calibration_extras(view))]
+    return out
+
+
 def write_calibration_html(path: Path, result: CalibrationResult, inputs: Sequence[Path | None],
                            clock: RunClock) -> Path:
     """The ``calibrate --html`` page."""
-    from mocap_calib.report.html import calibration_sections, take_sections
+    from mocap_calib.report.html import calibration_sections
 
-    extras = calibration_extras(result)
-    sections = calibration_sections(result, extras)
-    others = result.diagnostics.takes[1:] if result.diagnostics else []
-    if others:  # several takes: the sections drawn from the solver's series are the first's
-        sections = [replace(s, title=f"Take 1: {s.title}")
-                    if s.id in ("sec-residuals", "sec-trajectory") else s for s in sections]
-    for k, d in enumerate(others, start=2):
-        view = replace(result, diagnostics=d)
-        sections += take_sections(view, k, calibration_extras(view))
+    sections = _every_take(calibration_sections(result, calibration_extras(result)), result)
     sub = (f"model {result.model}; {result.session.get('duration_s', '?')} s of session, "
            f"{result.session.get('imu_samples', '?')} IMU samples, "
            f"{result.session.get('mocap_samples', '?')} mocap poses")
@@ -149,7 +160,8 @@ def write_diagnosis_html(path: Path, report, inputs: Sequence[Path | None],
     """The ``diagnose --html`` page: the steps, then the final calibration's sections."""
     from mocap_calib.report.html import diagnosis_sections
 
-    sections = diagnosis_sections(report, calibration_extras(report.final))
+    sections = _every_take(diagnosis_sections(report, calibration_extras(report.final)),
+                           report.final, "Final calibration: ")
     clean = not report.found and not getattr(report, "unexplained", None)
     verdict = (f"diagnosis: {report.verdict}", "ok" if clean else "warn")
     sub = f"start model {report.start_model}, final model {report.final_model}"
