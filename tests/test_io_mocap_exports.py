@@ -183,6 +183,13 @@ def test_bad_exports(sim, tmp_path, capsys) -> None:
     assert "--rotation" in line
     line = _one_line(capsys, main(["calibrate", "--imu", str(norate), "--mocap", imu, *out]))
     assert "--imu" in line and "Vicon" in line
+    word = write_motive(tmp_path / "word.csv", sim)
+    rows = word.read_text().splitlines()
+    rows[-1] = "x1," + rows[-1].split(",", 1)[1]  # a word in the frame column
+    word.write_text("\n".join(rows) + "\n")
+    line = _one_line(capsys, main(["calibrate", "--imu", imu, "--mocap", str(word),
+                                   "--rigid-body", "drone", *out]))
+    assert "word.csv" in line and f"line {len(rows)}: 'x1' is not a number" in line
 
 
 def test_vicon_without_rate_reads_with_mocap_rate(sim, tmp_path, capsys) -> None:
