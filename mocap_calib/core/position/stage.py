@@ -185,7 +185,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
                        covariance: bool = True, one_step: bool | int = False,
                        window_blocks: bool = True, axis_scale: Array | None = None,
                        reweight: bool = False,
-                       settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
+                       settled: Callable[[Theta, Theta], bool] | None = None,
+                       series: bool = True) -> PositionResult:
     """Refine all parameters on the window factors of every take.
 
     Args:
@@ -210,6 +211,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         reweight: with ``one_step`` and given ``weights``, update the weights between steps.
         settled: with ``one_step``, ``settled(before, after)`` true ends the steps early
             (never before the second, the first with the levels re-estimated).
+        series: keep every take's residual series (for reports; a refit that only compares
+            estimates leaves them empty: 40 MB at 60 min).
     """
     t_start = time.perf_counter()
     pg = build_position_graph(takes, model, noise, init, priors)
@@ -245,7 +248,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         unc = PositionUncertainty({}, [TakeUncertainty(
             {}, np.zeros((t.windows.count, 6)), _mean_bias(t.windows, th))
             for t, th in zip(takes, thetas, strict=True)])
-    res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, one_step)
+    res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, one_step,
+                  series)
     res.covariances = None if covariance else covariances
     if not covariance:
         res.cov = {}
@@ -253,11 +257,12 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
 
 
 def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUncertainty,
-            seconds: float, history: _History, one_step: bool | int) -> PositionResult:
+            seconds: float, history: _History, one_step: bool | int,
+            keep_series: bool = True) -> PositionResult:
     """The stage's result from its fit and covariances."""
     takes = pg.takes
     outs = pg.evals[-1]
-    stats, series, chi2, dof = _figures(pg, fit, outs, seconds)
+    stats, series, chi2, dof = _figures(pg, fit, outs, seconds, keep_series)
     solver = {"position_batch_seconds": round(pg.batch.seconds, 3),
               "position_evaluations": pg.batch.evaluations,
               "windows": sum(t.windows.count for t in takes),
@@ -447,9 +452,10 @@ def _mean_bias(windows: Windows, th: Theta) -> Array:
     return np.kron(mean_bias_weights(windows)[None, :], np.eye(6)) @ th.knots.reshape(-1)
 
 
-def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float
-             ) -> tuple[StageStats, list[ResidualSeries], float, int]:
-    """Stage statistics over every take, each take's residual series, chi2/dof."""
+def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float,
+             keep_series: bool = True) -> tuple[StageStats, list[ResidualSeries], float, int]:
+    """Stage statistics over every take, each take's residual series (empty without
+    ``keep_series``), chi2/dof."""
     layout = pg.problem.layout
     inn0 = fit.innovations0 if fit.innovations0 is not None else [o.innovation for o in outs]
     masks = [p.win.mask for p in pg.problems]
@@ -474,6 +480,8 @@ def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float
         iterations=fit.iterations, seconds=seconds, chi2_per_dof=chi2,
         rms_rotation_deg=np.degrees(rms([o.innovation[..., 0:3] for o in outs], masks)).tolist(),
         batch_evaluations=pg.batch.evaluations)
+    if not keep_series:
+        masks = [np.zeros_like(m) for m in masks]
     series = [ResidualSeries(
         t=p.win.tau[m], before=b[..., 3:6][m], after=a.innovation[..., 3:6][m],
         weight=p.weights[m], unit="m",

@@ -45,7 +45,8 @@ def refit(pos: PositionResult, model: Model, which: list[IntArray], *,
     return run_position_stage(takes, model, noise or pos.noise, init_from(pos, which), priors,
                               robust=False, adapt_noise=adapt_noise, weights=weights,
                               max_iterations=max_iterations, one_step=one_step,
-                              reweight=reweight, settled=settled, axis_scale=pos.axis_scale)
+                              reweight=reweight, settled=settled, axis_scale=pos.axis_scale,
+                              series=False)
 
 
 def everything(pos: PositionResult) -> list[IntArray]:
