@@ -299,6 +299,21 @@ def information_matrix(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     return (A.T @ A).tocsc(), offsets, n
 
 
+def spd_factor(H):
+    """Sparse factorisation of a symmetric positive-definite information matrix (``.solve``).
+
+    A symmetric minimum-degree ordering without pivoting: scipy's default (COLAMD with partial
+    pivoting) pivots off the diagonal of these matrices, whose variables differ in scale by
+    decades, and fills the factor in. 60-min session (n = 4329, 112 000 nonzeros): 9.4
+    million nonzeros in the factor, ~250 MB and 0.5 s, against 138 000 and 0.08 s; solutions
+    agree to 4e-13.
+    """
+    from scipy.sparse.linalg import splu
+
+    return splu(H.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True})
+
+
 def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                                   combo: dict[int, Array]) -> Array:
     """Covariance of ``y = sum_k C_k dx_k`` (tangent-space increments of several keys).
@@ -306,14 +321,12 @@ def linear_combination_covariance(graph: gtsam.NonlinearFactorGraph, values: gts
     A joint marginal over many keys is dense and cubic in their number; this solves the sparse
     information system ``H z = C^T`` instead, linear in the length of a chain of keys.
     """
-    from scipy.sparse.linalg import splu
-
     H, offsets, n = information_matrix(graph, values)
     m = next(iter(combo.values())).shape[0]
     Ct = np.zeros((n, m))
     for k, Ck in combo.items():
         Ct[offsets[k]:offsets[k] + Ck.shape[1]] = Ck.T
-    Z = splu(H).solve(Ct)
+    Z = spd_factor(H).solve(Ct)
     return Ct.T @ Z
 
 

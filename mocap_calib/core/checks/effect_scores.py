@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import information_matrix
+from mocap_calib.core.graph import information_matrix, spd_factor
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.stats import chi2_isf, chi2_logsf, f_logsf
@@ -176,14 +176,12 @@ def _without_knots(H: Any, d: Array, rows: Array, knots: NDArray[np.int64]
     ``knots`` eliminated: every linear form ``v`` becomes ``v_S - H_SK H_KK^-1 v_K`` and the
     information its Schur complement, which leaves every score test unchanged. Returns them
     and the map from the full rows to the kept ones (-1: eliminated)."""
-    import scipy.sparse.linalg as spla
-
     n = H.shape[0]
     keep = np.setdiff1d(np.arange(n), knots)
     H = H.tocsc()
     Hkk = H[knots][:, knots].tocsc()
     Hks = H[knots][:, keep].toarray()
-    X = spla.splu(Hkk).solve(np.column_stack([Hks, d[knots]]))
+    X = spd_factor(Hkk).solve(np.column_stack([Hks, d[knots]]))
     Hss = H[keep][:, keep].toarray() - Hks.T @ X[:, :-1]
     index = np.full(n, -1)
     index[keep] = np.arange(len(keep))

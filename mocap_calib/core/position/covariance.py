@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import information_matrix, marginals
+from mocap_calib.core.graph import information_matrix, marginals, spd_factor
 from mocap_calib.core.model.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.graph import key_knot, key_time
@@ -125,9 +125,7 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
     takes: list[TakeUncertainty] = []
     H, offsets, n = information_matrix(graph, sol)
     combos = [_combo(w, k0) for w, k0 in zip(inp.windows, inp.knot0, strict=True)]
-    from scipy.sparse.linalg import splu
-
-    lu = splu(H)
+    lu = spd_factor(H)
     for k, (win, k0) in enumerate(zip(inp.windows, inp.knot0, strict=True)):
         C = np.zeros((n, 6))
         for key, Ck in combos[k].items():
