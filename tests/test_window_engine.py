@@ -172,7 +172,7 @@ def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session, noise,
         wt = ex["weights"][w]
         # The mocap noise from its definition, not from the engine: white part here, the
         # correlated part's stationary covariance below.
-        full = _mocap_noise(th, win.R_WM[w], noise, axes)
+        full = _mocap_noise(th, win.poses(w)[0], noise, axes)
         Rn = (1.0 - rho) * full
         np.testing.assert_allclose(ex["Rn"][w][:m1], Rn[:m1], rtol=1e-12, atol=1e-20)
         C = _dense_cov(ex, w, m1, noise, full, rho, Rn, wt)
@@ -217,7 +217,7 @@ def test_frozen_whitening_is_the_recorded_dense_likelihood(short_session, noise)
     rho = noise.mocap_noise_corr_fraction if noise.mocap_correlated else 0.0
     for w in range(3):
         m1 = int(win.mask[w].sum())
-        full = _mocap_noise(th0, win.R_WM[w], noise, np.ones(6))
+        full = _mocap_noise(th0, win.poses(w)[0], noise, np.ones(6))
         C0 = _dense_cov(rec.extras, w, m1, noise, full, rho, (1.0 - rho) * full,
                         rec.extras["weights"][w])
         r1 = frozen.raw_r[w, :m1].reshape(-1)

@@ -386,7 +386,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
     pg.for_each("freeze_whitening", False)
     noise_scale = np.ones(2)
     values = pg.values
-    out0: list[Array] | None = None
+    inn0: list[Array] | None = None
     k = 0
     at = values
     for k in range(steps):
@@ -394,7 +394,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
         lin = pg.graph.linearize(at)
         interrupt.check()  # a signal during the evaluation only set the request
         outs = pg.evals[-1]
-        out0 = [o.innovation for o in outs] if out0 is None else out0
+        inn0 = [o.innovation for o in outs] if inn0 is None else inn0
         values = values.retract(lin.optimize())
         if k == steps - 1 or (k >= 1 and settled is not None
                               and settled(pg.theta(at), pg.theta(values))):
@@ -402,7 +402,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
         _settle(pg, outs, adapt_noise, robust, noise_scale)
         del outs  # not alive while the next step evaluates
         pg.batch.invalidate()
-    return _Fit(values, k + 1, noise_scale, out0, k + 1, linearized_at=at)
+    return _Fit(values, k + 1, noise_scale, inn0, k + 1, linearized_at=at)
 
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
@@ -415,7 +415,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     convergence."""
     graph, batch = pg.graph, pg.batch
     iterations, sol = 0, pg.values
-    out0: list[Array] | None = None
+    inn0: list[Array] | None = None
     noise_scale = np.ones(2)
     prev_cost = None
     final = rounds <= 1
@@ -432,7 +432,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         # levels and weights, until the last.
         limit = max_iterations if (final or rnd == 1) else SETTLING_ITERATIONS
         sol, rep = run_lm(graph, sol, limit, hook)
-        out0 = hook.first_innovations if out0 is None else out0
+        inn0 = hook.first_innovations if inn0 is None else inn0
         iterations += rep.iterations
         outs = _evaluate_at(pg, sol)
         if final:
@@ -445,7 +445,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         del outs  # not alive while the next round evaluates (60 min: 37 MB)
         batch.invalidate()
     require_converged("position", rep, max_iterations)
-    return _Fit(sol, iterations, noise_scale, out0, rnd)
+    return _Fit(sol, iterations, noise_scale, inn0, rnd)
 
 
 def _mean_bias(windows: Windows, th: Theta) -> Array:

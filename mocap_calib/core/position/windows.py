@@ -30,20 +30,10 @@ class Windows:
     p_source: Array  # (N, 3) the session's mocap positions p_WM
     v0: Array  # (W, 3) IMU velocity guess at the window start (diffuse prior's mean)
 
-    def poses(self, c: NDArray[np.int64] | slice = slice(None)) -> tuple[Array, Array]:
-        """(len(c), m+1, 3, 3) R_WM and (len(c), m+1, 3) p_WM of windows ``c``."""
+    def poses(self, c: NDArray[np.int64] | slice | int = slice(None)) -> tuple[Array, Array]:
+        """R_WM (..., m+1, 3, 3) and p_WM (..., m+1, 3) of windows ``c`` (gathered: a copy)."""
         idx = self.idx[c]
         return self.R_source[idx], self.p_source[idx]
-
-    @property
-    def R_WM(self) -> Array:
-        """(W, m+1, 3, 3) every window's rotations (a copy: chunks use :meth:`poses`)."""
-        return self.R_source[self.idx]
-
-    @property
-    def p_WM(self) -> Array:
-        """(W, m+1, 3) every window's positions (a copy)."""
-        return self.p_source[self.idx]
 
     @property
     def count(self) -> int:

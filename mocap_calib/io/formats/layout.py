@@ -200,10 +200,20 @@ class Table:
     text: dict[int, NDArray[np.str_]]
 
 
-def data_lines(text: str, skip: int, decimal: str = ".") -> list[str]:
-    """The data lines of a file's ``text``: after ``skip`` raw lines, comments cut, blank lines
-    dropped (the row numbering of :class:`~mocap_calib.io.checks.Lines`); a ``,`` decimal mark
-    becomes ``.`` (the delimiter is then ``;``)."""
+def data_lines(path: Path, skip: int, decimal: str = ".") -> list[str]:
+    """The data lines of a file: after ``skip`` raw lines, comments cut, blank lines dropped
+    (the row numbering of :class:`~mocap_calib.io.checks.Lines`); a ``,`` decimal mark
+    becomes ``.`` (the delimiter is then ``;``).
+
+    Raises:
+        InputError: the file cannot be read.
+    """
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as f:
+            text = f.read()
+    except OSError as err:
+        raise input_error(f"cannot read the file ({err.strerror})",
+                          "check the path and its permissions", str(path)) from None
     if "\r" in text:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
     lines = text.split("\n")[skip:]
@@ -302,14 +312,7 @@ def read_table(layout: Layout, indices: Collection[int], time_index: int) -> Tab
             raise input_error(f"column {i} does not exist (the first data row has "
                               f"{layout.n_fields} columns)", COLUMNS_FIX, layout.source,
                               layout.skip + 1)
-    try:
-        with open(layout.path, encoding="utf-8-sig", errors="replace") as f:
-            text = f.read()
-    except OSError as err:
-        raise input_error(f"cannot read the file ({err.strerror})", "check the path and its "
-                          "permissions", layout.source) from None
-    lines = data_lines(text, layout.skip, layout.decimal)
-    del text
+    lines = data_lines(layout.path, layout.skip, layout.decimal)
     sep = None if layout.sep == WHITESPACE else layout.sep
     try:
         # All columns are parsed (not only those asked for) so that a longer row is an error.

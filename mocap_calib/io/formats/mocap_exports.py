@@ -115,13 +115,7 @@ def _pick_body(names: list[str], wanted: str | None, path: Path, noun: str) -> s
 
 def _numbers(path: Path, skip: int, cols: list[int]) -> dict[int, np.ndarray]:
     """Columns ``cols`` of the data rows, as floats (empty cells are NaN)."""
-    try:
-        with open(path, encoding="utf-8-sig", errors="replace") as f:
-            lines = data_lines(f.read(), skip)
-    except OSError as err:
-        raise input_error(f"cannot read the file ({err.strerror})",
-                          "check the path and its permissions", str(path)) from None
-    table = parse_rows(lines, ",", max(cols) + 1, cols, ragged_ok=True)
+    table = parse_rows(data_lines(path, skip), ",", max(cols) + 1, cols, ragged_ok=True)
     if table.bad:
         c = min(table.bad, key=lambda k: table.bad[k][0])
         r, cell = table.bad[c]
