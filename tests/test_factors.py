@@ -124,9 +124,10 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
 
 
 def test_batch_cache_follows_the_values_between_and_within_passes() -> None:
-    """The batch reads the shared keys once per GTSAM pass: every pass at new values (error,
+    """The batch is evaluated once per set of values: every pass at new values (error,
     linearize, a subset of factors in a Python loop) must still see the new values, never a
-    cached evaluation of other ones."""
+    cached evaluation of other ones, however small the change; equal values (GTSAM passes
+    copies) reuse the evaluation."""
     import gtsam
 
     from mocap_calib.core.graph import BatchFactors, BatchOutput
@@ -139,7 +140,6 @@ def test_batch_cache_follows_the_values_between_and_within_passes() -> None:
                            [[np.eye(1), np.eye(1)] for _ in range(n)])
 
     batch = BatchFactors(evaluate, [[0, 1 + i] for i in range(n)],
-                         {k: "vector" for k in range(n + 1)}, [0],
                          gtsam.noiseModel.Unit.Create(1))
     graph = gtsam.NonlinearFactorGraph()
     factors = batch.factors()
@@ -159,6 +159,18 @@ def test_batch_cache_follows_the_values_between_and_within_passes() -> None:
     for i, x in [(7, 1.0), (3, 2.0), (9, -1.0), (10, 5.0), (49, 0.5)]:
         assert factors[i].error(values(x, 0.0)) == pytest.approx(0.5 * x**2)
     assert batch.evaluations < 4 + 5 + 2
+    # Equal values in a new object: no evaluation; the smallest change of one factor's own
+    # key: evaluated again, and every factor sees it.
+    before = batch.evaluations
+    for i in (0, 17, 49):
+        assert factors[i].error(values(0.5, 0.0)) == pytest.approx(0.125)
+    assert batch.evaluations == before
+    v = values(0.5, 0.0)
+    v.update(1 + 17, np.array([np.nextafter(17.0, 18.0)]))
+    err = np.sqrt(2.0 * np.array([factors[i].error(v) for i in range(n)]))
+    assert batch.evaluations == before + 1
+    assert err[17] == 0.5 + (np.nextafter(17.0, 18.0) - 17.0)
+    assert np.all(np.delete(err, 17) == 0.5)
 
 
 def test_spd_factor_solves_an_arrowhead_without_filling_it_in() -> None:
@@ -191,3 +203,53 @@ def test_spd_factor_solves_an_arrowhead_without_filling_it_in() -> None:
     np.testing.assert_allclose(H @ x, b, rtol=1e-8, atol=1e-8 * np.abs(b).max())
     lu = spd_factor(H)
     assert lu.L.nnz + lu.U.nnz < 2 * H.nnz
+
+
+def test_huber_stack_is_gtsams_robust_noise_model_on_each_factor() -> None:
+    """One stacked factor with the Huber loss inside (the stages' keyframe intervals) must
+    cost and linearise as GTSAM's Robust(Huber, Isotropic) noise model on every factor does:
+    the same error, the same Hessian and gradient, the same LM solution."""
+    import gtsam
+
+    from mocap_calib.core.graph import BatchFactors, BatchOutput, Huber, run_lm
+
+    rng = np.random.default_rng(3)
+    n, k, key_r, key_b = 200, 1.5, 0, 1
+    A = rng.normal(size=(n, 3, 3))
+    y = rng.normal(size=(n, 3)) + np.where(rng.random((n, 1)) < 0.2, 8.0, 0.0)  # outliers
+    sig = rng.uniform(0.5, 2.0, n)
+
+    def errors(v: gtsam.Values) -> tuple[np.ndarray, list[np.ndarray]]:
+        # e_n = Log(R) (a nonlinear key) + A_n b - y_n
+        phi = gtsam.Rot3.Logmap(v.atRot3(key_r))
+        b = np.asarray(v.atVector(key_b))
+        Jr = np.broadcast_to(gtsam.Rot3.LogmapDerivative(phi), (n, 3, 3))
+        return phi + A @ b - y, [np.array(Jr), A]
+
+    stacked = Huber(sig, k).factor(errors, [key_r, key_b])
+    # The same factors one by one, robust in GTSAM.
+    per = BatchFactors(lambda v: BatchOutput(
+        list(errors(v)[0]), [[errors(v)[1][0][i], A[i]] for i in range(n)]),
+        [[key_r, key_b]] * n,
+        [gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k),
+                                        gtsam.noiseModel.Isotropic.Sigma(3, float(x)))
+         for x in sig])
+    graphs = []
+    for batch in (stacked, per):
+        g = gtsam.NonlinearFactorGraph()
+        for f in batch.factors():
+            g.add(f)
+        graphs.append(g)
+    v = gtsam.Values()
+    v.insert(key_r, gtsam.Rot3.Rodrigues(0.1, -0.2, 0.3))
+    v.insert(key_b, np.array([0.3, -0.1, 0.2]))
+    e1, e2 = (g.error(v) for g in graphs)
+    assert e1 == pytest.approx(e2, rel=1e-12)
+    assert np.sum(Huber(sig, k).weights(errors(v)[0]) < 1) > 10  # the loss is exercised
+    (H1, g1), (H2, g2) = (g.linearize(v).hessian() for g in graphs)
+    np.testing.assert_allclose(H1, H2, rtol=1e-10, atol=1e-10 * np.abs(H2).max())
+    np.testing.assert_allclose(g1, g2, rtol=1e-10, atol=1e-10 * np.abs(g2).max())
+    s1, s2 = (run_lm(g, v, 50, relative_tol=1e-12)[0] for g in graphs)
+    np.testing.assert_allclose(s1.atVector(key_b), s2.atVector(key_b), atol=1e-9)
+    np.testing.assert_allclose(s1.atRot3(key_r).matrix(), s2.atRot3(key_r).matrix(),
+                               atol=1e-9)

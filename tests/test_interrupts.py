@@ -130,8 +130,7 @@ def test_a_stop_requested_inside_a_solver_callback_is_raised_after_it() -> None:
                 raised_in_callback.append(err)
         return BatchOutput([x - 3.0], [[np.eye(2)]])
 
-    batch = BatchFactors(evaluate, [[key]], {key: "vector"}, [key],
-                         gtsam.noiseModel.Isotropic.Sigma(2, 1.0))
+    batch = BatchFactors(evaluate, [[key]], gtsam.noiseModel.Isotropic.Sigma(2, 1.0))
     graph = gtsam.NonlinearFactorGraph()
     for f in batch.factors():
         graph.add(f)

@@ -207,20 +207,14 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
     problems = [PositionProblem(t.s, model, noise, t.windows) for t in takes]
     layout = problems[0].layout
     shared = _shared_keys(model)
-    key_kinds = {KEY_R: "rot3", KEY_P: "point3", KEY_G: "unit3", KEY_GM: "vector"}
-    for k in shared.values():
-        key_kinds.setdefault(k, "vector")
     knot0 = list(np.cumsum([0, *[t.windows.count for t in takes[:-1]]]).astype(int))
     factor_keys: list[list[int]] = []
     col_keys: list[list[tuple[int | None, slice]]] = []
     for k, t in enumerate(takes):
-        if model.timed:
-            key_kinds[key_time(k)] = "vector"
         blocks = {**shared, **({CLOCK_OFFSET.name: key_time(k)} if model.timed else {})}
         cols = [(blocks[n] if n != "knot" else None, layout.slice(n))
                 for n, _ in layout.blocks]
         for w in range(t.windows.count):
-            key_kinds[key_knot(knot0[k] + w)] = "vector"
             # A factor's keys in the order of its Jacobian's column blocks (the layout's).
             factor_keys.append([key if key is not None else key_knot(knot0[k] + w)
                                 for key, _ in cols])
@@ -243,8 +237,7 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
         jac = [[H[w][:, sl] for _, sl in col_keys[w]] for w in range(len(col_keys))]
         return BatchOutput(list(e), jac)
 
-    batch = BatchFactors(evaluate, factor_keys, key_kinds, list(shared.values()),
-                         gtsam.noiseModel.Unit.Create(layout.dim + 1))
+    batch = BatchFactors(evaluate, factor_keys, gtsam.noiseModel.Unit.Create(layout.dim + 1))
     graph = gtsam.NonlinearFactorGraph()
     for f in batch.factors():
         graph.add(f)

@@ -21,12 +21,9 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.graph import (
     ABS_TOL,
-    BatchFactors,
-    BatchOutput,
-    huber_isotropic,
+    Huber,
     marginals,
     require_converged,
-    robust_weights_and_chi2,
     run_lm,
 )
 from mocap_calib.core.model import so3
@@ -130,19 +127,19 @@ class _Solve:
     evaluations: int = 0
 
 
-def _solve(st: _Solve, dRM: Array, noises, R0: Array, bg0: Array, preint,
+def _solve(st: _Solve, dRM: Array, huber: Huber, R0: Array, bg0: Array, preint,
            max_iterations: int, on_iteration) -> _Solve:
     """Solve for ``R_MI`` and the gyro bias; re-preintegrate (up to three solves) while the
     bias moves beyond the first-order correction's comfort zone."""
     for _relinearise in range(3):
-        def evaluate(v: gtsam.Values, dRI=st.dRI, J=st.J, b_lin=st.b_lin) -> BatchOutput:
+        def evaluate(v: gtsam.Values, dRI=st.dRI, J=st.J, b_lin=st.b_lin
+                     ) -> tuple[Array, list[Array]]:
             R = v.atRot3(KEY_R).matrix()
             b = np.asarray(v.atVector(KEY_BG))
             e, HR, Hb = attitude_errors(R, b, dRM, dRI, J, b_lin)
-            return BatchOutput(list(e), [[HR[n], Hb[n]] for n in range(len(e))])
+            return e, [HR, Hb]
 
-        batch = BatchFactors(evaluate, [[KEY_R, KEY_BG]] * len(dRM),
-                             {KEY_R: "rot3", KEY_BG: "vector"}, [KEY_R, KEY_BG], noises)
+        batch = huber.factor(evaluate, [KEY_R, KEY_BG])
         graph = gtsam.NonlinearFactorGraph()
         for f in batch.factors():
             graph.add(f)
@@ -195,15 +192,15 @@ def run_attitude_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
 
     sig = np.sqrt(2 * noise.mocap_rotation_sigma**2 + noise.gyroscope_noise_density**2 * dt
                   + noise.gyroscope_random_walk**2 * dt**3 / 3.0)
-    noises = huber_isotropic(sig, huber_k)
+    huber = Huber(sig, huber_k)
 
     dRI, J = preint(bg0.copy())
     e_before, _, _ = attitude_errors(R0, bg0, dRM, dRI, J, bg0.copy(), jacobians=False)
-    st = _solve(_Solve(R0, bg0, bg0.copy(), dRI, J), dRM, noises, R0, bg0, preint,
+    st = _solve(_Solve(R0, bg0, bg0.copy(), dRI, J), dRM, huber, R0, bg0, preint,
                 max_iterations, on_iteration)
     marg = marginals(st.graph, st.sol)
     e_after, _, _ = attitude_errors(st.R, st.b, dRM, st.dRI, st.J, st.b_lin, jacobians=False)
-    w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
+    w, chi2 = huber.weights_and_chi2(e_after)
     t_mid = 0.5 * (s.tau[i0] + s.tau[i1])
     stats = StageStats(
         name="attitude", unit="deg",

@@ -22,12 +22,9 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.graph import (
     ABS_TOL,
-    BatchFactors,
-    BatchOutput,
-    huber_isotropic,
+    Huber,
     marginals,
     require_converged,
-    robust_weights_and_chi2,
     run_lm,
 )
 from mocap_calib.core.model import so3
@@ -102,23 +99,21 @@ class _Solve:
     evaluations: int = 0
 
 
-def _solve(st: _Solve, noises, start: tuple[Array, Array, Array], gravity: float, preint,
+def _solve(st: _Solve, huber: Huber, start: tuple[Array, Array, Array], gravity: float, preint,
            max_iterations: int, on_iteration) -> _Solve:
     """Solve for ``b_a``, ``p_MI`` and the gravity direction; re-preintegrate (up to three
     solves) while the accel bias moves by more than 0.05 m/s^2. ``start``: the linear
     start's ``(b_a, p_MI, gravity direction)``, the range priors' centres."""
     b0, p0, g0 = start
-    n = len(st.data.dt)
     for _relinearise in range(3):
-        def evaluate(v: gtsam.Values, data=st.data, b_lin=st.b_lin) -> BatchOutput:
+        def evaluate(v: gtsam.Values, data=st.data, b_lin=st.b_lin
+                     ) -> tuple[Array, list[Array]]:
             e, Hb, Hp, Hg = velocity_factor(data, np.asarray(v.atVector(KEY_BA)),
                                             np.asarray(v.atPoint3(KEY_P)), v.atUnit3(KEY_G),
                                             gravity, b_lin)
-            return BatchOutput(list(e), [[Hb[k], Hp[k], Hg[k]] for k in range(len(e))])
+            return e, [Hb, Hp, Hg]
 
-        batch = BatchFactors(evaluate, [[KEY_BA, KEY_P, KEY_G]] * n,
-                             {KEY_BA: "vector", KEY_P: "point3", KEY_G: "unit3"},
-                             [KEY_BA, KEY_P, KEY_G], noises)
+        batch = huber.factor(evaluate, [KEY_BA, KEY_P, KEY_G])
         graph = gtsam.NonlinearFactorGraph()
         for f in batch.factors():
             graph.add(f)
@@ -195,13 +190,13 @@ def run_velocity_stage(s: PreparedSession, delta: float, noise: NoiseModel, spac
     sig = np.sqrt(2 * sv2 + noise.accelerometer_noise_density**2 * dt
                   + noise.accelerometer_random_walk**2 * dt**3 / 3.0
                   + noise.mocap_rotation_sigma**2 * np.sum(dv**2, axis=1) / 2.0)
-    noises = huber_isotropic(sig, huber_k)
+    huber = Huber(sig, huber_k)
     e_before = velocity_errors(data, b0, p0, g_free, b_lin)
-    st = _solve(_Solve(b0, p0, g_free / g_norm, b_lin, data), noises,
+    st = _solve(_Solve(b0, p0, g_free / g_norm, b_lin, data), huber,
                 (b0, p0, g_free / g_norm), gravity, preint, max_iterations, on_iteration)
     marg = marginals(st.graph, st.sol)
     e_after = velocity_errors(st.data, st.b, st.p, gravity * st.g_dir, st.b_lin)
-    w, chi2 = robust_weights_and_chi2(noises, e_after, sig)
+    w, chi2 = huber.weights_and_chi2(e_after)
     stats = StageStats(
         name="velocity", unit="m/s",
         rms_before=np.sqrt(np.mean(e_before**2, axis=0)).tolist(),
