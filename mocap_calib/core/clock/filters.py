@@ -6,6 +6,7 @@ full cross-correlation by FFT, and the local maxima kept at least a distance apa
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from math import factorial
 
 import numpy as np
@@ -54,10 +55,30 @@ def savgol(x: Array, window: int, order: int, deriv: int = 0, delta: float = 1.0
 
 def correlate_full(a: Array, b: Array) -> Array:
     """``c[k] = sum_n a[n + k - (len(b) - 1)] b[n]`` for every overlap (by FFT)."""
-    n_out = len(a) + len(b) - 1
-    n = scipy.fft.next_fast_len(n_out, real=True)
-    c = scipy.fft.irfft(scipy.fft.rfft(a, n) * scipy.fft.rfft(b[::-1], n), n)
-    return c[:n_out]
+    sp = Spectra(len(a), len(b))
+    return sp.correlate(sp.of_a(a), sp.of_b(b))
+
+
+@dataclass(frozen=True)
+class Spectra:
+    """:func:`correlate_full` of signals of lengths ``n_a`` and ``n_b`` from their transforms,
+    so that a signal correlated with several others is transformed once."""
+
+    n_a: int
+    n_b: int
+
+    @property
+    def n(self) -> int:
+        return scipy.fft.next_fast_len(self.n_a + self.n_b - 1, real=True)
+
+    def of_a(self, a: Array) -> Array:
+        return scipy.fft.rfft(a, self.n)
+
+    def of_b(self, b: Array) -> Array:
+        return scipy.fft.rfft(b[::-1], self.n)
+
+    def correlate(self, fa: Array, fb: Array) -> Array:
+        return scipy.fft.irfft(fa * fb, self.n)[:self.n_a + self.n_b - 1]
 
 
 def peaks_apart(x: Array, distance: int) -> NDArray[np.int64]:

@@ -28,7 +28,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.clock.filters import correlate_full, median5, peaks_apart, savgol
+from mocap_calib.core.clock.filters import (
+    Spectra,
+    correlate_full,
+    median5,
+    peaks_apart,
+    savgol,
+)
 from mocap_calib.core.model import so3
 from mocap_calib.core.policy import GRAVITY, gap_threshold
 from mocap_calib.errors import ObservabilityError
@@ -152,31 +158,38 @@ def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM:
         in_gap = (tau[idx] - tau[idx - 1]) > gap_m
         # A gap corrupts the derivative around it: blank a filter length on both sides.
         near = np.convolve(in_gap.astype(float), np.ones(n), mode="same") > 0
+        xs = _smooth(xf, win)  # one array for every axis (its transforms are shared)
         for axis_name, (i, sign) in UP_AXES.items():
             g = np.zeros(3)
             g[i] = -gravity * sign  # gravity points down the up axis
             f_m = np.linalg.norm(acc - g, axis=1)
             f_m = f_m - f_m[~near].mean() if np.any(~near) else f_m - f_m.mean()
             f_m[near] = 0.0
-            out.append(_Signal(f"specific force ({axis_name} up)", s_i, _smooth(xf, win),
+            out.append(_Signal(f"specific force ({axis_name} up)", s_i, xs,
                                float(grid[0]), f_m))
     return out
 
 
-def _correlation(x: Array, y: Array, dt: float) -> tuple[Array, Array, Array]:
+def _correlation(x: Array, y: Array, dt: float,
+                 x_spectra: dict[tuple[int, int], tuple[Array, ...]] | None = None
+                 ) -> tuple[Array, Array, Array]:
     """Pearson correlation of ``y(j)`` and ``x(j - lag)`` over their overlap, for all lags (in
     grid steps), and the overlap's sample count. Centred within each overlap: an uncentred one
     calls two rest periods (both constant) perfectly correlated. Lags with too little overlap,
-    or an overlap in which either signal barely varies, are NaN."""
-    def xc(a: Array, b: Array) -> Array:
-        return correlate_full(a, b)
-
-    ones_x, ones_y = np.ones_like(x), np.ones_like(y)
-    n = np.maximum(np.rint(xc(ones_y, ones_x)), 1.0)
-    sx, sy = xc(ones_y, x), xc(y, ones_x)
-    cov = xc(y, x) - sx * sy / n
-    vx = xc(ones_y, x * x) - sx * sx / n
-    vy = xc(y * y, ones_x) - sy * sy / n
+    or an overlap in which either signal barely varies, are NaN. ``x_spectra``: a cache of
+    ``x``'s transforms (the specific force's IMU side is the same for every up axis)."""
+    sp = Spectra(len(y), len(x))
+    cache = {} if x_spectra is None else x_spectra
+    key = (sp.n_a, sp.n_b)
+    if key not in cache:
+        cache[key] = tuple(sp.of_b(b) for b in (np.ones_like(x), x, x * x))
+    f_ones_x, f_x, f_xx = cache[key]
+    f_ones_y, f_y, f_yy = (sp.of_a(a) for a in (np.ones_like(y), y, y * y))
+    n = np.maximum(np.rint(sp.correlate(f_ones_y, f_ones_x)), 1.0)
+    sx, sy = sp.correlate(f_ones_y, f_x), sp.correlate(f_y, f_ones_x)
+    cov = sp.correlate(f_y, f_x) - sx * sy / n
+    vx = sp.correlate(f_ones_y, f_xx) - sx * sx / n
+    vy = sp.correlate(f_yy, f_ones_x) - sy * sy / n
     min_overlap = max(int(5.0 / dt), int(0.2 * min(len(x), len(y))))
     valid = (n > min_overlap) & (vx > 0.05 * np.var(x) * n) & (vy > 0.05 * np.var(y) * n)
     corr = np.where(valid, cov / np.sqrt(np.maximum(vx * vy, 1e-300)), np.nan)
@@ -222,11 +235,17 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
             "(the body hardly moves); record a session with motion, or give --time-offset")
     # Every signal on one t_d axis: t_d = (start_m - clock_shift) - start_i + lag * dt.
     curves: dict[str, tuple[Array, Array]] = {}
+    x_spectra: dict[int, dict[tuple[int, int], tuple[Array, ...]]] = {}
+    x_time: dict[int, float] = {}
     for sg in sigs:
         interrupt.check()
-        corr, n, lags = _correlation(sg.x, sg.y, dt)
+        # The specific force's IMU side is one array for every up axis (alive in sigs, so its
+        # id is its own): transformed once.
+        corr, n, lags = _correlation(sg.x, sg.y, dt, x_spectra.setdefault(id(sg.x), {}))
         td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
-        tau_c = max(_correlation_time(sg.x, dt), _correlation_time(sg.y, dt))
+        if id(sg.x) not in x_time:
+            x_time[id(sg.x)] = _correlation_time(sg.x, dt)
+        tau_c = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
         curves[sg.name] = (td, _statistic(corr, n, tau_c, dt))
     # Specific force: keep the up axis whose curve has the highest peak.
     force = {k: v for k, v in curves.items() if k.startswith("specific force")}
