@@ -434,9 +434,14 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         sol, rep = run_lm(graph, sol, limit, hook)
         inn0 = hook.first_innovations if inn0 is None else inn0
         iterations += rep.iterations
-        outs = _evaluate_at(pg, sol)
         if final:
+            outs = _evaluate_at(pg, sol)
             break
+        # The levels and weights follow the innovations at the solution under the round's
+        # whitening: LM's last evaluation when it was there (no evaluation of its own; the
+        # next round's whitening is recorded at the solution anyway).
+        batch.output(sol, 0)
+        outs = pg.evals[-1]
         changed, moved = _settle(pg, outs, adapt_noise, robust, noise_scale)
         cost = float(rep.final_error)
         small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
