@@ -85,6 +85,11 @@ class BatchFactors:
                 self._at = gtsam.Values(values)
             return self._cache.errors[i], self._cache.jacobians[i]
 
+    @property
+    def evaluated_at(self) -> gtsam.Values | None:
+        """The values of the cached evaluation (None: none cached)."""
+        return self._at if self._cache is not None else None
+
     def invalidate(self) -> None:
         """Forget the cached evaluation (the factors changed without the values changing)."""
         with self._lock:
@@ -132,6 +137,9 @@ class SolveReport:
     last_decrease: float = 0.0
 
 
+#: Relative cost decrease per LM iteration below which a solve has converged (GTSAM also ends
+#: an iteration whose best trial step changes the cost by less).
+RELATIVE_TOL = 1e-7
 #: Cost decrease per LM iteration below which a stage's solve has converged (the cost is half
 #: a chi2, so this is statistically nothing): along a direction the data do not determine,
 #: held only by a weak prior, LM would otherwise creep on for ever (a turntable's R_MI).
@@ -140,7 +148,7 @@ ABS_TOL = 5e-3
 
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
            on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
-           relative_tol: float = 1e-7, retry: bool = True, absolute_tol: float = 0.0
+           relative_tol: float = RELATIVE_TOL, retry: bool = True, absolute_tol: float = 0.0
            ) -> tuple[gtsam.Values, SolveReport]:
     """Levenberg-Marquardt with an optional per-iteration hook (values and error).
 

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.graph import require_converged, run_lm
+from mocap_calib.core.graph import RELATIVE_TOL, require_converged, run_lm
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.covariance import (
@@ -375,6 +375,17 @@ def _evaluate_at(pg: PositionGraph, values: gtsam.Values) -> list[Any]:
     return pg.evals[-1]
 
 
+def _innovations_near(pg: PositionGraph, sol: gtsam.Values, cost: float) -> list[Any]:
+    """The evaluation, under the round's whitening, that the levels and weights follow between
+    rounds: LM's last one when its cost is within LM's convergence tolerance of the
+    solution's ``cost`` (it is the solution, or the trial step LM ended on as no change: on
+    long sessions one evaluation, 1.1 s at 60 min), else one at the solution."""
+    at = pg.batch.evaluated_at
+    if at is None or abs(pg.graph.error(at) - cost) > RELATIVE_TOL * abs(cost):
+        pg.batch.output(sol, 0)
+    return pg.evals[-1]
+
+
 def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
                         robust: bool = False,
                         settled: Callable[[Theta, Theta], bool] | None = None) -> _Fit:
@@ -437,11 +448,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         if final:
             outs = _evaluate_at(pg, sol)
             break
-        # The levels and weights follow the innovations at the solution under the round's
-        # whitening: LM's last evaluation when it was there (no evaluation of its own; the
-        # next round's whitening is recorded at the solution anyway).
-        batch.output(sol, 0)
-        outs = pg.evals[-1]
+        outs = _innovations_near(pg, sol, float(rep.final_error))
         changed, moved = _settle(pg, outs, adapt_noise, robust, noise_scale)
         cost = float(rep.final_error)
         small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
