@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.graph import require_converged, run_lm
+from mocap_calib.core.graph import PREDICTED_TOL, require_converged, run_lm
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.covariance import (
@@ -376,7 +376,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         # The first run converges (from stages 1-2, unit weights); later ones only settle the
         # levels and weights, until the last.
         limit = max_iterations if (final or rnd == 1) else SETTLING_ITERATIONS
-        sol, rep = run_lm(graph, sol, limit, hook)
+        sol, rep = run_lm(graph, sol, limit, hook, predicted_tol=PREDICTED_TOL)
         inn0 = hook.first_innovations if inn0 is None else inn0
         iterations += rep.iterations
         if final:
