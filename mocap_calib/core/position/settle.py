@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import RELATIVE_TOL
+from mocap_calib.core.graph import RELATIVE_TOL, huber_weight
 from mocap_calib.core.position.engine import ROBUST_C
 from mocap_calib.core.position.graph import PositionGraph
 
@@ -31,7 +31,7 @@ def mocap_levels(pg: PositionGraph, outs: list[Any], skip: int = 5) -> Array:
 def huber_weights(d: Array, mask: NDArray[np.bool_], c: float = ROBUST_C) -> Array:
     """Huber's weights on the whitened innovation norms ``d``: 1 up to ``c``, ``c / d``
     beyond (convex: one fixed point)."""
-    w = np.where(d <= c, 1.0, c / np.maximum(d, 1e-12))
+    w = huber_weight(d, c)
     w[~mask] = 1.0
     return np.maximum(w, 1e-6)
 
