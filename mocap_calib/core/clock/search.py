@@ -171,16 +171,17 @@ def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM:
 
 
 def _correlation(x: Array, y: Array, dt: float,
-                 x_spectra: dict[tuple[int, int], tuple[Array, ...]] | None = None
+                 x_spectra: dict[tuple[int, int, int], tuple[Array, ...]] | None = None
                  ) -> tuple[Array, Array, Array]:
     """Pearson correlation of ``y(j)`` and ``x(j - lag)`` over their overlap, for all lags (in
     grid steps), and the overlap's sample count. Centred within each overlap: an uncentred one
     calls two rest periods (both constant) perfectly correlated. Lags with too little overlap,
     or an overlap in which either signal barely varies, are NaN. ``x_spectra``: a cache of
-    ``x``'s transforms (the specific force's IMU side is the same for every up axis)."""
+    ``x``'s transforms by its id (the specific force's IMU side is one array for every up
+    axis; the caller keeps the arrays alive, so the ids are theirs)."""
     sp = Spectra(len(y), len(x))
     cache = {} if x_spectra is None else x_spectra
-    key = (sp.n_a, sp.n_b)
+    key = (id(x), sp.n_a, sp.n_b)
     if key not in cache:
         cache[key] = tuple(sp.of_b(b) for b in (np.ones_like(x), x, x * x))
     f_ones_x, f_x, f_xx = cache[key]
@@ -235,13 +236,13 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
             "(the body hardly moves); record a session with motion, or give --time-offset")
     # Every signal on one t_d axis: t_d = (start_m - clock_shift) - start_i + lag * dt.
     curves: dict[str, tuple[Array, Array]] = {}
-    x_spectra: dict[int, dict[tuple[int, int], tuple[Array, ...]]] = {}
+    # The specific force's IMU side is one array for every up axis (alive in sigs): its
+    # transforms and correlation time are computed once.
+    x_spectra: dict[tuple[int, int, int], tuple[Array, ...]] = {}
     x_time: dict[int, float] = {}
     for sg in sigs:
         interrupt.check()
-        # The specific force's IMU side is one array for every up axis (alive in sigs, so its
-        # id is its own): transformed once.
-        corr, n, lags = _correlation(sg.x, sg.y, dt, x_spectra.setdefault(id(sg.x), {}))
+        corr, n, lags = _correlation(sg.x, sg.y, dt, x_spectra)
         td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
         if id(sg.x) not in x_time:
             x_time[id(sg.x)] = _correlation_time(sg.x, dt)
