@@ -19,11 +19,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.checks.degenerate import mark_single_axis, mark_undetermined
+from mocap_calib.core.checks.degenerate import (
+    mark_single_axis,
+    mark_undetermined,
+    single_axis,
+    single_axis_refusal,
+)
 from mocap_calib.core.checks.effect_scores import ALPHA, effect_scores, windows_tested
 from mocap_calib.core.checks.verdict import judge
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS
+from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, Model
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.first_fits import FirstFits, IterationFn, ProgressFn, first_fits
@@ -33,7 +38,7 @@ from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.calibration import CalibrationResult, Diagnostics
 from mocap_calib.core.result.state import CalibrationTrace, ModelState
 from mocap_calib.core.stages.figures import StageStats
-from mocap_calib.errors import CalibrationError, Interrupted
+from mocap_calib.errors import CalibrationError, ConvergenceError, Interrupted
 
 Array = NDArray[np.float64]
 
@@ -115,10 +120,7 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
     init = PositionInit(f0.att.R_MI, f0.vel.p_MI, f0.vel.gravity_dir, opts.gravity,
                         [TakeStart(f.delta0, f.att.gyro_bias, f.vel.accel_bias) for f in fits],
                         effects0)
-    pos = run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise, init,
-                             opts.priors, opts.robust, opts.max_iterations,
-                             adapt_noise=opts.adapt_noise, on_iteration=on_iteration,
-                             progress=say)
+    pos = _position_stage(fits, lead, model, init, opts, on_iteration, say)
     takes = [Diagnostics(
         residuals={"attitude": f.att.series, "velocity": f.vel.series,
                    "position": pos.takes[k].series},
@@ -153,6 +155,23 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
         "effect_tests": round(t_eff - t_pos, 3), **steps}
     result.solver["total_seconds"] = round(time.perf_counter() - t0, 3)
     return result
+
+
+def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: PositionInit,
+                    opts: CalibrationOptions, on_iteration: IterationFn | None,
+                    say: ProgressFn) -> PositionResult:
+    """Stage 3 over every take; a solve that crawls along a direction the motion leaves
+    undetermined (one rotation axis) is refused naming the motion, not the iteration limit."""
+    try:
+        return run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise,
+                                  init, opts.priors, opts.robust, opts.max_iterations,
+                                  adapt_noise=opts.adapt_noise, on_iteration=on_iteration,
+                                  progress=say)
+    except ConvergenceError as err:
+        axis = single_axis(fits[lead].s, fits[lead].delta0)
+        if axis is None:
+            raise
+        raise single_axis_refusal(axis, f"the position stage: {err}") from None
 
 
 def _effect_tests(r: CalibrationResult, pos: PositionResult, opts: CalibrationOptions,

@@ -4,7 +4,11 @@ A window is a gap-free stretch of mocap samples (a few seconds). From the window
 pose the IMU, corrected by the current model, is integrated forward (RK4 between samples, see
 :mod:`mocap_calib.core.model.preint`) and compared with every mocap pose in the window:
 
-    r_k = [ Log(R_bar_k^T R_WM,k R_MI) ;  p_WM,k + R_WM,k p_MI - p_bar_k ]
+    r_k = [ Log(R_bar_k^T R_WM,k R_MI) ;  p_WM,k - (p_bar_k - R_bar_k R_MI^T p_MI) ]
+
+(the measured marker pose against the one the IMU trajectory predicts: the lever arm turns
+with the filter's attitude, not with the measured one, whose noise would otherwise enter the
+lever arm's own regressor and pass for rotation it can learn from).
 
 The start velocity and pose of each window are nuisance (diffuse) and the IMU noise, the bias
 random walk within the window and the mocap noise are all in the noise model: a Kalman filter
@@ -204,7 +208,7 @@ class PositionProblem:
             packed = inc.pack()
             for i, nz in enumerate(noises):
                 wh = self._whitening(th, c, packed, R0, nz)
-                out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, Rbar, r, R_WM)
+                out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, Rbar, r)
 
         pool = chunk_pool()
         if len(self.chunks) > 1 and pool is not None:
@@ -292,13 +296,14 @@ class PositionProblem:
     def _residuals(th: Theta, R_WM: Array, p_WM: Array, Rbar: Array, pbar: Array) -> Rows:
         """Residuals at every sample and the parts of their Jacobians not through S."""
         R_meas = R_WM @ th.R_MI
-        p_meas = p_WM + np.einsum("wkij,j->wki", R_WM, th.p_MI)
         E = np.einsum("wkji,wkjl->wkil", Rbar, R_meas)
         r_rot = so3.log(E)
-        r = np.concatenate([r_rot, p_meas - pbar], axis=-1)  # (W, m+1, 6)
+        q = th.R_MI.T @ th.p_MI  # p_MI in IMU axes (the marker origin is at -q)
+        Jp = Rbar @ th.R_MI.T
+        r = np.concatenate([r_rot, p_WM - pbar + Jp @ th.p_MI], axis=-1)  # (W, m+1, 6)
         Jinv = so3.right_jacobian_inv(r_rot)
         Pm_rot = Jinv @ np.swapaxes(E, -1, -2)  # d r_rot / d (nominal attitude perturbation)
-        return Rows(r, Jinv, Pm_rot, R_WM)
+        return Rows(r, Jinv, Pm_rot, Jp, Rbar @ so3.hat(q), np.ascontiguousarray(R_WM[:, 0]))
 
     def _gravity_inputs(self, th: Theta) -> tuple[list[int], Array]:
         """Columns of the gravity parameters and their directions: a step of length ``h`` adds

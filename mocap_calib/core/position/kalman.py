@@ -56,9 +56,10 @@ def noise_params(nz: NoiseModel, axis_scale: Array = UNIT_AXES) -> Array:
 
 
 def lever_matrix(R_MI: Array, p_MI: Array) -> Array:
-    """``[p_MI]x R_MI``: a sample's lever-arm Jacobian is ``R_WM`` times it."""
-    x, y, z = p_MI
-    return np.ascontiguousarray(np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]) @ R_MI)
+    """``[R_MI^T p_MI]x``: the position residual's rows on the attitude error are the nominal
+    IMU attitude times it."""
+    x, y, z = np.asarray(R_MI, dtype=float).T @ np.asarray(p_MI, dtype=float)
+    return np.ascontiguousarray(np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]))
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,7 @@ class Whitening:
     inc: Array  # (W, m, 51) packed step increments
     R0: Array  # (W, 3, 3) nominal attitude at each window's start
     par: Array  # (N_PAR,) noise parameters
-    M: Array  # (3, 3) lever-arm matrix
+    M: Array  # (3, 3) lever-arm matrix [R_MI^T p_MI]x
     weights: Array  # (W, m+1) robust weights
 
 
@@ -83,7 +84,9 @@ class Rows:
     r: Array  # (W, m+1, 6)
     Jinv: Array  # (W, m+1, 3, 3)
     Pm_rot: Array  # (W, m+1, 3, 3)
-    R_WM: Array  # (W, m+1, 3, 3)
+    Jp: Array  # (W, m+1, 3, 3) d r_pos / d p_MI: R_bar R_MI^T
+    Hq: Array  # (W, m+1, 3, 3) R_bar [R_MI^T p_MI]x: d r_pos / d (nominal attitude, R_MI)
+    R_WM0: Array  # (W, 3, 3) each window's first mocap attitude (the start pose's p_MI term)
 
 
 def _c(x: Array) -> Array:
@@ -124,7 +127,7 @@ def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, Rbar: Array,
         _c(h), np.ascontiguousarray(mask), _c(now.weights), _c(now.inc), _c(Rbar),
         _c(op.inc), _c(op.R0), _c(op.weights), frozen, _c(dwf), _c(dg),
         np.asarray(gcols, dtype=np.int64), _c(rows.r), _c(rows.Jinv), _c(rows.Pm_rot),
-        _c(rows.R_WM), _c(op.M), _c(op.par), rs, ts,
+        _c(rows.Jp), _c(rows.Hq), _c(rows.R_WM0), _c(op.M), _c(op.par), rs, ts,
         np.zeros(mask.shape[1], np.int64) if blocks is None else blocks,
         out.gram, out.innovation, out.e_white, out.d_raw, out.logdet,
         np.zeros((W, 0, p)) if out.scores is None else out.scores,
@@ -133,33 +136,36 @@ def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, Rbar: Array,
     out.chi2[:] = np.einsum("wki,wki->w", out.e_white, out.e_white)
     if store:
         out.raw_r[:] = rows.r
-        out.extras.update(state_space(h, now, Rbar, rows.R_WM))
+        out.extras.update(state_space(h, now, Rbar))
 
 
-def likelihood_pass(h: Array, mask: NDArray[np.bool_], wh: Whitening, Rbar: Array, r: Array,
-                    R_WM: Array) -> tuple[Array, Array]:
+def likelihood_pass(h: Array, mask: NDArray[np.bool_], wh: Whitening, Rbar: Array,
+                    r: Array) -> tuple[Array, Array]:
     """(W,) chi2 and log det of the innovations of the residuals ``r`` alone (the filter pass
     without Jacobian columns)."""
     W, m1 = mask.shape
     none = np.zeros((W, m1 - 1, 6, 0))
-    rows = Rows(r, R_WM, R_WM, R_WM)  # no Jacobian columns: the Jacobian parts are not read
+    # No Jacobian columns: the Jacobian parts are not read.
+    rows = Rows(r, Rbar, Rbar, Rbar, Rbar, Rbar[:, 0])
     out = empty_output(W, m1, 0, None, False)
     filter_pass(h, mask, wh, Rbar, None, rows, none, np.zeros((3, 0)), [], -1, -1, None, out)
     return out.chi2, out.logdet
 
 
-def state_space(h: Array, wh: Whitening, Rbar: Array, R_WM: Array) -> dict[str, Array]:
+def state_space(h: Array, wh: Whitening, Rbar: Array) -> dict[str, Array]:
     """The filter's state-space model written out (tests against a dense likelihood):
     transitions ``F``, process noise ``q_diag``/``q_pv``, white mocap noise ``Rn``, the
-    weights, and with correlated mocap noise its ``Fm``, ``Qm`` and ``Pm0``."""
+    position rows' attitude block ``Hp``, the weights, and with correlated mocap noise its
+    ``Fm``, ``Qm`` and ``Pm0``."""
     W, m = h.shape
     corr = wh.par[kn.RHO] > 0 and wh.par[kn.T_CORR] > 0
     F, q_diag, q_pv = np.zeros((W, m, 15, 15)), np.zeros((W, m, 15)), np.zeros((W, m))
-    Rn = np.zeros((W, m + 1, 6, 6))
+    Rn, Hp = np.zeros((W, m + 1, 6, 6)), np.zeros((W, m + 1, 3, 3))
     Fm, Qm, Pm0 = np.zeros((W, m, 6, 6)), np.zeros((W, m, 6, 6)), np.zeros((W, 6, 6))
-    kn.state_space(_c(wh.inc), _c(Rbar), _c(h), _c(R_WM), _c(wh.M), _c(wh.par), F, q_diag,
-                   q_pv, Rn, Fm, Qm, Pm0)
-    out = {"F": F, "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn, "weights": wh.weights.copy()}
+    kn.state_space(_c(wh.inc), _c(Rbar), _c(h), _c(wh.M), _c(wh.par), F, q_diag, q_pv, Rn, Hp,
+                   Fm, Qm, Pm0)
+    out = {"F": F, "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn, "Hp": Hp, "Rbar": Rbar.copy(),
+           "weights": wh.weights.copy()}
     if corr:
         out.update(Fm=Fm, Qm=Qm, Pm0=Pm0)
     return out

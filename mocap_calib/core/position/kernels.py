@@ -64,9 +64,9 @@ def transition_blocks(inc, Rk, Fb):  # pragma: no cover  (compiled)
 
 
 @kernel
-def phi_rows(Mx, nc, Fb, hk, ns, a, dL, tmp):  # pragma: no cover  (compiled)
+def phi_rows(Mx, nc, Fb, hk, ns, a, tmp):  # pragma: no cover  (compiled)
     """``Mx[:, :nc] <- Phi Mx[:, :nc]`` in place: the error-state rows through the transition
-    blocks ``Fb``; with AR(1) mocap states (ns 21) those through ``a [[I, 0], [dL, I]]``."""
+    blocks ``Fb``; with AR(1) mocap states (ns 21) those decay by ``a``."""
     for i in range(3):
         for c in range(nc):
             tmp[i, c] = 0.0
@@ -85,50 +85,40 @@ def phi_rows(Mx, nc, Fb, hk, ns, a, dL, tmp):  # pragma: no cover  (compiled)
         for c in range(nc):
             Mx[i, c] = tmp[i, c]
     if ns == 21:
-        for i in range(3):
+        for i in range(15, 21):
             for c in range(nc):
-                tmp[i, c] = a * (dL[i, 0] * Mx[15, c] + dL[i, 1] * Mx[16, c]
-                                 + dL[i, 2] * Mx[17, c] + Mx[18 + i, c])
-        for i in range(3):
-            for c in range(nc):
-                Mx[15 + i, c] *= a
-                Mx[18 + i, c] = tmp[i, c]
+                Mx[i, c] *= a
 
 
 @kernel
-def mocap_cov(L, sig2, scale, out):  # pragma: no cover  (compiled)
+def mocap_cov(sig2, scale, out):  # pragma: no cover  (compiled)
     """``out`` (6, 6) = scale times the covariance of a residual's mocap noise: attitude
-    variances ``sig2[0:3]`` (IMU frame), position ``sig2[3:6]`` (world frame), the position
-    error ``-L`` times the attitude noise (the lever arm)."""
-    for i in range(3):
-        for j in range(3):
-            LD = L[i, j] * sig2[j]
+    variances ``sig2[0:3]`` (IMU frame), position ``sig2[3:6]`` (world frame), independent (the
+    lever arm acts through the filter's attitude, not through the measured one)."""
+    for i in range(6):
+        for j in range(6):
             out[i, j] = scale * sig2[i] if i == j else 0.0
-            out[3 + i, j] = -scale * LD
-            out[j, 3 + i] = -scale * LD
-            s = sig2[3 + i] if i == j else 0.0
-            for t in range(3):
-                s += L[i, t] * sig2[t] * L[j, t]
-            out[3 + i, 3 + j] = scale * s
 
 
 @kernel
 def lever(R, M, L):  # pragma: no cover  (compiled)
-    """``L = R M`` (3x3): d p_meas / d attitude noise at a sample with mocap attitude ``R``."""
+    """``L = R M`` (3x3) with ``R`` the nominal IMU attitude and ``M = [R_MI^T p_MI]x``: the
+    position residual's rows on the attitude error (the marker origin sits at ``-R_MI^T p_MI``
+    in the IMU frame)."""
     for i in range(3):
         for j in range(3):
             L[i, j] = R[i, 0] * M[0, j] + R[i, 1] * M[1, j] + R[i, 2] * M[2, j]
 
 
 @kernel
-def predict_cov(P, ns, Fb, hk, a, dL, Lk, par, tmp, cov):  # pragma: no cover  (compiled)
+def predict_cov(P, ns, Fb, hk, a, par, tmp, cov):  # pragma: no cover  (compiled)
     """Filter covariance through a step: ``Phi P Phi^T`` plus the process noise (and the AR(1)
     states' innovation, ``rho (1 - a^2)`` of the mocap noise at the step's end sample)."""
-    phi_rows(P, ns, Fb, hk, ns, a, dL, tmp)
+    phi_rows(P, ns, Fb, hk, ns, a, tmp)
     for i in range(ns):
         for j in range(i + 1, ns):
             P[i, j], P[j, i] = P[j, i], P[i, j]
-    phi_rows(P, ns, Fb, hk, ns, a, dL, tmp)
+    phi_rows(P, ns, Fb, hk, ns, a, tmp)
     sa2 = par[Q_ACCEL]
     for i in range(3):
         P[i, i] += par[Q_GYRO] * hk
@@ -139,7 +129,7 @@ def predict_cov(P, ns, Fb, hk, a, dL, Lk, par, tmp, cov):  # pragma: no cover  (
         P[3 + i, 6 + i] += sa2 * hk * hk / 2.0
         P[6 + i, 3 + i] += sa2 * hk * hk / 2.0
     if ns == 21:
-        mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), cov)
+        mocap_cov(par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), cov)
         for i in range(6):
             for j in range(6):
                 P[15 + i, 15 + j] += cov[i, j]
@@ -179,7 +169,7 @@ def forward(Lc, B, nc, out):  # pragma: no cover  (compiled)
 
 
 @kernel
-def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, dL, Lk, par, tmp,
+def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp,
               cov):  # pragma: no cover  (compiled)
     """One step: the sensitivities ``S`` (rows 0:9 of ``Y``) through the current transition
     ``Fc`` with the parameters' inputs (``-d(w, f)/dtheta`` as bias rows, gravity directly),
@@ -188,45 +178,54 @@ def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, dL, Lk, par, tmp,
         for i in range(6):
             for c in range(p):
                 Y[9 + i, c] = -dwf[i, c]
-        phi_rows(Y, p, Fc, hk, min(ns, 15), 0.0, dL, tmp)  # (no literal: one compile)
+        phi_rows(Y, p, Fc, hk, min(ns, 15), 0.0, tmp)  # (no literal: one compile)
         for g in range(gcols.shape[0]):
             col = gcols[g]
             for i in range(3):
                 Y[3 + i, col] += 0.5 * hk * hk * dg[i, g]
                 Y[6 + i, col] += hk * dg[i, g]
-    phi_rows(X, p + 1, Fo, hk, ns, a, dL, tmp)
-    predict_cov(P, ns, Fo, hk, a, dL, Lk, par, tmp, cov)
+    phi_rows(X, p + 1, Fo, hk, ns, a, tmp)
+    predict_cov(P, ns, Fo, hk, a, par, tmp, cov)
 
 
 @kernel
-def residual_rows(N, Y, X, p, ns, rs, ts, r, Jinv, Pm_rot, R_WM):  # pragma: no cover
-    """A sample's ``[J | r]`` rows (``J``: the direct part minus the nominal's sensitivity),
-    then their innovation against the filter mean."""
+def residual_rows(N, Y, X, p, ns, rs, ts, r, Jinv, Pm_rot, Jp, Hq):  # pragma: no cover
+    """A sample's ``[J | r]`` rows (``J``: the direct part minus the nominal's sensitivity;
+    the position rows see the nominal attitude through ``Hq = R_bar [R_MI^T p_MI]x``)."""
     for i in range(3):
         for c in range(p):
             N[i, c] = -(Pm_rot[i, 0] * Y[0, c] + Pm_rot[i, 1] * Y[1, c] + Pm_rot[i, 2] * Y[2, c])
-            N[3 + i, c] = -Y[3 + i, c]
+            N[3 + i, c] = -Y[3 + i, c] - (Hq[i, 0] * Y[0, c] + Hq[i, 1] * Y[1, c]
+                                          + Hq[i, 2] * Y[2, c])
         if p > 0:
             for j in range(3):
                 N[i, rs + j] += Jinv[i, j]
-                N[3 + i, ts + j] += R_WM[i, j]
+                N[3 + i, rs + j] += Hq[i, j]
+                N[3 + i, ts + j] += Jp[i, j]
     for i in range(6):
         N[i, p] = r[i]
 
 
 @kernel
-def innovate(N, X, P, PHt, S, ns, p):  # pragma: no cover  (compiled)
-    """``N -= H X``; ``PHt = P H^T``; ``S = H P H^T`` (H picks the error state's attitude and
-    position and adds the AR(1) mocap states)."""
-    for i in range(6):
-        for c in range(p + 1):
+def innovate(N, X, P, PHt, S, ns, p, Lk):  # pragma: no cover  (compiled)
+    """``N -= H X``; ``PHt = P H^T``; ``S = H P H^T``. ``H`` picks the error state's attitude
+    for the attitude rows and position plus ``Lk`` times attitude for the position rows, and
+    adds the AR(1) mocap states."""
+    for c in range(p + 1):
+        for i in range(3):
             N[i, c] -= X[i, c] + (X[15 + i, c] if ns == 21 else 0.0)
+            N[3 + i, c] -= (X[3 + i, c] + Lk[i, 0] * X[0, c] + Lk[i, 1] * X[1, c]
+                            + Lk[i, 2] * X[2, c] + (X[18 + i, c] if ns == 21 else 0.0))
     for i in range(ns):
-        for j in range(6):
+        for j in range(3):
             PHt[i, j] = P[i, j] + (P[i, 15 + j] if ns == 21 else 0.0)
-    for i in range(6):
-        for j in range(6):
+            PHt[i, 3 + j] = (P[i, 3 + j] + P[i, 0] * Lk[j, 0] + P[i, 1] * Lk[j, 1]
+                             + P[i, 2] * Lk[j, 2] + (P[i, 18 + j] if ns == 21 else 0.0))
+    for j in range(6):
+        for i in range(3):
             S[i, j] = PHt[i, j] + (PHt[15 + i, j] if ns == 21 else 0.0)
+            S[3 + i, j] = (PHt[3 + i, j] + Lk[i, 0] * PHt[0, j] + Lk[i, 1] * PHt[1, j]
+                           + Lk[i, 2] * PHt[2, j] + (PHt[18 + i, j] if ns == 21 else 0.0))
 
 
 @kernel
@@ -281,9 +280,10 @@ def accumulate(w, k, Nw, p, blocks, G, scores, e_white, whitened):  # pragma: no
 
 
 @kernel
-def start_window(Y, X, P, p, ns, rs, ts, R0, M_op, Lk, par, cov):  # pragma: no cover
+def start_window(Y, X, P, p, ns, rs, ts, R0, Ratt, M_op, Lk, par, cov):  # pragma: no cover
     """A window's start: the diffuse prior, the AR(1) states' stationary covariance, the
-    sensitivities of the start pose to ``R_MI`` and ``p_MI``."""
+    sensitivities of the start pose to ``R_MI`` and ``p_MI`` (``R0``: the first mocap
+    attitude), the position rows' attitude block at the nominal attitude ``Ratt``."""
     Y[:, :] = 0.0
     X[:, :] = 0.0
     P[:, :] = 0.0
@@ -294,23 +294,19 @@ def start_window(Y, X, P, p, ns, rs, ts, R0, M_op, Lk, par, cov):  # pragma: no 
             Y[i, rs + i] = 1.0
             for j in range(3):
                 Y[3 + i, ts + j] = R0[i, j]
-    lever(R0, M_op, Lk)
+    lever(Ratt, M_op, Lk)
     if ns == 21:
-        mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO], cov)
+        mocap_cov(par[SIG2:SIG2 + 6], par[RHO], cov)
         P[15:21, 15:21] = cov
 
 
 @kernel
-def step_lever(R, M_op, Lk, Lprev, dL, hk, ns, par):  # pragma: no cover  (compiled)
-    """The lever arm at the step's end sample into ``Lk`` (the previous one into ``Lprev``);
-    with AR(1) states their transition ``a [[I, 0], [dL, I]]``: returns ``a``."""
-    Lprev[:, :] = Lk
+def step_lever(R, M_op, Lk, hk, ns, par):  # pragma: no cover  (compiled)
+    """The position rows' attitude block at the step's end sample (nominal attitude ``R``)
+    into ``Lk``; with AR(1) states their decay over the step: returns ``a``."""
     lever(R, M_op, Lk)
     if ns != 21:
         return 0.0
-    for i in range(3):
-        for t in range(3):
-            dL[i, t] = Lprev[i, t] - Lk[i, t]
     return np.exp(-hk / par[T_CORR])
 
 
@@ -325,8 +321,8 @@ def chain(R, inc, Rnext):  # pragma: no cover  (compiled)
 
 @kernel
 def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, dg, gcols,
-                   r, Jinv, Pm_rot, R_WM, M_op, par, rs, ts, blocks, gram, innov, e_white,
-                   d_raw, logdet, scores, raw_J, whitened):  # pragma: no cover  (compiled)
+                   r, Jinv, Pm_rot, Jp, Hq, R_WM0, M_op, par, rs, ts, blocks, gram, innov,
+                   e_white, d_raw, logdet, scores, raw_J, whitened):  # pragma: no cover
     """The filter pass over every window (outputs zeroed by the caller). With ``frozen`` the
     filter (mean transition, covariance, gains, whitening) runs on the whitening's own
     increments ``op_inc`` (its attitudes chained from ``op_R0`` as ``compose`` does), noise
@@ -343,33 +339,35 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
     Fc, Fo = np.zeros((8, 3, 3)), np.zeros((8, 3, 3))
     HPHt, Sk, Lc, Li, cov = (np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)),
                              np.zeros((6, 6)), np.zeros((6, 6)))
-    Lk, Lprev, dL = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    Lk = np.zeros((3, 3))
     Rop, Rnext = np.zeros((3, 3)), np.zeros((3, 3))
     for w in range(W):
         last = -1
         for k in range(m + 1):
             if mask[w, k]:
                 last = k
-        start_window(Y, X, P, p, ns, rs, ts, R_WM[w, 0], M_op, Lk, par, cov)
-        Rop[:, :] = op_R0[w]
+        # The filter's nominal attitude: the recorded one's chain when frozen, else the
+        # current nominal.
+        Rop[:, :] = op_R0[w] if frozen else Rbar[w, 0]
+        start_window(Y, X, P, p, ns, rs, ts, R_WM0[w], Rop, M_op, Lk, par, cov)
         ld = 0.0
         for k in range(last + 1):
             if k > 0:
                 j = k - 1
                 hk = h[w, j]
-                a = step_lever(R_WM[w, k], M_op, Lk, Lprev, dL, hk, ns, par)
                 transition_blocks(inc[w, j], Rbar[w, j], Fc)
                 if frozen:
                     transition_blocks(op_inc[w, j], Rop, Fo)
                     chain(Rop, op_inc[w, j], Rnext)
                 else:
                     Fo[:, :, :] = Fc
-                propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf[w, j], dg, gcols, a, dL, Lk, par,
-                          tmp, cov)
+                    Rop[:, :] = Rbar[w, k]
+                a = step_lever(Rop, M_op, Lk, hk, ns, par)
+                propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf[w, j], dg, gcols, a, par, tmp, cov)
             if not mask[w, k]:
                 continue
             ld += measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs,
-                          ts, white, wts[w, k], op_wts[w, k], par, r, Jinv, Pm_rot, R_WM,
+                          ts, white, wts[w, k], op_wts[w, k], par, r, Jinv, Pm_rot, Jp, Hq,
                           blocks, gram, innov, e_white, d_raw, scores, raw_J, whitened)
         logdet[w] = ld
         for a in range(p + 1):
@@ -379,17 +377,18 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
 
 @kernel
 def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, ts, white,
-            wt, op_wt, par, r, Jinv, Pm_rot, R_WM, blocks, gram, innov, e_white, d_raw,
+            wt, op_wt, par, r, Jinv, Pm_rot, Jp, Hq, blocks, gram, innov, e_white, d_raw,
             scores, raw_J, whitened):  # pragma: no cover  (compiled)
     """Sample ``k`` of window ``w``: residual rows, whitening, sums, filter update; returns
     the log det of the innovation covariance."""
-    residual_rows(N, Y, X, p, ns, rs, ts, r[w, k], Jinv[w, k], Pm_rot[w, k], R_WM[w, k])
+    residual_rows(N, Y, X, p, ns, rs, ts, r[w, k], Jinv[w, k], Pm_rot[w, k], Jp[w, k],
+                  Hq[w, k])
     if raw_J.shape[0] > 0:
         for i in range(6):
             for c in range(p):
                 raw_J[w, k, i, c] = N[i, c]
-    innovate(N, X, P, PHt, HPHt, ns, p)
-    mocap_cov(Lk, par[SIG2:SIG2 + 6], white, cov)
+    innovate(N, X, P, PHt, HPHt, ns, p, Lk)
+    mocap_cov(par[SIG2:SIG2 + 6], white, cov)
     for i in range(6):
         for j in range(6):
             Sk[i, j] = HPHt[i, j] + cov[i, j] / op_wt
@@ -418,22 +417,25 @@ def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, 
 
 
 @kernel
-def state_space(inc, Rbar, h, R_WM, M, par, F, q_diag, q_pv, Rn, Fm, Qm,
+def state_space(inc, Rbar, h, M, par, F, q_diag, q_pv, Rn, Hp, Fm, Qm,
                 Pm0):  # pragma: no cover  (compiled)
     """The window filter's state-space model written out (for checks against a dense
-    likelihood): transitions, process noise, white mocap noise and the AR(1) states' model."""
+    likelihood): transitions, process noise, white mocap noise, the position rows' attitude
+    block ``Hp`` and the AR(1) states' model."""
     W, m = h.shape
     ns = 21 if (par[RHO] > 0.0 and par[T_CORR] > 0.0) else 15
     Fb = np.zeros((8, 3, 3))
-    Lk, Lprev, dL = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    Lk = np.zeros((3, 3))
     for w in range(W):
-        lever(R_WM[w, 0], M, Lk)
-        mocap_cov(Lk, par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, 0])
+        lever(Rbar[w, 0], M, Lk)
+        Hp[w, 0] = Lk
+        mocap_cov(par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, 0])
         if ns == 21:
-            mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO], Pm0[w])
+            mocap_cov(par[SIG2:SIG2 + 6], par[RHO], Pm0[w])
         for j in range(m):
             hk = h[w, j]
-            a = step_lever(R_WM[w, j + 1], M, Lk, Lprev, dL, hk, ns, par)
+            a = step_lever(Rbar[w, j + 1], M, Lk, hk, ns, par)
+            Hp[w, j + 1] = Lk
             transition_blocks(inc[w, j], Rbar[w, j], Fb)
             F[w, j] = 0.0
             for i in range(15):
@@ -451,12 +453,9 @@ def state_space(inc, Rbar, h, R_WM, M, par, F, q_diag, q_pv, Rn, Fm, Qm,
                 q_diag[w, j, 9 + i] = par[Q_GYRO_WALK] * hk
                 q_diag[w, j, 12 + i] = par[Q_ACCEL_WALK] * hk
             q_pv[w, j] = par[Q_ACCEL] * hk ** 2 / 2.0
-            mocap_cov(Lk, par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, j + 1])
+            mocap_cov(par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, j + 1])
             if ns == 21:
                 Fm[w, j] = 0.0
                 for i in range(6):
                     Fm[w, j, i, i] = a
-                for i in range(3):
-                    for t in range(3):
-                        Fm[w, j, 3 + i, t] = a * dL[i, t]
-                mocap_cov(Lk, par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), Qm[w, j])
+                mocap_cov(par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), Qm[w, j])
