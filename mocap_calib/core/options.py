@@ -27,7 +27,8 @@ class CalibrationOptions:
         priors: earlier results entering as prior factors.
         plausible: the limits of a physically possible answer.
         max_mocap_rate: the position stage decimates faster mocap streams to this rate (Hz).
-        adapt_noise: re-estimate the mocap noise level from the residuals.
+        adapt_noise: re-estimate the mocap noise level from the residuals (and, with
+            ``accel_noise_from_data``, the accelerometer's from the windows' likelihood).
         sensitivity: refit with the IMU noise densities scaled by 3 and 1/3 and under the
             correlated mocap noise model.
         effect_tests: test every canonical effect the model lacks at the solution.
@@ -62,6 +63,10 @@ class CalibrationOptions:
         "skip)", lo=2, hi=20, also=(0,))
     robust: bool = param(True, "down-weight mocap outliers (--no-robust: every sample counts "
                          "fully)")
+    accel_noise_from_data: bool = param(
+        False, "set the accelerometer's noise density to the level the data show (the windows' "
+        "likelihood; in flight the rotors' vibration adds to the data sheet's) instead of the "
+        "one given", decls=("--accel-noise-from-data",))
     accept_implausible: bool = param(
         False, "write an answer that fails the plausibility checks (marked as such) instead of "
         "exiting 4", decls=("--accept-implausible",))

@@ -165,8 +165,9 @@ def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: Positi
     try:
         return run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise,
                                   init, opts.priors, opts.robust, opts.max_iterations,
-                                  adapt_noise=opts.adapt_noise, on_iteration=on_iteration,
-                                  progress=say)
+                                  adapt_noise=opts.adapt_noise,
+                                  adapt_accel=opts.adapt_noise and opts.accel_noise_from_data,
+                                  on_iteration=on_iteration, progress=say)
     except ConvergenceError as err:
         axis = single_axis(fits[lead].s, fits[lead].delta0)
         if axis is None:
@@ -251,6 +252,10 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
             + ", ".join(f"{x:.3g}" for x in att) + " deg per axis (assumed "
             f"{1e3 * opts.noise.mocap_position_sigma:.3g} mm, "
             f"{np.degrees(opts.noise.mocap_rotation_sigma):.3g} deg)")
+    a_given, a_used = (n.accelerometer_noise_density for n in (opts.noise, pos.noise))
+    if a_used != a_given:
+        notes.append(f"accelerometer noise density from the data: {a_used:.3g} m/s^2/sqrt(Hz) "
+                     f"({a_used / a_given:.3g} x the {a_given:.3g} given)")
     # The sigmas are the larger of the model's and the sandwich's (see uncertainty.py), which
     # already carries residuals beyond the noise model: no chi2 scaling on top.
     if pos.chi2_per_dof > 1.2:

@@ -47,7 +47,12 @@ from mocap_calib.core.position.graph import (
     Take,
     build_position_graph,
 )
-from mocap_calib.core.position.settle import evaluate_at, innovations_near, settle
+from mocap_calib.core.position.settle import (
+    evaluate_at,
+    innovations_near,
+    set_accel_level,
+    settle,
+)
 from mocap_calib.core.position.windows import Windows
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.stages.figures import ResidualSeries, StageStats
@@ -181,6 +186,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
                        init: PositionInit, priors: list[Prior] | None = None,
                        robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
                        adapt_noise: bool = True, weights: list[Array] | None = None,
+                       adapt_accel: bool = False,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
                        covariance: bool = True, one_step: bool | int = False,
@@ -196,7 +202,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         init: starting values.
         priors: user priors (earlier calibrations), added as prior factors.
         robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise levels from the innovations.
+        adapt_noise: re-estimate the mocap noise levels from the innovations; adapt_accel:
+            and the accelerometer's density from the likelihood (:func:`.settle.accel_level`).
         weights: per take, fixed robust weights (W, m+1) from an earlier fit: no re-weighting,
             so that fits of different models minimise costs of the same family.
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
@@ -212,8 +219,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         reweight: with ``one_step`` and given ``weights``, update the weights between steps.
         settled: with ``one_step``, ``settled(before, after)`` true ends the steps early
             (never before the second, the first with the levels re-estimated).
-        series: keep every take's residual series (for reports; a refit that only compares
-            estimates leaves them empty: 40 MB at 60 min).
+        series: keep every take's residual series (for reports; a refit: none, 40 MB/h).
     """
     t_start = time.perf_counter()
     pg = build_position_graph(takes, model, noise, init, priors)
@@ -228,8 +234,9 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
     if one_step:
         fit = _gauss_newton_steps(pg, adapt_noise, int(one_step), reweight, settled)
     else:
-        fit = _solve_rounds(pg, max_iterations, irls_rounds if (robust or adapt_noise) else 1,
-                            robust, adapt_noise, history, progress)
+        fit = _solve_rounds(pg, max_iterations,
+                            irls_rounds if (robust or adapt_noise or adapt_accel) else 1,
+                            robust, adapt_noise, history, progress, adapt_accel)
     outs = pg.evals[-1]
     thetas = pg.thetas(fit.values)
     # A Gauss-Newton refit keeps the linearisation it last stepped from: its covariance is
@@ -352,7 +359,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
                   adapt_noise: bool, hook: _History,
-                  progress: Callable[[str], None] | None) -> _Fit:
+                  progress: Callable[[str], None] | None, adapt_accel: bool = False) -> _Fit:
     """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
     are re-estimated from the innovations and the robust weights updated. The first run goes
     to convergence from the start values; the settling rounds after it are short; once nothing
@@ -364,6 +371,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     noise_scale = np.ones(2)
     prev_cost = None
     final = rounds <= 1
+    assumed = pg.problem.noise.accelerometer_noise_density
     rnd = 0
     while True:
         rnd += 1
@@ -384,6 +392,9 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
             break
         outs = innovations_near(pg, sol, float(rep.final_error))
         changed, moved = settle(pg, outs, adapt_noise, robust, noise_scale)
+        if adapt_accel:
+            moved_a = set_accel_level(pg, sol, assumed)
+            changed, moved = changed or moved_a > np.log(1.05), max(moved, moved_a)
         cost = float(rep.final_error)
         small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
         prev_cost = cost
