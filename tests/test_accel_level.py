@@ -43,3 +43,21 @@ def test_accel_level_stays_where_the_data_sheet_is_right() -> None:
         sensitivity=False, segments=0, effect_tests=False, accel_noise_from_data=True))
     assert r.noise.accelerometer_noise_density == pytest.approx(
         NoiseModel().accelerometer_noise_density, rel=0.2)
+
+
+def test_default_run_says_when_the_data_prefer_another_accel_level() -> None:
+    """Without the option the densities stay as given, but the verdict says how far the
+    data's own level is from them (a one-shot estimate at the solution: the mocap levels there
+    absorbed part of the accelerometer's error, so it lands below the joint estimate)."""
+    sim = simulate_flight(SimConfig(seed=5, duration=60.0, noise=FLYING,
+                                    effects={"time_offset": None}))
+    r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, effect_tests=False))
+    assert r.noise.accelerometer_noise_density == pytest.approx(2e-3)
+    found = r.sensitivity["accel_noise_density_from_data"]
+    assert 5 * 2e-3 < found < 2 * 0.05, found
+    assert any("--accel-noise-from-data" in n for n in r.notes), r.notes
+    # Where the data sheet is right, nothing is said.
+    sim = simulate_flight(SimConfig(seed=5, duration=60.0, effects={"time_offset": None}))
+    r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, effect_tests=False))
+    assert r.sensitivity["accel_noise_density_from_data"] == pytest.approx(2e-3, rel=0.5)
+    assert not any("--accel-noise-from-data" in n for n in r.notes), r.notes

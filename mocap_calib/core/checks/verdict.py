@@ -173,6 +173,14 @@ def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency, sens: Se
             f"fraction {m.get('fraction', 0):g}) moves "
             + ", ".join(f"{k} by {v:.1f}" for k, v in big.items())
             + " of its statistical sigma: the sigmas carry that move as model uncertainty")
+    used = r.noise.accelerometer_noise_density
+    if sens.accel_density and used and abs(np.log(sens.accel_density / used)) > np.log(2.0):
+        r.notes.append(
+            f"the accelerometer's noise is not the {used:.3g} m/s^2/sqrt(Hz) used: at this "
+            f"solution the windows' likelihood is best at {sens.accel_density:.3g} "
+            f"({sens.accel_density / used:.3g} x; in flight the rotors' vibration adds to the "
+            "data sheet's); --accel-noise-from-data estimates it with the mocap's levels and "
+            "uses it")
     if EFFECTS_SHOWN in sens.raw:
         r.notes.append("the sigmas carry how far the answer moves when the effects the data "
                        "show are added to the model (" + ", ".join(r.effect_tests["shown"])

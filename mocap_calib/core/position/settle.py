@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.graph import RELATIVE_TOL, huber_weight
-from mocap_calib.core.position.engine import ROBUST_C, PositionProblem
+from mocap_calib.core.position.engine import ROBUST_C, PositionProblem, Theta
 from mocap_calib.core.position.graph import PositionGraph
 
 Array = NDArray[np.float64]
@@ -28,30 +28,34 @@ ACCEL_LEVEL_RANGE = (1.0 / 16.0, 1e4)
 
 def accel_level(pg: PositionGraph, values: gtsam.Values) -> float:
     """The factor on the accelerometer's white-noise variance that the windows' exact
-    likelihood prefers at ``values`` (every take, up to :data:`ACCEL_LEVEL_WINDOWS` windows
-    each; the mocap levels as they are: the rounds alternate the two).
+    likelihood prefers at ``values`` (every take; the mocap levels as they are: the rounds
+    alternate the two). See :func:`accel_level_of`."""
+    return accel_level_of([(pp, pg.theta(values, k)) for k, pp in enumerate(pg.problems)])
+
+
+def accel_level_of(problems: list[tuple[PositionProblem, Theta]]) -> float:
+    """The factor on the accelerometer's white-noise variance that the windows' exact
+    likelihood prefers, summed over ``(problem, parameters)`` pairs (each on up to
+    :data:`ACCEL_LEVEL_WINDOWS` of its windows, its noise, weights and mocap levels).
 
     In flight the accelerometer also sees the vibration the rotors shake into it: on EuRoC
     V2_03 its error against the Vicon is white over 0.1-5 Hz at 15-50 times the data sheet's
     density. A level the data contradict weights the accelerometer against the mocap wrongly,
     and the answer moves with it; this level is the data's own."""
-    parts = []
-    for k, pp in enumerate(pg.problems):
-        th = pg.theta(values, k)
+    grid = ACCEL_LEVEL_GRID
+    m2ll = np.zeros(len(grid))
+    for pp, th in problems:
         W = pp.win.count
         which = np.unique(np.linspace(0, W - 1, min(W, ACCEL_LEVEL_WINDOWS)).round()
                           .astype(np.int64))
         sub = PositionProblem(pp.s, pp.model, pp.noise, pp.win.subset(which), split=False)
         sub.mocap_axis_scale = pp.mocap_axis_scale.copy()
         sub.weights = pp.weights[which]
-        parts.append((sub, replace(th, knots=th.knots[which])))
-    grid = ACCEL_LEVEL_GRID
-    m2ll = np.zeros(len(grid))
-    for sub, th in parts:
         d = sub.noise.accelerometer_noise_density
         models = [replace(sub.noise, accelerometer_noise_density=d * float(np.sqrt(f)))
                   for f in grid]
-        for i, (chi2, logdet) in enumerate(sub.likelihoods(th, models)):
+        th_sub = replace(th, knots=th.knots[which])
+        for i, (chi2, logdet) in enumerate(sub.likelihoods(th_sub, models)):
             m2ll[i] += float(chi2.sum() + logdet.sum())
     b = int(np.argmin(m2ll))
     if b in (0, len(grid) - 1):

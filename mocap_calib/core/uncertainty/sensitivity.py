@@ -33,6 +33,7 @@ from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import Prior
+from mocap_calib.core.position.settle import accel_level_of
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
 from mocap_calib.core.uncertainty.refit import everything, refit, sigmas, z_pair
@@ -72,12 +73,16 @@ class Sensitivity:
         moved: alternative -> parameter -> largest |change| / the statistical sigma.
         mocap_model: the correlated mocap model fitted (time constant, fraction, likelihood
             gain over white noise) when one was.
+        accel_density: the accelerometer noise density the windows' likelihood prefers at the
+            solution (m/s^2/sqrt(Hz); ``--accel-noise-from-data`` would use it), 0 if not
+            computed.
     """
 
     shift: dict[str, dict[str, Array]] = field(default_factory=dict)
     raw: dict[str, dict[str, Array]] = field(default_factory=dict)
     moved: dict[str, dict[str, float]] = field(default_factory=dict)
     mocap_model: dict[str, float] = field(default_factory=dict)
+    accel_density: float = 0.0
     note: str = ""
 
     def systematic(self, param: str, which: tuple[str, ...] | None = None) -> Array | None:
@@ -101,6 +106,8 @@ class Sensitivity:
                     if k in total_sigma} for f, sh in self.raw.items()}
         if self.mocap_model:
             d["mocap_noise_model"] = {k: round(v, 4) for k, v in self.mocap_model.items()}
+        if self.accel_density:
+            d["accel_noise_density_from_data"] = float(f"{self.accel_density:.4g}")
         if self.note:
             d["note"] = self.note
         return d
@@ -178,6 +185,7 @@ def noise_sensitivity(pos: PositionResult, model: Model,
         out.shift[key], out.raw[key] = _shifts(alt, pos)
         out.moved[key] = z_pair(alt, pos, sig, None)
 
+    out.accel_density = accel_density_from_data(pos, model)
     for f in factors:
         run(f"x{f:.3g}", pos.noise.imu_scaled(f), f)
     if mocap_model and not pos.noise.mocap_correlated:
@@ -191,6 +199,24 @@ def noise_sensitivity(pos: PositionResult, model: Model,
             fuller = fuller.with_effect(name)
         run(EFFECTS_SHOWN, pos.noise, 1.0, fuller)
     return out
+
+
+def accel_density_from_data(pos: PositionResult, model: Model) -> float:
+    """The accelerometer noise density the windows' exact likelihood prefers at the solution,
+    every take (:func:`~mocap_calib.core.position.settle.accel_level_of`)."""
+    problems = []
+    for t in pos.takes:
+        problem = PositionProblem(t.s, model, pos.noise, t.windows, split=False)
+        problem.weights = t.weights
+        problem.mocap_axis_scale = pos.axis_scale.copy()
+        problems.append((problem, _theta(pos, t)))
+    return pos.noise.accelerometer_noise_density * float(np.sqrt(accel_level_of(problems)))
+
+
+def _theta(pos: PositionResult, t: Any) -> Theta:
+    """The parameters of the solution with take ``t``'s clock and biases."""
+    return Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(), pos.g_mag,
+                 t.delta, dict(pos.effects), t.knots, t.take.t_mid)
 
 
 def correlated_mocap_model(pos: PositionResult,
@@ -212,9 +238,7 @@ def _fit_correlated(pos: PositionResult,
     problem = PositionProblem(t.s, model, pos.noise, t.windows, split=False)
     problem.weights = t.weights
     problem.mocap_axis_scale = pos.axis_scale.copy()
-    th = Theta(pos.R_MI, pos.p_MI, pos.g_dir, gtsam.Unit3(pos.g_dir).basis(), pos.g_mag,
-               t.delta, dict(pos.effects), t.knots, t.take.t_mid)
-    fit = fit_mocap_correlation(problem, th, CORRELATION_GRID, CORRELATION_WINDOWS,
+    fit = fit_mocap_correlation(problem, _theta(pos, t), CORRELATION_GRID, CORRELATION_WINDOWS,
                                 decimate=False)
     best = fit.noise
     if not best.mocap_correlated:
