@@ -18,7 +18,7 @@ from mocap_calib.core.position.graph import PositionGraph
 Array = NDArray[np.float64]
 
 #: Windows (spread over each take) whose likelihood chooses the accelerometer's noise level.
-ACCEL_LEVEL_WINDOWS = 60
+ACCEL_LEVEL_WINDOWS = 30
 #: Its candidates per round: variance factors on the current level (density x1/4 to x32), a
 #: parabola in log through the best and its neighbours; later rounds start from the choice.
 ACCEL_LEVEL_GRID = 4.0 ** np.arange(-2.0, 5.5)
