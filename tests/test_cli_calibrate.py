@@ -57,6 +57,19 @@ def test_calibrate_with_two_files_and_an_effect(session: Path, tmp_path: Path, c
     assert d["effects"]["gravity_magnitude"]["gravity_magnitude"] == pytest.approx(9.81, abs=0.02)
 
 
+
+def test_accel_noise_from_data_flag_takes_effect(session: Path, tmp_path: Path, capsys) -> None:
+    """The flag reaches the calibration: the density used is the estimated one (this session
+    was simulated at the default's level, so it stays near it) and the result says so."""
+    out = tmp_path / "a.yaml"
+    code = main(["calibrate", str(session), "--out", str(out), "--accel-noise-from-data",
+                 "--segments", "0", "-q"])
+    assert code == 0, capsys.readouterr().err
+    d = yaml.safe_load(out.read_text())
+    used = d["noise"]["accelerometer_noise_density"]
+    assert used != 2e-3 and used == pytest.approx(2e-3, rel=0.3), used
+    assert any("accelerometer noise density from the data" in n for n in d["notes"]), d["notes"]
+
 @pytest.mark.parametrize(("args", "named"), [
     ([], "give a mav0 folder, or both --imu and --mocap"),  # neither a folder nor files
     (["--imu", "nope.csv"], "1 --imu and 0 --mocap"),  # --mocap missing

@@ -190,6 +190,18 @@ class PositionProblem:
         par = noise_params(self.noise if noise is None else noise, self.mocap_axis_scale)
         return Whitening(inc, R0, par, lever_matrix(th.R_MI, th.p_MI), self.weights[c])
 
+    def spread(self, th: Theta, max_windows: int, every: int = 1) -> tuple[PositionProblem, Theta]:
+        """This problem on at most ``max_windows`` windows spread evenly over the session
+        (every ``every``-th sample of each), with its noise, weights and mocap levels, and
+        ``th`` cut to them: what the noise-level likelihoods are evaluated on."""
+        W = self.win.count
+        which = np.unique(np.linspace(0, W - 1, min(W, max_windows)).round().astype(np.int64))
+        sub = PositionProblem(self.s, self.model, self.noise,
+                              self.win.subset(which).decimate(every), split=False)
+        sub.mocap_axis_scale = self.mocap_axis_scale.copy()
+        sub.weights = self.weights[which][:, ::every].copy() if every > 1 else self.weights[which]
+        return sub, replace(th, knots=th.knots[which])
+
     def likelihoods(self, th: Theta, noises: list[NoiseModel]) -> list[tuple[Array, Array]]:
         """Per noise model, every window's chi2 and log det of its innovations (-2 log L is
         their sum) at the same parameters: the trajectory is integrated once, only the filter

@@ -45,16 +45,10 @@ def accel_level_of(problems: list[tuple[PositionProblem, Theta]]) -> float:
     grid = ACCEL_LEVEL_GRID
     m2ll = np.zeros(len(grid))
     for pp, th in problems:
-        W = pp.win.count
-        which = np.unique(np.linspace(0, W - 1, min(W, ACCEL_LEVEL_WINDOWS)).round()
-                          .astype(np.int64))
-        sub = PositionProblem(pp.s, pp.model, pp.noise, pp.win.subset(which), split=False)
-        sub.mocap_axis_scale = pp.mocap_axis_scale.copy()
-        sub.weights = pp.weights[which]
+        sub, th_sub = pp.spread(th, ACCEL_LEVEL_WINDOWS)
         d = sub.noise.accelerometer_noise_density
         models = [replace(sub.noise, accelerometer_noise_density=d * float(np.sqrt(f)))
                   for f in grid]
-        th_sub = replace(th, knots=th.knots[which])
         for i, (chi2, logdet) in enumerate(sub.likelihoods(th_sub, models)):
             m2ll[i] += float(chi2.sum() + logdet.sum())
     b = int(np.argmin(m2ll))

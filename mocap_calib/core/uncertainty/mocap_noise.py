@@ -68,17 +68,10 @@ def fit_mocap_correlation(problem, th: Theta, grid=CORRELATION_GRID,
         max_windows: at most this many windows, spread evenly over the session.
         decimate: at about :data:`RATE_HZ` (else at the windows' own rate).
     """
-    from mocap_calib.core.position.engine import PositionProblem
-
-    W = problem.win.count
-    which = np.unique(np.linspace(0, W - 1, min(W, max_windows)).round().astype(int))
-    win = problem.win.subset(which)
+    win = problem.win
     rate = 1.0 / float(np.median(np.diff(win.tau[0][win.mask[0]])))
     k = max(1, int(rate // RATE_HZ)) if decimate else 1
-    sub = PositionProblem(problem.s, problem.model, problem.noise, win.decimate(k), split=False)
-    sub.mocap_axis_scale = problem.mocap_axis_scale.copy()
-    sub.weights = problem.weights[which][:, ::k].copy() if k > 1 else problem.weights[which]
-    th_sub = replace(th, knots=th.knots[which])
+    sub, th_sub = problem.spread(th, max_windows, k)
     n_dof = 6.0 * float(sub.win.mask.sum())
     base = problem.noise
     models = [replace(base, mocap_noise_corr_time=T, mocap_noise_corr_fraction=rho)
