@@ -262,6 +262,10 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
                    prior_from_history, progress)
     try:
         out.mkdir(parents=True, exist_ok=True)
+        # A run killed while writing its status or fleet files left their temporary files
+        # (each session's folder is cleaned when its turn comes).
+        remove_leftovers(out)
+        remove_leftovers(out / "fleet")
         batch.save_status()
         for indices in _rounds(manifest.sessions, prior_from_history):
             batch.run_round(indices)
