@@ -1,10 +1,10 @@
 """Before/after comparison of calibration results across a code change.
 
-``run`` calibrates a fixed set of sessions through the command line (EuRoC V2_03, BROAD 21 from
-``../shared/data`` and simulated sessions written once to ``--sessions``) and keeps every result
-YAML in OUT; ``compare`` reads two such folders and prints, per session and parameter, the
-largest difference and the largest |difference| / sigma (the "after" sigma). A refactor must
-give identical results; a speed change must stay within 0.1 sigma.
+``run`` calibrates a fixed set of sessions through the command line (EuRoC V2_03, BROAD
+15/21/27 from ``../shared/data`` and simulated sessions written once to ``--sessions``) and keeps
+every result YAML in OUT; ``compare`` reads two such folders and prints, per session and
+parameter, the largest difference and the largest |difference| / sigma (the "after" sigma). A
+refactor must give identical results; a speed change must stay within 0.1 sigma.
 
 Usage:
     python scripts/before_after.py run OUT [--sessions DIR] [--only euroc,sim1]
@@ -42,10 +42,11 @@ def sessions(sim_dir: Path) -> dict[str, list[str]]:
     """Name -> calibrate input arguments."""
     out = {
         "euroc": [str(DATA / "euroc_V2_03_difficult" / "mav0")],
-        "broad21": ["--imu", str(DATA / "broad_21_undisturbed_fast_combined" / "data.csv"),
-                    "--mocap", str(DATA / "broad_21_undisturbed_fast_combined" / "data.csv"),
-                    "--columns", "broad"],
     }
+    for trial in ("15_undisturbed_fast_translation_A", "21_undisturbed_fast_combined",
+                  "27_disturbed_phone_vibration_B"):
+        csv = str(DATA / f"broad_{trial}" / "data.csv")
+        out[f"broad{trial[:2]}"] = ["--imu", csv, "--mocap", csv, "--columns", "broad"]
     for name in SIMULATED:
         out[name] = [str(sim_dir / name)]
     return out
