@@ -47,10 +47,10 @@ from mocap_calib.core.position.graph import (
     Take,
     build_position_graph,
 )
+from mocap_calib.core.position.noise import NoiseIdentification, identify_noise
 from mocap_calib.core.position.settle import (
     evaluate_at,
     innovations_near,
-    set_accel_level,
     settle,
 )
 from mocap_calib.core.position.windows import Windows
@@ -371,7 +371,10 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     noise_scale = np.ones(2)
     prev_cost = None
     final = rounds <= 1
-    assumed = pg.problem.noise.accelerometer_noise_density
+    given = pg.problem.noise
+    ident = None
+    identifications = 0
+    pg.identification = None
     rnd = 0
     while True:
         rnd += 1
@@ -391,10 +394,19 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
             outs = evaluate_at(pg, sol)
             break
         outs = innovations_near(pg, sol, float(rep.final_error))
-        changed, moved = settle(pg, outs, adapt_noise, robust, noise_scale)
-        if adapt_accel:
-            moved_a = set_accel_level(pg, sol, assumed)
-            changed, moved = changed or moved_a > np.log(1.05), max(moved, moved_a)
+        changed, moved = settle(pg, outs, adapt_noise and ident is None, robust, noise_scale)
+        if adapt_accel and identifications < 2:
+            ident = identify(pg, sol, given, ident)
+            identifications += 1
+            pg.identification = ident
+            if ident.contradicts:
+                moved_a = _noise_move(pg.problem.noise, ident.noise)
+                for pp in pg.problems:
+                    pp.noise = ident.noise
+                changed, moved = changed or moved_a > np.log(1.05), max(moved, moved_a)
+            else:
+                ident = None
+                identifications = 2
         cost = float(rep.final_error)
         small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
         prev_cost = cost
@@ -403,6 +415,21 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         batch.invalidate()
     require_converged("position", rep, max_iterations)
     return _Fit(sol, iterations, noise_scale, inn0, rnd)
+
+
+def identify(pg: PositionGraph, values: gtsam.Values, given: NoiseModel,
+             warm: NoiseIdentification | None) -> NoiseIdentification:
+    """The noise model the windows' likelihood prefers at ``values`` (every take)."""
+    problems = [(pp, pg.theta(values, k)) for k, pp in enumerate(pg.problems)]
+    return identify_noise(problems, pg.problem.noise, given,
+                          None if warm is None else warm.noise)
+
+
+def _noise_move(a: NoiseModel, b: NoiseModel) -> float:
+    """The largest relative change of a level between two noise models (log of the ratio)."""
+    keys = ("accelerometer_noise_density", "gyroscope_noise_density", "mocap_position_sigma",
+            "mocap_rotation_sigma")
+    return max(abs(float(np.log(getattr(b, k) / getattr(a, k)))) for k in keys)
 
 
 def _mean_bias(windows: Windows, th: Theta) -> Array:
