@@ -42,7 +42,7 @@ def _problems(r: CalibrationResult) -> list[tuple[PositionProblem, Theta]]:
 
 def _given_fit(sim) -> CalibrationResult:
     return calibrate(sim.imu, sim.mocap, CalibrationOptions(
-        segments=0, sensitivity=False, effect_tests=False, accel_noise_from_data=False))
+        segments=0, sensitivity=False, effect_tests=False, noise_from_data=False))
 
 
 @pytest.mark.parametrize("seed", [3, 8])

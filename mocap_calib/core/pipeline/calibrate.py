@@ -166,7 +166,7 @@ def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: Positi
         return run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise,
                                   init, opts.priors, opts.robust, opts.max_iterations,
                                   adapt_noise=opts.adapt_noise,
-                                  adapt_accel=opts.adapt_noise and opts.accel_noise_from_data,
+                                  identify_noise=opts.adapt_noise and opts.noise_from_data,
                                   on_iteration=on_iteration, progress=say)
     except ConvergenceError as err:
         axis = single_axis(fits[lead].s, fits[lead].delta0)

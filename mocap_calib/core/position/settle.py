@@ -1,6 +1,6 @@
 """Between the position stage's rounds: the mocap noise levels and the robust weights follow
-the innovations, and the accelerometer's noise level follows the windows' likelihood
-(:mod:`mocap_calib.core.position.stage` runs the rounds)."""
+the innovations (:mod:`mocap_calib.core.position.stage` runs the rounds; the identification of
+every level from the windows' likelihood is :mod:`.noise`)."""
 
 from __future__ import annotations
 
@@ -19,18 +19,9 @@ Array = NDArray[np.float64]
 
 #: Windows (spread over each take) whose likelihood chooses the accelerometer's noise level.
 ACCEL_LEVEL_WINDOWS = 30
-#: Its candidates per round: variance factors on the current level (density x1/4 to x32), a
-#: parabola in log through the best and its neighbours; later rounds start from the choice.
+#: Its candidates: variance factors on the current level (density x1/4 to x32), a parabola
+#: in log through the best and its neighbours.
 ACCEL_LEVEL_GRID = 4.0 ** np.arange(-2.0, 5.5)
-#: The accelerometer's white-noise variance stays within these factors of the one assumed.
-ACCEL_LEVEL_RANGE = (1.0 / 16.0, 1e4)
-
-
-def accel_level(pg: PositionGraph, values: gtsam.Values) -> float:
-    """The factor on the accelerometer's white-noise variance that the windows' exact
-    likelihood prefers at ``values`` (every take; the mocap levels as they are: the rounds
-    alternate the two). See :func:`accel_level_of`."""
-    return accel_level_of([(pp, pg.theta(values, k)) for k, pp in enumerate(pg.problems)])
 
 
 def accel_level_of(problems: list[tuple[PositionProblem, Theta]]) -> float:
@@ -57,19 +48,6 @@ def accel_level_of(problems: list[tuple[PositionProblem, Theta]]) -> float:
     x = np.log(grid[b - 1:b + 2])
     a2, a1, _ = np.polyfit(x, m2ll[b - 1:b + 2], 2)
     return float(np.exp(np.clip(-a1 / (2.0 * a2), x[0], x[2]))) if a2 > 0 else float(grid[b])
-
-
-def set_accel_level(pg: PositionGraph, values: gtsam.Values, assumed: float) -> float:
-    """Move every take's accelerometer density to the level the likelihood prefers (within
-    :data:`ACCEL_LEVEL_RANGE` of ``assumed``, the density given); returns the relative change
-    of the variance (0: none)."""
-    f = accel_level(pg, values)
-    now = pg.problem.noise.accelerometer_noise_density
-    lo, hi = (assumed * float(np.sqrt(r)) for r in ACCEL_LEVEL_RANGE)
-    new = float(np.clip(now * np.sqrt(f), lo, hi))
-    for pp in pg.problems:
-        pp.noise = replace(pp.noise, accelerometer_noise_density=new)
-    return abs(float(np.log((new / now) ** 2)))
 
 
 def mocap_levels(pg: PositionGraph, outs: list[Any], skip: int = 5) -> Array:

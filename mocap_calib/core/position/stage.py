@@ -186,7 +186,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
                        init: PositionInit, priors: list[Prior] | None = None,
                        robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
                        adapt_noise: bool = True, weights: list[Array] | None = None,
-                       adapt_accel: bool = False,
+                       identify_noise: bool = False,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
                        covariance: bool = True, one_step: bool | int = False,
@@ -202,8 +202,9 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         init: starting values.
         priors: user priors (earlier calibrations), added as prior factors.
         robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise levels from the innovations; adapt_accel:
-            and the accelerometer's density from the likelihood (:func:`.settle.accel_level`).
+        adapt_noise: re-estimate the mocap noise levels from the innovations;
+            identify_noise: and identify every level from the windows' likelihood after the
+            first solve (:mod:`.noise`), used from then on where it contradicts ``noise``.
         weights: per take, fixed robust weights (W, m+1) from an earlier fit: no re-weighting,
             so that fits of different models minimise costs of the same family.
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
@@ -235,8 +236,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         fit = _gauss_newton_steps(pg, adapt_noise, int(one_step), reweight, settled)
     else:
         fit = _solve_rounds(pg, max_iterations,
-                            irls_rounds if (robust or adapt_noise or adapt_accel) else 1,
-                            robust, adapt_noise, history, progress, adapt_accel)
+                            irls_rounds if (robust or adapt_noise or identify_noise) else 1,
+                            robust, adapt_noise, history, progress, identify_noise)
     outs = pg.evals[-1]
     thetas = pg.thetas(fit.values)
     # A Gauss-Newton refit keeps the linearisation it last stepped from: its covariance is
@@ -359,7 +360,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
                   adapt_noise: bool, hook: _History,
-                  progress: Callable[[str], None] | None, adapt_accel: bool = False) -> _Fit:
+                  progress: Callable[[str], None] | None, identify_noise: bool = False) -> _Fit:
     """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
     are re-estimated from the innovations and the robust weights updated. The first run goes
     to convergence from the start values; the settling rounds after it are short; once nothing
@@ -394,7 +395,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
             break
         outs = innovations_near(pg, sol, float(rep.final_error))
         changed, moved = settle(pg, outs, adapt_noise and ident is None, robust, noise_scale)
-        if adapt_accel and pg.identification is None:
+        if identify_noise and pg.identification is None:
             # Once, after the first solve: the levels the data prefer there, used from then
             # on when they contradict the given ones (a second identification at the final
             # solution changed no answer by a tenth of a sigma on simulated flights).
