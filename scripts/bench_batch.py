@@ -2,10 +2,12 @@
 each, a slow bias trend), with 1 and 2 local workers and on a Dask LocalCluster.
 
 Each run is the whole command in a fresh process into an empty output folder (start-up, pool
-start, reading, calibrating, writing, fleet summary). Target: 2 local workers at least 1.7x
-faster than 1 on a 2-core machine. Also checks that the runs wrote the same results.
+start, reading, calibrating, writing, fleet summary), with 1 and 2 local workers and on a Dask
+LocalCluster of 2; also checks that the runs wrote the same results. Prints the table of
+docs/validation.md (``--write-doc`` rewrites its section there).
 
-Usage: python scripts/bench_batch.py [--duration S] [--repeats N] [--no-dask]
+Usage: python scripts/bench_batch.py [--duration S] [--repeats N] [--no-dask] [--write-doc]
+       [--doc PATH]
 """
 
 from __future__ import annotations
@@ -21,7 +23,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from _doc_section import add_doc_options, check, provenance, table, write
+
 from mocap_calib.workflows.fleet_sim import FleetSimConfig, simulate_fleet
+
+SECTIONS = ("bench_batch",)
 
 TIMING = re.compile(r"^\s*-?\s*(seconds|total_seconds|position_batch_seconds):")
 
@@ -68,7 +74,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=120.0, help="seconds per session")
     ap.add_argument("--repeats", type=int, default=2, help="runs per setting (the best counts)")
     ap.add_argument("--no-dask", action="store_true")
+    add_doc_options(ap)
     args = ap.parse_args()
+    check(args, list(SECTIONS))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         t0 = time.perf_counter()
@@ -99,6 +107,15 @@ def main() -> None:
         same = all(f == ref for f in files.values())
         print(f"{len(ref)}/8 sessions calibrated; result files identical across settings "
               f"(wall-time lines aside): {same}")
+    rows = [[name, f"{best[name][0]:.1f} s", f"x{base / best[name][0]:.2f}",
+             f"{best[name][1]:.0%}"] for name, _ in settings]
+    text = (provenance("bench_batch.py") + "\n"
+            + table([f"8 sessions of {args.duration:g} s", f"best wall of {args.repeats}",
+                     "speed-up", "cores used by other processes meanwhile"], rows) + "\n"
+            f"{len(ref)}/8 sessions calibrated; result files identical across the settings "
+            f"(wall-time lines aside): {'yes' if same else 'no'}.\n")
+    print(text)
+    write(args, {"bench_batch": text})
 
 
 if __name__ == "__main__":
