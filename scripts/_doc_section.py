@@ -82,6 +82,13 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(out) + "\n"
 
 
+def number(x: float, digits: int = 2) -> str:
+    """``x`` to ``digits`` significant figures: plain from 1e-3 to 1e4, else as ``3.7e-5``."""
+    if x == 0 or 1e-3 <= abs(x) < 1e4:
+        return f"{x:.{digits}g}"
+    return f"{x:.{digits - 1}e}".replace("e-0", "e-").replace("e+0", "e+")
+
+
 def upsert_row(body: str, cells: list[str]) -> str:
     """``body`` (a section holding one markdown table) with the row whose first cell is
     ``cells[0]`` replaced by ``cells``, or appended after the table's last row."""

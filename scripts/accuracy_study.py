@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from _doc_section import add_doc_options, check, provenance, table, write
+from _doc_section import add_doc_options, check, number, provenance, table, write
 
 from mocap_calib.batch.engine import map_jobs
 
@@ -48,7 +48,7 @@ def markdown(per: dict[str, tuple[str, list[list[float]]]], done: int, total: in
     rows = []
     for name, (unit, vals) in per.items():
         a = np.asarray(vals)
-        rows.append([name, f"{a[:, 0].max():.2g} {unit}", f"{np.nanmedian(a[:, 1]):.2f}",
+        rows.append([name, f"{number(a[:, 0].max())} {unit}", f"{np.nanmedian(a[:, 1]):.2f}",
                      f"{np.nanmax(a[:, 1]):.2f}"])
     return (provenance("accuracy_study.py") + "\n"
             f"{done}/{total} sessions of {duration:g} s calibrated.\n\n"

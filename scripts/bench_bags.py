@@ -198,11 +198,16 @@ def main() -> None:
         if a.keep is None:
             shutil.rmtree(folder, ignore_errors=True)
     n = len(d["ti"]) + len(d["tm"])
-    rows = [[f"{'ROS 1 bag' if kind == 'rosbag1' else 'MCAP'} ({min(sizes[kind]):.0f}-"
-             f"{max(sizes[kind]):.0f} MB)", f"{best[kind, False]:.1f} s",
-             *([f"{best[kind, True]:.1f} s"] if a.tf else [])] for kind in ("rosbag1", "mcap")]
+    def size(kind: str) -> str:
+        lo, hi = f"{min(sizes[kind]):.0f}", f"{max(sizes[kind]):.0f}"
+        return f"{lo} MB" if lo == hi else f"{lo}-{hi} MB"
+
+    rows = [[f"{'ROS 1 bag' if kind == 'rosbag1' else 'MCAP'} ({size(kind)})",
+             f"{best[kind, False]:.1f} s", *([f"{best[kind, True]:.1f} s"] if a.tf else [])]
+            for kind in ("rosbag1", "mcap")]
+    count = f"{n:,}".replace(",", " ")
     text = (doc.provenance("bench_bags.py") + "\n"
-            + doc.table([f"{a.minutes:g} min, {n:,} messages".replace(",", " "),
+            + doc.table([f"{a.minutes:g} min, {count} messages",
                      f"`PoseStamped`, best of {a.repeats}",
                      *(["`/tf` + `/tf_static` chain"] if a.tf else [])], rows))
     print(text)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import resource
 import shutil
 import subprocess
@@ -23,13 +22,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import yaml
 from _doc_section import add_doc_options, check, provenance, table, write
 
 from mocap_calib.workflows.fleet_sim import FleetSimConfig, simulate_fleet
 
 SECTIONS = ("bench_batch",)
 
-TIMING = re.compile(r"^\s*-?\s*(seconds|total_seconds|position_batch_seconds):")
 
 
 def _busy_s() -> float:
@@ -63,9 +62,18 @@ def run(manifest: Path, out: Path, *options: str) -> tuple[float, float]:
     return wall, max(0.0, others) / (wall * (os.cpu_count() or 1))
 
 
-def results(out: Path) -> dict[str, str]:
-    return {p.parent.name: "".join(line for line in p.read_text().splitlines(True)
-                                   if not TIMING.match(line))
+def _untimed(obj: object) -> object:
+    """A result without its wall-time entries (every key that names seconds)."""
+    if isinstance(obj, dict):
+        return {k: _untimed(v) for k, v in obj.items() if "seconds" not in str(k)}
+    if isinstance(obj, list):
+        return [_untimed(v) for v in obj]
+    return obj
+
+
+def results(out: Path) -> dict[str, object]:
+    """Every session's result, wall times left out (they differ between any two runs)."""
+    return {p.parent.name: _untimed(yaml.safe_load(p.read_text()))
             for p in sorted(out.glob("*/calib.yaml"))}
 
 
@@ -88,7 +96,7 @@ def main() -> None:
             settings.append(("dask LocalCluster, 2 workers", ("--engine", "dask",
                                                                "--workers", "2")))
         best: dict[str, tuple[float, float]] = {}
-        files: dict[str, dict[str, str]] = {}
+        files: dict[str, dict[str, object]] = {}
         for r in range(args.repeats):
             for k, (name, opts) in enumerate(settings):
                 out = root / f"out{k}"

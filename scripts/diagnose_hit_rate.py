@@ -163,7 +163,8 @@ def markdown(results: list[dict], first: int, seeds: int, duration: float) -> st
     ratio = f"max {max(worst):.2f}; within 5 % in {sum(w <= 1.05 for w in white)}/{len(white)} " \
             "sessions with white mocap noise"
     if corr:
-        ratio += f"; {min(corr):.2f}-{max(corr):.2f} with correlated mocap noise"
+        lo, hi = f"{min(corr):.2f}", f"{max(corr):.2f}"
+        ratio += f"; {lo if lo == hi else f'{lo}-{hi}'} with correlated mocap noise"
     rows.append(["final low-band residual RMS / noise floor, worst sensor per session", ratio,
                  ""])
     secs = [r["seconds"] for r in results]

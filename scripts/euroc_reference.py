@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 from _doc_section import add_doc_options, check, provenance, table, write
+from _shared_data import DATA
 from scipy.optimize import minimize_scalar
 
 from mocap_calib.core.model import so3
@@ -31,7 +32,7 @@ from mocap_calib.workflows.calibrate import CalibrateRequest, InputSpec, run_cal
 
 SECTIONS = ("euroc_reference",)
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "euroc_V2_03_difficult" / "mav0"
+DEFAULT = DATA / "euroc_V2_03_difficult" / "mav0"
 
 
 def _interp_poses(t_q, t, R, p):

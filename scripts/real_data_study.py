@@ -31,13 +31,12 @@ from pathlib import Path
 
 import numpy as np
 from _doc_section import add_doc_options, check, provenance, table, write
+from _shared_data import DATA
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.errors import CalibrationError
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
-
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 RECORDINGS = {
     "euroc": ("EuRoC V2_03", InputSpec(mav0=(DATA / "euroc_V2_03_difficult" / "mav0",))),
@@ -354,6 +353,10 @@ def main() -> None:
     ap.add_argument("--no-sensitivity", action="store_true")
     add_doc_options(ap)
     a = ap.parse_args()
+    if not DATA.is_dir():
+        print(f"error: {DATA}: no such folder; the recordings live in ../shared/data next to "
+              "the repository", file=sys.stderr)
+        sys.exit(2)
     keys = a.only.split(",")
     full = set(RECORDINGS) <= set(keys) and not a.no_thirds and not a.no_sensitivity
     check(a, [*(["real_data_study"] if full else []), *(["real_data_px4"] if "px4" in keys
