@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -60,10 +61,14 @@ PX4_LOGS = ("sample.ulg", "sample_log_small.ulg")
 SECTIONS = ("real_data_study", "real_data_px4")
 
 
-def _cli(*args: str) -> tuple[int, str]:
-    """``python -m mocap_calib ARGS`` as a user runs it: exit code and the last stderr line."""
+def _cli(*args: str, cwd: Path | None = None) -> tuple[int, str]:
+    """``python -m mocap_calib ARGS`` as a user runs it (in ``cwd``): exit code and the last
+    stderr line."""
+    repo = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [repo, *filter(None, [os.environ.get("PYTHONPATH")])])}
     p = subprocess.run([sys.executable, "-m", "mocap_calib", *args], capture_output=True,
-                       text=True, check=False)
+                       text=True, check=False, cwd=cwd, env=env)
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     return p.returncode, lines[-1] if lines else ""
 
@@ -75,13 +80,13 @@ def px4_logs() -> list[dict]:
 
     out = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name in PX4_LOGS:
-            log = str(DATA / "px4" / name)
-            code, line = _cli("calibrate", "--imu", log, "--mocap", log, "--out",
-                              f"{tmp}/c.yaml", "-q")
+        for name in PX4_LOGS:  # run in the logs' folder: the lines name the file alone
+            here = DATA / "px4"
+            code, line = _cli("calibrate", "--imu", name, "--mocap", name, "--out",
+                              f"{tmp}/c.yaml", "-q", cwd=here)
             rec: dict = {"recording": f"PX4 {name}", "calibrate": {"exit": code, "line": line}}
             noise = Path(tmp) / f"{name}.yaml"
-            code, line = _cli("allan", "--imu", log, "--out", str(noise), "-q")
+            code, line = _cli("allan", "--imu", name, "--out", str(noise), "-q", cwd=here)
             rec["allan"] = {"exit": code, "line": line}
             if code == 0:
                 d = yaml.safe_load(noise.read_text())
@@ -257,7 +262,7 @@ def trials_agree(fulls: dict[str, dict]) -> dict[str, dict[str, float]]:
 
 
 def summary(reports: list[dict]) -> str:
-    """One line per recording: the figures the README's real-data table shows."""
+    """One line per recording: the figures of docs/validation.md's real-data table."""
     lines = ["recording    exit  R_MI vs ref  t_d (ms)            thirds max z (R, p, t_d)"
              "   moved sigmas x3 / x1/3 (R, p, t_d)"]
     for rep in reports:
@@ -334,7 +339,7 @@ def markdown(reports: list[dict], pairs: dict[str, dict[str, float]]) -> str:
 
 def px4_markdown(px4: list[dict]) -> str:
     """Section real_data_px4: what calibrate and allan say on the PX4 logs."""
-    lines = [provenance("real_data_study.py"), "", "```"]
+    lines = [provenance("real_data_study.py").rstrip("\n"), "", "```"]
     for rep in px4:
         for cmd in ("calibrate", "allan"):
             r = rep[cmd]
