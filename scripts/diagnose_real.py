@@ -47,7 +47,7 @@ def markdown(reports: list[dict]) -> str:
     n_added = max(len(r["steps"]) - 2 for r in reports)  # base and final are no effect steps
 
     def gap(st: dict) -> str:
-        return f"{st['gyro_gap']:.2f} / {st['accel_gap']:.2f}"
+        return f"{st['gyro_gap']:.3g} / {st['accel_gap']:.3g}"
 
     rows = [["base (no clock offset)", *(gap(r["steps"][0]) for r in reports)]]
     clock_first = all(r["steps"][0]["added"] == "time_offset" for r in reports)
