@@ -5,14 +5,13 @@ from __future__ import annotations
 from dataclasses import MISSING, dataclass
 from pathlib import Path
 
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS
 from mocap_calib.core.params import param
 from mocap_calib.errors import InputError
-from mocap_calib.sim.flight import EFFECT_HELP, SIM_FAULTS
+from mocap_calib.sim.injected import effect_help, injectable
 from mocap_calib.sim.motions import MOTIONS
 
-#: What ``--effect`` accepts: every effect of the ladder and the mocap faults.
-EFFECTS_DOC = "; ".join(f"{n}: {EFFECT_HELP[n]}" for n in (*CANONICAL_EFFECTS, *SIM_FAULTS))
+#: What ``--effect`` accepts: every effect of the ladder and the stream faults.
+EFFECTS_DOC = "; ".join(f"{n}: {effect_help(n)}" for n in injectable())
 
 
 @dataclass
