@@ -78,6 +78,7 @@ class SimConfig:
     gyro_noise_factor: float = 1.0
     accel_noise_factor: float = 1.0
     vibration: Vibration = Vibration()
+    preset: str = "none"  # the named regime this came from (sim.presets), for the truth file
 
     @property
     def true_noise(self) -> NoiseModel:
@@ -354,6 +355,7 @@ def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Ri
             "mocap_noise_corr_s": float(cfg.mocap_noise_corr),
             **({"motion": cfg.motion} if cfg.motion != "flight" else {}),
             **({"max_motion_hz": float(cfg.max_motion_hz)} if cfg.max_motion_hz > 0 else {}),
+            **({"preset": cfg.preset} if cfg.preset != "none" else {}),
             "bias_definition": "mean of the true bias over the IMU samples",
             "gyro_bias_initial": b_g[0].tolist(),
             "accel_bias_initial": b_a[0].tolist(),
@@ -376,7 +378,7 @@ def _in_flight(cfg: SimConfig, rotors: Rotors | None, t_imu: Array) -> dict[str,
     }
     vib_g = vib_a = np.zeros(3)
     if rotors is not None:
-        vib = vibration_truth(rotors, t_imu, cfg.imu_rate, cfg.mocap_rate)
+        vib = vibration_truth(rotors, t_imu, cfg.imu_rate)
         out["vibration"] = vib
         vib_g = np.asarray(vib["effective_density_gyro"])
         vib_a = np.asarray(vib["effective_density_accel"])
