@@ -77,3 +77,12 @@ def test_the_draws_do_not_depend_on_the_order_effects_are_given_in() -> None:
     np.testing.assert_array_equal(a.imu.accel, b.imu.accel)
     np.testing.assert_array_equal(a.mocap.position, b.mocap.position)
     assert a.truth["effects"] == b.truth["effects"]
+
+
+@pytest.mark.parametrize("spec,must", [("imu_stalls=0.5,-1", "positive"),
+                                       ("imu_stalls=0", "positive"),
+                                       ("mocap_dropouts=2.5", "whole number"),
+                                       ("imu_dropouts=-3", "negative")])
+def test_fault_values_follow_their_records(spec: str, must: str) -> None:
+    with pytest.raises(InputError, match=must):
+        parse_effect(spec)
