@@ -8,9 +8,10 @@ a mean near 0 and few exceed 3. Two simulators:
 - clean: white mocap noise, the noise densities the calibration assumes;
 - realistic: mocap noise correlated over a time constant drawn from 0.1-0.5 s per seed (AR(1),
   same per-sample sigma), as real mocap noise is; the bias random walk is on in both;
-- flying: a drone in flight as EuRoC V2_03 shows it: the accelerometer 25x its data sheet's
-  density (the rotors' vibration), the Vicon's attitude noise 0.2 deg and position 0.2 mm,
-  correlated as in realistic; calibrated with the data sheet's densities (what a user gives).
+- flying: the simulator's ``flying`` preset (a drone in flight: accelerometer white noise 10x
+  its data sheet's density plus rotor vibration aliased by the IMU's sampling, the Vicon's
+  attitude noise 0.2 deg, mocap noise correlated over 0.3 s; ``mocap_calib/sim/presets.py``);
+  calibrated with the data sheet's densities (what a user gives).
 
 Also printed: the worst |error| per parameter (largest axis; rotations in deg, lengths in mm,
 time in ms). The sessions run on the batch engine: a local process pool, or Dask
@@ -41,6 +42,7 @@ from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.sim.flight import SimConfig, simulate_flight
+from mocap_calib.sim.presets import preset_config
 
 PARAMS = ("R_MI", "p_MI", "gyro_bias", "accel_bias", "gravity", "time_offset")
 
@@ -54,18 +56,14 @@ LABELS = {"R_MI": "R_MI", "p_MI": "p_MI", "gyro_bias": "gyro bias", "accel_bias"
           "gravity": "gravity direction", "time_offset": "time offset"}
 
 
-#: The "flying" simulator's noise (see the module doc).
-FLYING = NoiseModel(accelerometer_noise_density=0.05, mocap_position_sigma=2e-4,
-                    mocap_rotation_sigma=float(np.radians(0.2)))
-
-
 def config(simulator: str, seed: int) -> SimConfig:
+    if simulator == "flying":
+        return preset_config("flying", seed=seed, duration=90.0)
     corr = 0.0
-    if simulator in ("realistic", "flying"):
+    if simulator == "realistic":
         corr = float(np.random.default_rng([seed, 77]).uniform(0.1, 0.5))
     return SimConfig(seed=seed, duration=90.0, effects={"time_offset": None},
-                     mocap_noise_corr=corr,
-                     noise=FLYING if simulator == "flying" else NoiseModel())
+                     mocap_noise_corr=corr, noise=NoiseModel())
 
 
 #: Display units of the absolute errors.
