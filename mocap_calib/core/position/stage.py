@@ -117,6 +117,9 @@ class PositionResult:
     #: The mocap noise's shape per axis (attitude x, y, z in the IMU frame, position x, y, z in
     #: the world frame), variance factors on ``noise``'s two levels (geometric mean 1 each).
     axis_scale: Array = field(default_factory=lambda: np.ones(6))
+    #: The noise model the data prefer, when it was identified (used if it contradicts the
+    #: given one: then ``noise`` is it).
+    identification: NoiseIdentification | None = None
 
     @property
     def delta(self) -> float:
@@ -259,10 +262,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
             for t, th in zip(takes, thetas, strict=True)])
     res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, one_step,
                   series)
-    res.covariances = None if covariance else covariances
-    if not covariance:
-        res.cov = {}
-    return res
+    return res if covariance else replace(res, covariances=covariances, cov={})
 
 
 def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUncertainty,
@@ -292,7 +292,8 @@ def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUnce
         # (a Gauss-Newton refit's cost would cost an evaluation at the new values: not needed)
         cost=float("nan") if one_step else 2.0 * pg.graph.error(fit.values), dof=int(dof),
         solver=solver, history=history.records,
-        axis_scale=pg.problem.mocap_axis_scale.copy())
+        axis_scale=pg.problem.mocap_axis_scale.copy(),
+        identification=getattr(pg, "identification", None))
 
 
 class _History:
