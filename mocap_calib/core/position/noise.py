@@ -7,8 +7,9 @@ accelerometer is weighted against the mocap, so the weights must be the data's o
 
 Every level is identified jointly by the windows' exact Gaussian likelihood (the window filter
 of :mod:`mocap_calib.core.position.engine`) at the current solution: the accelerometer's and
-the gyro's white-noise densities, the mocap's attitude and position levels, and the time
-constant and fraction of its correlated (AR(1)) part. Jointly, because each level can pass
+the gyro's white-noise densities, the mocap's attitude and position levels, the time constant
+and fraction of its correlated (AR(1)) part, then the accelerometer's level per IMU axis (the
+rotors shake a drone hardest along its thrust axis). Jointly, because each level can pass
 for another: a white mocap model absorbs an accelerometer too noisy for its density (the
 position level grows tenfold), and a white accelerometer level absorbs correlated mocap
 noise. The likelihood separates them (the accelerometer's error grows with the time since a
@@ -41,10 +42,15 @@ from mocap_calib.core.position.engine import PositionProblem, Theta
 Array = NDArray[np.float64]
 
 #: The identified parameters: log densities (accel, gyro), log mocap sigmas (position,
-#: attitude), log correlation time, logit of the correlated fraction.
+#: attitude), log correlation time, logit of the correlated fraction, and the log of the
+#: accelerometer's variance factors on its x and y axes (z: what keeps their product one).
 PARAMETERS = ("accelerometer_noise_density", "gyroscope_noise_density",
               "mocap_position_sigma", "mocap_rotation_sigma", "mocap_noise_corr_time",
-              "mocap_noise_corr_fraction")
+              "mocap_noise_corr_fraction", "accelerometer_axis_scale_x",
+              "accelerometer_axis_scale_y")
+#: The levels searched first, then the accelerometer's axes (with its level).
+LEVELS = (0, 1, 2, 3, 4, 5)
+AXES = (0, 6, 7)
 #: Windows the likelihood is evaluated on, spread over every take.
 MAX_WINDOWS = 8
 #: Mocap rate (Hz) the windows are thinned to for the search.
@@ -52,6 +58,8 @@ RATE_HZ = 25.0
 #: Bounds of the correlation time (s) and fraction.
 CORR_TIME_RANGE = (0.01, 5.0)
 CORR_FRACTION_RANGE = (0.02, 0.995)
+#: The accelerometer's per-axis variance factors stay within exp(+-this) of their mean.
+AXIS_RANGE = float(np.log(30.0))
 #: The IMU densities' prior: a factor of this on either side of the given one is one sigma.
 PRIOR_FACTOR = 10.0
 #: Newton iterations at most; the search ends when -2 log L improves by less than
@@ -124,11 +132,13 @@ class _Objective:
     def noise(self, x: Array) -> NoiseModel:
         T = float(np.clip(np.exp(x[4]), *CORR_TIME_RANGE))
         rho = float(np.clip(1.0 / (1.0 + np.exp(-x[5])), *CORR_FRACTION_RANGE))
+        axes = np.clip(np.array([x[6], x[7], -x[6] - x[7]]), -AXIS_RANGE, AXIS_RANGE)
         return replace(self.base, accelerometer_noise_density=float(np.exp(x[0])),
                        gyroscope_noise_density=float(np.exp(x[1])),
                        mocap_position_sigma=float(np.exp(x[2])),
                        mocap_rotation_sigma=float(np.exp(x[3])),
-                       mocap_noise_corr_time=T, mocap_noise_corr_fraction=rho)
+                       mocap_noise_corr_time=T, mocap_noise_corr_fraction=rho,
+                       accelerometer_axis_scale=tuple(float(np.exp(a)) for a in axes))
 
     def __call__(self, xs: list[Array]) -> Array:
         return self.likelihood([self.noise(x) for x in xs]) + np.array(
@@ -151,9 +161,11 @@ def to_vector(nz: NoiseModel) -> Array:
     """The search's parameters of a noise model (a white one starts at a weak correlation)."""
     T = float(np.clip(nz.mocap_noise_corr_time or 0.1, *CORR_TIME_RANGE))
     rho = float(np.clip(nz.mocap_noise_corr_fraction or 0.3, *CORR_FRACTION_RANGE))
+    axes = np.log(np.asarray(nz.accelerometer_axis_scale, dtype=float))
+    axes -= axes.mean()
     return np.array([np.log(nz.accelerometer_noise_density), np.log(nz.gyroscope_noise_density),
                      np.log(nz.mocap_position_sigma), np.log(nz.mocap_rotation_sigma),
-                     np.log(T), np.log(rho / (1.0 - rho))])
+                     np.log(T), np.log(rho / (1.0 - rho)), axes[0], axes[1]])
 
 
 def identify_noise(problems: list[tuple[PositionProblem, Theta]], start: NoiseModel,
@@ -171,7 +183,8 @@ def identify_noise(problems: list[tuple[PositionProblem, Theta]], start: NoiseMo
     f = _Objective(sub, start, given)
     f0 = float(f.likelihood([start])[0])
     x = to_vector(warm) if warm is not None else _grid_start(f, start, given)
-    x, fx = _newton(f, x)
+    x, fx = _newton(f, x, LEVELS)
+    x, fx = _newton(f, x, AXES)
     best = f.noise(x)
     gain = f0 - float(f.likelihood([best])[0])
     return NoiseIdentification(
@@ -196,24 +209,25 @@ def _grid_start(f: _Objective, start: NoiseModel, given: NoiseModel) -> Array:
     return cands[int(np.argmin(v))]
 
 
-def _newton(f: _Objective, x: Array) -> tuple[Array, float]:
-    """Damped Newton steps on a quadratic model of ``f`` from finite differences (one batch
-    per step: the point, two per parameter, one per pair), each checked along its line."""
-    n = len(x)
+def _newton(f: _Objective, x: Array, active: tuple[int, ...]) -> tuple[Array, float]:
+    """Damped Newton steps on the ``active`` parameters, on a quadratic model of ``f`` from
+    finite differences (one batch per step: the point, two per parameter, one per pair), each
+    checked along its line."""
+    n = len(active)
     pairs = list(itertools.combinations(range(n), 2))
     h = STEP
     fx = float("inf")
     for _ in range(MAX_ITERATIONS):
         pts = [x.copy()]
-        for i in range(n):
+        for i in active:
             for s in (1.0, -1.0):
                 p = x.copy()
                 p[i] += s * h
                 pts.append(p)
         for a, b in pairs:
             p = x.copy()
-            p[a] += h
-            p[b] += h
+            p[active[a]] += h
+            p[active[b]] += h
             pts.append(p)
         v = f(pts)
         f0 = float(v[0])
@@ -227,7 +241,9 @@ def _newton(f: _Objective, x: Array) -> tuple[Array, float]:
         w = np.maximum(np.abs(w), 1e-6 * float(np.max(np.abs(w))) + 1e-12)
         step = -V @ ((V.T @ g) / w)
         step *= min(1.0, MAX_STEP / max(float(np.max(np.abs(step))), 1e-300))
-        trial = [x + a * step for a in (1.0, 0.5, 0.25)]
+        full = np.zeros_like(x)
+        full[list(active)] = step
+        trial = [x + a * full for a in (1.0, 0.5, 0.25)]
         vt = f(trial)
         b = int(np.argmin(vt))
         if vt[b] < f0:
