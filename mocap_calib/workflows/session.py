@@ -4,22 +4,24 @@ options, priors, and the part of the session to use."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.params import group, param
+from mocap_calib.core.params import ParamInfo, check_value, group, param, param_info
 from mocap_calib.core.prepare.crop import crop_session
-from mocap_calib.core.result.priors import priors_from_results
+from mocap_calib.core.result.priors import prior_problems, priors_from_results
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.bags import RecordingOptions
 from mocap_calib.io.formats.euroc import find_mav0
 from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
-from mocap_calib.io.yaml_io import load_noise, load_result
+from mocap_calib.io.yaml_io import load_noise, load_result, noise_values
 
 #: The format options shared with the IMU-only commands (same names, same help).
 COLUMNS_HELP = ("column map of a generic CSV, e.g. 't=0,gyro=1:4,accel=4:7,quat=10:14,"
@@ -167,6 +169,29 @@ class InputSpec:
                 self.mocap[0] if self.mocap else None)
 
 
+#: A noise file's keys: the option that sets the same value and the value in that option's
+#: unit (the file's are SI).
+NOISE_FILE_KEYS: dict[str, tuple[str, Callable[[float], float]]] = {
+    "gyroscope_noise_density": ("gyro_noise", float),
+    "gyroscope_random_walk": ("gyro_walk", float),
+    "accelerometer_noise_density": ("accel_noise", float),
+    "accelerometer_random_walk": ("accel_walk", float),
+    "mocap_position_sigma": ("mocap_noise_mm", lambda m: 1e3 * m),
+    "mocap_rotation_sigma": ("mocap_noise_deg", lambda rad: float(np.degrees(rad))),
+}
+
+
+def _in_file_units(info: ParamInfo, in_option_unit: Callable[[float], float]) -> str:
+    """An option's range said in the file's SI units (mm -> m, deg -> rad)."""
+    scale = in_option_unit(1.0)
+    if scale == 1.0:
+        return info.allowed()
+    lo = None if info.lo is None else info.lo / scale
+    hi = None if info.hi is None else info.hi / scale
+    unit = {"mm": "m", "deg": "rad"}.get(info.unit or "", info.unit)
+    return replace(info, lo=lo, hi=hi, unit=unit).allowed()
+
+
 @dataclass
 class NoiseSpec:
     """The noise model: a file and single values over it (defaults < the mav0's
@@ -206,12 +231,35 @@ class NoiseSpec:
         return {k: v for k, v in given.items() if v is not None}
 
     def resolve(self, base: NoiseModel | None) -> NoiseModel:
-        """The noise model: ``base`` (or the defaults) < the file < the options."""
+        """The noise model: ``base`` (or the defaults) < the file < the options. The file's
+        values must be within the options' ranges (:meth:`check_file`)."""
         noise = base or NoiseModel()
         if self.noise is not None:
             noise = load_noise(self.noise, noise)
+            self.check_file(self.noise)
         given = self.overrides()
         return replace(noise, **given) if given else noise
+
+    @classmethod
+    def check_file(cls, path: Path) -> None:
+        """Each value of a noise file within the range of the option that sets the same value
+        (``gyroscope_noise_density`` as ``--gyro-noise``, ...): a file is no licence for what
+        the command line refuses.
+
+        Raises:
+            InputError: naming the file, the key, the value and the range.
+        """
+        infos = {f.name: param_info(f) for f in fields(cls)}
+        for key, value in noise_values(path).items():
+            name, in_option_unit = NOISE_FILE_KEYS[key]
+            info = infos[name]
+            assert info is not None
+            try:
+                check_value(name, in_option_unit(value), info)
+            except InputError:
+                raise InputError(f"{path}: '{key}' is {value:g}; it must be "
+                                 f"{_in_file_units(info, in_option_unit)} (the range of "
+                                 f"{info.option_name(name)}); fix the noise file") from None
 
 
 @dataclass
@@ -248,7 +296,19 @@ def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSes
     return LoadedSession(imu, mocap, notes, sensor_noise)
 
 
-def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int) -> list:
-    """Prior factors from one or more earlier results (a trend with two or more)."""
+def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int,
+                limits: PlausibleLimits | None = None) -> list:
+    """Prior factors from one or more earlier results (a trend with two or more).
+
+    Raises:
+        InputError: a file that is not a result, or whose values cannot be a prior: not finite,
+            beyond the plausibility ``limits`` (default: the defaults), sigmas that are not
+            positive, a rotation that is no quaternion (:func:`prior_problems`).
+    """
     results = [load_result(p) for p in paths]
+    for p, r in zip(paths, results, strict=True):
+        problems = prior_problems(r, limits or PlausibleLimits())
+        if problems:
+            raise InputError(f"{p}: as a --prior, {problems[0]}; give the result of a "
+                             "calibration that passed its checks")
     return priors_from_results(results, at_ns if len(results) > 1 else None)
