@@ -337,3 +337,73 @@ def test_leftovers_are_only_our_files_of_dead_processes(tmp_path: Path) -> None:
     assert atomic.remove_leftovers(out / "linked_session", within=out) == []
     assert target.exists()
     assert atomic.remove_leftovers(elsewhere, within=out) == []
+
+
+def test_a_batch_sweeps_none_of_the_users_files(tmp_path: Path) -> None:
+    """``batch --out .`` deleted a user's unrelated ``.draft.tmp`` (every ``.*.tmp``), also in
+    the target of a session folder that is a symbolic link, and a failed session deleted
+    whatever file was at OUT/<id>/calib.yaml."""
+    bad = tmp_path / "bad" / "mav0"
+    for sensor in ("imu0", "vicon0"):
+        (bad / sensor).mkdir(parents=True)
+        (bad / sensor / "data.csv").write_text("not, a, recording\n")
+    manifest = tmp_path / "m.yaml"
+    manifest.write_text(f"sessions:\n  - {{id: a, imu_id: b, date: 2024-01-01, mav0: {bad}}}\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    users = tmp_path / "users_folder"
+    users.mkdir()
+    (out / "a").symlink_to(users)
+    keep = [out / ".draft.tmp", users / ".notes.tmp", users / "calib.yaml",
+            atomic.temporary_name(users / "calib.yaml", _dead_pid())]
+    for p in keep:
+        p.write_text("the user's\n")
+    ours = atomic.temporary_name(out / "batch.yaml", _dead_pid())
+    ours.write_text("")
+    code, _, err = _run("batch", manifest, "--out", out, "--workers", "1", "--quiet")
+    assert code == 1 and "1 of 1 sessions failed" in err, err
+    assert all(p.read_text() == "the user's\n" for p in keep)
+    assert not ours.exists()
+
+
+def test_a_file_name_that_is_not_utf8_is_printed(result: dict, tmp_path: Path) -> None:
+    """Printed to a strict stdout (the default outside the C locale), a name with a byte that
+    is not UTF-8 ended the run with exit 70 after its file was written."""
+    calib = _with(result, tmp_path, name=os.fsdecode(b"calib\xff.yaml"))
+    out = tmp_path / os.fsdecode(b"kalibr\xfe.yaml")
+    env = dict(os.environ, PYTHONIOENCODING="utf-8:strict",
+               PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[1]),
+                                           os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.run([sys.executable, "-m", "mocap_calib", "export", calib, "--to", "kalibr",
+                           "--out", out], capture_output=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert os.fsencode(out) in proc.stdout and out.is_file()
+    assert b"calib\\xff.yaml" in out.read_bytes()  # the file itself is UTF-8
+
+
+@pytest.mark.slow
+def test_an_html_report_of_inputs_named_in_another_encoding(session: Path,
+                                                            tmp_path: Path) -> None:
+    """``calibrate --html`` of a folder named with a byte that is not UTF-8 ended in
+    UnicodeEncodeError (exit 70) when the page was written."""
+    import shutil
+
+    folder = tmp_path / os.fsdecode(b"session\xff")
+    shutil.copytree(session, folder)
+    page = tmp_path / "report.html"
+    code, out, err = _run("calibrate", folder, "--out", tmp_path / "calib.yaml", "--html", page,
+                          "--segments", "0", "-q")
+    assert code == 0, err
+    assert "session\\xff" in page.read_text(encoding="utf-8")
+    assert load_result(tmp_path / "calib.yaml").session["inputs"]
+
+
+def test_a_mav0_sensor_yaml_is_held_to_the_flags_ranges(session: Path, tmp_path: Path) -> None:
+    import shutil
+
+    folder = tmp_path / "s"
+    shutil.copytree(session, folder)
+    sensor = folder / "mav0" / "imu0" / "sensor.yaml"
+    sensor.write_text("gyroscope_noise_density: 1.0e+30\naccelerometer_noise_density: 2.0e-3\n")
+    code, _, err = _run("calibrate", folder, "--out", tmp_path / "c.yaml")
+    _refused(code, err, str(sensor), "'gyroscope_noise_density' is 1e+30", "--gyro-noise")

@@ -18,7 +18,7 @@ from typing import Any
 from mocap_calib.batch.engine import ENGINES, Engine, make_engine
 from mocap_calib.batch.manifest import Manifest, SessionEntry, load_manifest
 from mocap_calib.batch.session import SessionJob, run_session
-from mocap_calib.batch.store import Digests, finished_hash, input_hash
+from mocap_calib.batch.store import Digests, batch_id, finished_hash, input_hash
 from mocap_calib.core import interrupt
 from mocap_calib.core.model.versioned import header
 from mocap_calib.core.params import param
@@ -216,8 +216,10 @@ class _Batch:
             self.results[i] = result
             st.status, st.error = "ok", ""
         else:
-            # A result for other inputs or options would now be wrong: it goes.
-            path.unlink(missing_ok=True)
+            # A result for other inputs or options would now be wrong: it goes (a file that
+            # is not a batch's result for this session is not the batch's to remove).
+            if finished_hash(path) is not None and batch_id(path) == st.id:
+                path.unlink(missing_ok=True)
             st.status, st.error = "failed", error
         self.save_status()
 

@@ -68,12 +68,21 @@ def input_hash(entry: SessionEntry, digests: Digests, history: list[str] | None 
     return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()
 
 
-def finished_hash(result_path: Path) -> str | None:
-    """The ``session.batch.input_hash`` of an existing result, or None (absent, unreadable)."""
+def _batch_record(result_path: Path, key: str) -> str | None:
     if not result_path.is_file():
         return None
     try:
         data = load_yaml(result_path, "calibration result")
-        return str(data["session"]["batch"]["input_hash"])
+        return str(data["session"]["batch"][key])
     except (InputError, KeyError, TypeError):
         return None
+
+
+def finished_hash(result_path: Path) -> str | None:
+    """The ``session.batch.input_hash`` of an existing result, or None (absent, unreadable)."""
+    return _batch_record(result_path, "input_hash")
+
+
+def batch_id(result_path: Path) -> str | None:
+    """The ``session.batch.id`` of an existing result: the session a batch wrote it for."""
+    return _batch_record(result_path, "id")

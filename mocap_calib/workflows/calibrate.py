@@ -87,7 +87,8 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
                  else load_plausible(request.plausible))
     priors = (load_priors(request.prior, first.imu.time_origin_ns, plausible)
               if request.prior else [])
-    opts = replace(opts, noise=request.noise.resolve(first.sensor_noise),
+    opts = replace(opts, noise=request.noise.resolve(first.sensor_noise,
+                                                     NoiseSpec.sensor_file(request.inputs)),
                    priors=[*opts.priors, *priors, *(extra_priors or [])], plausible=plausible)
     recordings = [Recording(s.imu, s.mocap, *_names(spec))
                   for s, spec in zip(sessions, request.inputs.takes(), strict=True)]

@@ -64,7 +64,8 @@ def run_diagnosis(request: DiagnoseRequest, progress: ProgressFn | None = None):
         if progress is not None:
             progress(note)
     first = sessions[0]
-    cal = replace(options.calibration, noise=request.noise.resolve(first.sensor_noise))
+    noise = request.noise.resolve(first.sensor_noise, NoiseSpec.sensor_file(request.inputs))
+    cal = replace(options.calibration, noise=noise)
     if request.plausible is not None:
         limits = load_plausible(request.plausible)
         cal = replace(cal, plausible=limits)

@@ -154,7 +154,7 @@ def run_groundtruth(request: GroundtruthRequest,
     for note in session.notes:
         if progress is not None:
             progress(note)
-    noise = request.noise.resolve(result.noise)
+    noise = request.noise.resolve(result.noise, f"{calibration} (its noise model)")
     cal = calibration_for_groundtruth(result, Path(calibration), session.imu.time_origin_ns)
     if progress is not None:
         progress("smoothing the IMU between the mocap poses (Kalman filter + RTS smoother)")

@@ -230,36 +230,50 @@ class NoiseSpec:
         }
         return {k: v for k, v in given.items() if v is not None}
 
-    def resolve(self, base: NoiseModel | None) -> NoiseModel:
-        """The noise model: ``base`` (or the defaults) < the file < the options. The file's
-        values must be within the options' ranges (:meth:`check_file`)."""
+    def resolve(self, base: NoiseModel | None, base_source: str | None = None) -> NoiseModel:
+        """The noise model: ``base`` (or the defaults) < the file < the options. The values
+        read from a file (the ``--noise`` file; ``base`` when ``base_source`` names the file
+        it came from) must be within the options' ranges (:meth:`check_values`)."""
+        if base is not None and base_source is not None:
+            self.check_values(base.to_dict(), base_source)
         noise = base or NoiseModel()
         if self.noise is not None:
             noise = load_noise(self.noise, noise)
-            self.check_file(self.noise)
+            self.check_values(noise_values(self.noise), str(self.noise))
         given = self.overrides()
         return replace(noise, **given) if given else noise
 
+    @staticmethod
+    def sensor_file(inputs: InputSpec) -> str | None:
+        """The first take's mav0 ``imu0/sensor.yaml`` (the base noise it gives), if any."""
+        mav0 = inputs.takes()[0].mav0
+        try:
+            return str(find_mav0(mav0[0]) / "imu0" / "sensor.yaml") if mav0 else None
+        except InputError:
+            return None
+
     @classmethod
-    def check_file(cls, path: Path) -> None:
-        """Each value of a noise file within the range of the option that sets the same value
-        (``gyroscope_noise_density`` as ``--gyro-noise``, ...): a file is no licence for what
-        the command line refuses.
+    def check_values(cls, values: dict[str, float], source: str) -> None:
+        """Each noise value read from ``source`` within the range of the option that sets the
+        same value (``gyroscope_noise_density`` as ``--gyro-noise``, ...): a file is no
+        licence for what the command line refuses.
 
         Raises:
             InputError: naming the file, the key, the value and the range.
         """
         infos = {f.name: param_info(f) for f in fields(cls)}
-        for key, value in noise_values(path).items():
+        for key, value in values.items():
+            if key not in NOISE_FILE_KEYS or value is None:
+                continue
             name, in_option_unit = NOISE_FILE_KEYS[key]
             info = infos[name]
             assert info is not None
             try:
-                check_value(name, in_option_unit(value), info)
+                check_value(name, in_option_unit(float(value)), info)
             except InputError:
-                raise InputError(f"{path}: '{key}' is {value:g}; it must be "
+                raise InputError(f"{source}: '{key}' is {float(value):g}; it must be "
                                  f"{_in_file_units(info, in_option_unit)} (the range of "
-                                 f"{info.option_name(name)}); fix the noise file") from None
+                                 f"{info.option_name(name)}); fix the noise values") from None
 
 
 @dataclass
