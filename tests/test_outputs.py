@@ -368,3 +368,14 @@ def test_an_output_in_a_pseudo_file_system_is_one_line(tmp_path: Path) -> None:
                  ["export", str(calib), "--to", "imu_tk", "--out", "/sys/mocap-calib"]):
         code, err = _run(args)
         assert code == 2 and "cannot write" in err.strip().splitlines()[-1], err
+
+
+def test_an_output_inside_another_output_file_is_refused(tmp_path: Path) -> None:
+    from mocap_calib.workflows.calibrate import CalibrateRequest
+
+    for out, html in ((tmp_path / "r.yaml", tmp_path / "r.yaml" / "page.html"),
+                      (tmp_path / "r.yaml" / "calib.yaml", tmp_path / "r.yaml")):
+        request = from_flat(CalibrateRequest, {"mav0": [tmp_path / "s"], "out": out,
+                                               "html": html})
+        with pytest.raises(InputError, match="would be written inside"):
+            request.plan().check()

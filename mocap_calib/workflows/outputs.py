@@ -127,12 +127,6 @@ class _Resolved:
             inode = None
         return cls(named, path, real, inode)
 
-    def same(self, other: _Resolved) -> bool:
-        return self.real == other.real or (self.inode is not None and self.inode == other.inode)
-
-    def inside(self, other: _Resolved) -> bool:
-        return self.real.startswith(other.real.rstrip(os.sep) + os.sep)
-
     def how(self, other: _Resolved) -> str:
         """How ``self`` reaches ``other``'s file, for the message."""
         if self.real != other.real:
@@ -183,29 +177,55 @@ class OutputPlan:
         Raises:
             InputError: naming the option, the path and the fix.
         """
-        outs = [_Resolved.of(o) for o in self.outputs if not _special(o.path)]
-        for o in outs:
-            for i in self._input_files():
-                if o.same(i):
-                    raise InputError(
-                        f"{o.named}: is the input {i.named}{o.how(i)}; writing it would "
-                        f"replace that input: give {o.named.option} another path")
-        for k, o in enumerate(outs):
-            for p in outs[:k]:
-                if o.same(p):
-                    raise InputError(
-                        f"{o.named}: is also {p.named}{o.how(p)}; one file cannot hold both: "
-                        f"give each output its own path")
-                for a, b in ((o, p), (p, o)):
-                    if a.inside(b):
-                        raise InputError(
-                            f"{a.named}: would be written inside {b.named}, a file this run "
-                            "writes: give them paths that do not overlap")
+        inputs = _Index(self._input_files())
+        seen = _Index([])
+        for o in (_Resolved.of(x) for x in self.outputs if not _special(x.path)):
+            if (i := inputs.find(o)) is not None:
+                raise InputError(f"{o.named}: is the input {i.named}{o.how(i)}; writing it "
+                                 f"would replace that input: give {o.named.option} another path")
+            if (p := seen.find(o)) is not None:
+                raise InputError(f"{o.named}: is also {p.named}{o.how(p)}; one file cannot "
+                                 "hold both: give each output its own path")
+            for a, b in ((o, seen.around(o)), (seen.inside(o), o)):
+                if a is not None and b is not None:
+                    raise InputError(f"{a.named}: would be written inside {b.named}, a file "
+                                     "this run writes: give them paths that do not overlap")
+            seen.add(o)
         check_writable(*dict.fromkeys(o.path for o in self.outputs))
 
-    def checked(self) -> OutputPlan:
-        self.check()
-        return self
+
+class _Index:
+    """Resolved paths found by real path, by inode, and by the folders that hold them."""
+
+    def __init__(self, items: Sequence[_Resolved]) -> None:
+        self.real: dict[str, _Resolved] = {}
+        self.inode: dict[tuple[int, int], _Resolved] = {}
+        self.under: dict[str, _Resolved] = {}  # every folder above an item: the item
+        for item in items:
+            self.add(item)
+
+    def add(self, item: _Resolved) -> None:
+        self.real.setdefault(item.real, item)
+        if item.inode is not None:
+            self.inode.setdefault(item.inode, item)
+        for folder in Path(item.real).parents:
+            self.under.setdefault(str(folder), item)
+
+    def find(self, item: _Resolved) -> _Resolved | None:
+        """The item that is the same file as ``item``."""
+        found = self.real.get(item.real)
+        if found is None and item.inode is not None:
+            found = self.inode.get(item.inode)
+        return found
+
+    def around(self, item: _Resolved) -> _Resolved | None:
+        """An item whose path holds ``item`` (a file used as a folder)."""
+        return next((self.real[str(f)] for f in Path(item.real).parents
+                     if str(f) in self.real), None)
+
+    def inside(self, item: _Resolved) -> _Resolved | None:
+        """An item below ``item``'s path."""
+        return self.under.get(item.real)
 
 
 @dataclass(frozen=True)

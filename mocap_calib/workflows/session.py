@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -169,29 +169,6 @@ class InputSpec:
                 self.mocap[0] if self.mocap else None)
 
 
-#: A noise file's keys: the option that sets the same value and the value in that option's
-#: unit (the file's are SI).
-NOISE_FILE_KEYS: dict[str, tuple[str, Callable[[float], float]]] = {
-    "gyroscope_noise_density": ("gyro_noise", float),
-    "gyroscope_random_walk": ("gyro_walk", float),
-    "accelerometer_noise_density": ("accel_noise", float),
-    "accelerometer_random_walk": ("accel_walk", float),
-    "mocap_position_sigma": ("mocap_noise_mm", lambda m: 1e3 * m),
-    "mocap_rotation_sigma": ("mocap_noise_deg", lambda rad: float(np.degrees(rad))),
-}
-
-
-def _in_file_units(info: ParamInfo, in_option_unit: Callable[[float], float]) -> str:
-    """An option's range said in the file's SI units (mm -> m, deg -> rad)."""
-    scale = in_option_unit(1.0)
-    if scale == 1.0:
-        return info.allowed()
-    lo = None if info.lo is None else info.lo / scale
-    hi = None if info.hi is None else info.hi / scale
-    unit = {"mm": "m", "deg": "rad"}.get(info.unit or "", info.unit)
-    return replace(info, lo=lo, hi=hi, unit=unit).allowed()
-
-
 @dataclass
 class NoiseSpec:
     """The noise model: a file and single values over it (defaults < the mav0's
@@ -215,6 +192,17 @@ class NoiseSpec:
     mocap_noise_deg: float | None = param(None, "mocap attitude noise per axis (default 0.05)",
                                           unit="deg", lo=0.0, lo_open=True, hi=10.0,
                                           show_default=False)
+
+    #: A noise file's keys: the option that sets the same value and the value in that
+    #: option's unit (the file's are SI).
+    FILE_KEYS: ClassVar[dict[str, tuple[str, Callable[[float], float]]]] = {
+        "gyroscope_noise_density": ("gyro_noise", float),
+        "gyroscope_random_walk": ("gyro_walk", float),
+        "accelerometer_noise_density": ("accel_noise", float),
+        "accelerometer_random_walk": ("accel_walk", float),
+        "mocap_position_sigma": ("mocap_noise_mm", lambda m: 1e3 * m),
+        "mocap_rotation_sigma": ("mocap_noise_deg", lambda rad: float(np.degrees(rad))),
+    }
 
     def overrides(self) -> dict[str, float]:
         """The noise-model fields given as options, in SI units."""
@@ -263,17 +251,28 @@ class NoiseSpec:
         """
         infos = {f.name: param_info(f) for f in fields(cls)}
         for key, value in values.items():
-            if key not in NOISE_FILE_KEYS or value is None:
+            if key not in cls.FILE_KEYS or value is None:
                 continue
-            name, in_option_unit = NOISE_FILE_KEYS[key]
+            name, in_option_unit = cls.FILE_KEYS[key]
             info = infos[name]
             assert info is not None
             try:
                 check_value(name, in_option_unit(float(value)), info)
             except InputError:
                 raise InputError(f"{source}: '{key}' is {float(value):g}; it must be "
-                                 f"{_in_file_units(info, in_option_unit)} (the range of "
+                                 f"{cls._in_file_units(info, in_option_unit)} (the range of "
                                  f"{info.option_name(name)}); fix the noise values") from None
+
+    @staticmethod
+    def _in_file_units(info: ParamInfo, in_option_unit: Callable[[float], float]) -> str:
+        """An option's range said in the file's SI units (mm -> m, deg -> rad)."""
+        scale = in_option_unit(1.0)
+        if scale == 1.0:
+            return info.allowed()
+        lo = None if info.lo is None else info.lo / scale
+        hi = None if info.hi is None else info.hi / scale
+        unit = {"mm": "m", "deg": "rad"}.get(info.unit or "", info.unit)
+        return replace(info, lo=lo, hi=hi, unit=unit).allowed()
 
 
 @dataclass
