@@ -4,22 +4,24 @@ options, priors, and the part of the session to use."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.params import group, param
+from mocap_calib.core.params import ParamInfo, check_value, group, param, param_info
 from mocap_calib.core.prepare.crop import crop_session
-from mocap_calib.core.result.priors import priors_from_results
+from mocap_calib.core.result.priors import prior_problems, priors_from_results
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.bags import RecordingOptions
 from mocap_calib.io.formats.euroc import find_mav0
 from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
-from mocap_calib.io.yaml_io import load_noise, load_result
+from mocap_calib.io.yaml_io import load_noise, load_result, noise_values
 
 #: The format options shared with the IMU-only commands (same names, same help).
 COLUMNS_HELP = ("column map of a generic CSV, e.g. 't=0,gyro=1:4,accel=4:7,quat=10:14,"
@@ -191,6 +193,17 @@ class NoiseSpec:
                                           unit="deg", lo=0.0, lo_open=True, hi=10.0,
                                           show_default=False)
 
+    #: A noise file's keys: the option that sets the same value and the value in that
+    #: option's unit (the file's are SI).
+    FILE_KEYS: ClassVar[dict[str, tuple[str, Callable[[float], float]]]] = {
+        "gyroscope_noise_density": ("gyro_noise", float),
+        "gyroscope_random_walk": ("gyro_walk", float),
+        "accelerometer_noise_density": ("accel_noise", float),
+        "accelerometer_random_walk": ("accel_walk", float),
+        "mocap_position_sigma": ("mocap_noise_mm", lambda m: 1e3 * m),
+        "mocap_rotation_sigma": ("mocap_noise_deg", lambda rad: float(np.degrees(rad))),
+    }
+
     def overrides(self) -> dict[str, float]:
         """The noise-model fields given as options, in SI units."""
         given = {
@@ -205,13 +218,61 @@ class NoiseSpec:
         }
         return {k: v for k, v in given.items() if v is not None}
 
-    def resolve(self, base: NoiseModel | None) -> NoiseModel:
-        """The noise model: ``base`` (or the defaults) < the file < the options."""
+    def resolve(self, base: NoiseModel | None, base_source: str | None = None) -> NoiseModel:
+        """The noise model: ``base`` (or the defaults) < the file < the options. The values
+        read from a file (the ``--noise`` file; ``base`` when ``base_source`` names the file
+        it came from) must be within the options' ranges (:meth:`check_values`)."""
+        if base is not None and base_source is not None:
+            self.check_values(base.to_dict(), base_source)
         noise = base or NoiseModel()
         if self.noise is not None:
             noise = load_noise(self.noise, noise)
+            self.check_values(noise_values(self.noise), str(self.noise))
         given = self.overrides()
         return replace(noise, **given) if given else noise
+
+    @staticmethod
+    def sensor_file(inputs: InputSpec) -> str | None:
+        """The first take's mav0 ``imu0/sensor.yaml`` (the base noise it gives), if any."""
+        mav0 = inputs.takes()[0].mav0
+        try:
+            return str(find_mav0(mav0[0]) / "imu0" / "sensor.yaml") if mav0 else None
+        except InputError:
+            return None
+
+    @classmethod
+    def check_values(cls, values: dict[str, float], source: str) -> None:
+        """Each noise value read from ``source`` within the range of the option that sets the
+        same value (``gyroscope_noise_density`` as ``--gyro-noise``, ...): a file is no
+        licence for what the command line refuses.
+
+        Raises:
+            InputError: naming the file, the key, the value and the range.
+        """
+        infos = {f.name: param_info(f) for f in fields(cls)}
+        for key, value in values.items():
+            if key not in cls.FILE_KEYS or value is None:
+                continue
+            name, in_option_unit = cls.FILE_KEYS[key]
+            info = infos[name]
+            assert info is not None
+            try:
+                check_value(name, in_option_unit(float(value)), info)
+            except InputError:
+                raise InputError(f"{source}: '{key}' is {float(value):g}; it must be "
+                                 f"{cls._in_file_units(info, in_option_unit)} (the range of "
+                                 f"{info.option_name(name)}); fix the noise values") from None
+
+    @staticmethod
+    def _in_file_units(info: ParamInfo, in_option_unit: Callable[[float], float]) -> str:
+        """An option's range said in the file's SI units (mm -> m, deg -> rad)."""
+        scale = in_option_unit(1.0)
+        if scale == 1.0:
+            return info.allowed()
+        lo = None if info.lo is None else info.lo / scale
+        hi = None if info.hi is None else info.hi / scale
+        unit = {"mm": "m", "deg": "rad"}.get(info.unit or "", info.unit)
+        return replace(info, lo=lo, hi=hi, unit=unit).allowed()
 
 
 @dataclass
@@ -248,7 +309,19 @@ def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSes
     return LoadedSession(imu, mocap, notes, sensor_noise)
 
 
-def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int) -> list:
-    """Prior factors from one or more earlier results (a trend with two or more)."""
+def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int,
+                limits: PlausibleLimits | None = None) -> list:
+    """Prior factors from one or more earlier results (a trend with two or more).
+
+    Raises:
+        InputError: a file that is not a result, or whose values cannot be a prior: not finite,
+            beyond the plausibility ``limits`` (default: the defaults), sigmas that are not
+            positive, a rotation that is no quaternion (:func:`prior_problems`).
+    """
     results = [load_result(p) for p in paths]
+    for p, r in zip(paths, results, strict=True):
+        problems = prior_problems(r, limits or PlausibleLimits())
+        if problems:
+            raise InputError(f"{p}: as a --prior, {problems[0]}; give the result of a "
+                             "calibration that passed its checks")
     return priors_from_results(results, at_ns if len(results) > 1 else None)
