@@ -83,16 +83,24 @@ class Lines:
     """
 
     def __init__(self, source: str, path: Path | None = None, skip: int = 0,
-                 comment: str | None = "#") -> None:
+                 comment: str | None = "#", rows: IntArray | None = None) -> None:
         self.source = source
         self.path = path
         self.skip = skip
         self.comment = comment
+        self.rows = rows
+
+    def subset(self, rows: IntArray) -> Lines:
+        """The map of a table cut to its rows ``rows`` (data-row indices of this map)."""
+        mapped = rows if self.rows is None else self.rows[rows]
+        return Lines(self.source, self.path, self.skip, self.comment, mapped)
 
     def line(self, row: int | None) -> int | None:
         """1-based line of data row ``row`` (None if unknown)."""
         if row is None or self.path is None:
             return None
+        if self.rows is not None:
+            row = int(self.rows[row])
         seen = -1
         with open(self.path, encoding="utf-8", errors="replace") as f:
             for number, text in enumerate(f, start=1):
@@ -383,7 +391,8 @@ def check_position_unit(position: Array, position_unit: str, lines: Lines) -> No
 
 def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
                  time_unit: str = "ns", gyro_unit: str = "rad/s",
-                 accel_unit: str = "m/s^2", raw: bool = False) -> ImuSamples:
+                 accel_unit: str = "m/s^2", raw: bool = False,
+                 origin_ns: int | None = None) -> ImuSamples:
     """Check a parsed IMU table and build :class:`ImuSamples` from it.
 
     Args:
@@ -395,9 +404,10 @@ def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
         gyro_unit: Declared gyro unit (for hints).
         accel_unit: Declared accel unit (for hints).
         raw: the readings are raw counts (no unit check).
+        origin_ns: The stamp of ``t == 0`` (None: the first stamp).
 
     Returns:
-        The samples, times relative to the first stamp.
+        The samples, times relative to ``origin_ns``.
     """
     if len(ns) == 0:
         require_rows(0, MIN_IMU_ROWS, "IMU", lines)
@@ -408,12 +418,13 @@ def validate_imu(ns: IntArray, gyro: Array, accel: Array, lines: Lines, *,
     if not raw:
         check_swapped(gyro, accel, gyro_unit, accel_unit, lines)
         check_imu_units(gyro, accel, gyro_unit, accel_unit, lines)
-    origin = int(ns[0])
+    origin = int(ns[0]) if origin_ns is None else origin_ns
     return ImuSamples((ns - origin) / 1e9, gyro, accel, origin, lines.source)
 
 
 def validate_mocap(ns: IntArray, quat_wxyz: Array, position: Array, lines: Lines, *,
-                   time_unit: str = "ns", position_unit: str = "m") -> MocapPoses:
+                   time_unit: str = "ns", position_unit: str = "m",
+                   origin_ns: int | None = None) -> MocapPoses:
     """Check a parsed mocap table, drop NaN rows (occlusions) and build :class:`MocapPoses`.
 
     Args:
@@ -423,6 +434,7 @@ def validate_mocap(ns: IntArray, quat_wxyz: Array, position: Array, lines: Lines
         lines: Where the rows came from (also the poses' ``source``).
         time_unit: Unit the file's time column was declared in (for hints).
         position_unit: Declared position unit (for hints).
+        origin_ns: The stamp of ``t == 0`` (None: the first complete pose's).
 
     Returns:
         The complete poses, ``dropped_rows`` counting the NaN rows removed.
@@ -437,7 +449,7 @@ def validate_mocap(ns: IntArray, quat_wxyz: Array, position: Array, lines: Lines
     require_rows(len(ns), MIN_MOCAP_ROWS, "mocap", lines, dropped=len(keep) - len(rows))
     check_time_unit(ns, time_unit, "mocap", lines)
     check_position_unit(position, position_unit, lines)
-    origin = int(ns[0])
+    origin = int(ns[0]) if origin_ns is None else origin_ns
     return MocapPoses((ns - origin) / 1e9, quat_wxyz, position, origin, lines.source,
                       dropped_rows=int(len(keep) - len(rows)),
                       position_unit_m=POSITION_UNITS.get(position_unit, 1.0))

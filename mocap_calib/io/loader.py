@@ -1,17 +1,7 @@
 """One entry point for the CLI: find the formats of the input files and read both streams.
 
-Format sniffing, per path:
-
-- a ROS 1 bag, a ROS 2 bag folder (db3 or MCAP storage), a bare ``.mcap`` -> bag
-  (:mod:`mocap_calib.io.formats.bags`); a PX4 ``.ulg`` -> ULog (:mod:`mocap_calib.io.formats.ulog`);
-- a CSV whose first line is Motive's metadata or a Vicon section name -> mocap export
-  (:mod:`mocap_calib.io.formats.mocap_exports`), or any file given with ``--mocap-format``;
-- a folder -> EuRoC ``mav0`` (the folder itself or its parent);
-- a file whose header is EuRoC's ``imu0`` header -> EuRoC IMU;
-- a file whose header is EuRoC's pose header (vicon0 or ground truth) -> EuRoC poses;
-- a whitespace-separated file with 8 numeric columns -> TUM trajectory (unless ``columns``
-  is given: then it is read as a generic CSV);
-- anything else -> generic CSV, which needs ``columns`` (see :mod:`mocap_calib.io.formats.generic`).
+Formats are sniffed by :func:`sniff_format` (bags, mav0 folders, ULogs, Crazyflie uSD logs,
+exports, EuRoC, TUM, generic CSVs with ``columns``).
 
 A ``--columns`` map is used or refused, never dropped: it is parsed (and a malformed one
 refused) before any file is read; an EuRoC CSV is read with it when it names that file's
@@ -38,6 +28,8 @@ from mocap_calib.io.formats.bags import (
     read_bag_mocap,
 )
 from mocap_calib.io.formats.columns import COLUMNS_FIX, ColumnMap, parse_columns
+from mocap_calib.io.formats.crazyflie.usd import read_usd_imu, read_usd_poses
+from mocap_calib.io.formats.crazyflie.usd_file import is_usd_log, read_usd_log
 from mocap_calib.io.formats.euroc import (
     POSE_FOLDERS,
     find_mav0,
@@ -62,9 +54,9 @@ FORMAT_NAMES = {"mav0": "EuRoC mav0 folder", "euroc_imu": "EuRoC IMU CSV",
                 "generic": "generic CSV", "rosbag1": "ROS 1 bag", "rosbag2": "ROS 2 bag",
                 "mcap": "MCAP file", "ulog": "PX4 ULog", "motive": "Motive CSV export",
                 "vicon-nexus": "Vicon Nexus CSV export",
-                "vicon-tracker": "Vicon Tracker CSV export"}
+                "vicon-tracker": "Vicon Tracker CSV export", "crazyflie": "Crazyflie uSD log"}
 #: Formats holding time-stamped messages of several streams (read by topic).
-RECORDINGS = ("rosbag1", "rosbag2", "mcap", "ulog")
+RECORDINGS = ("rosbag1", "rosbag2", "mcap", "ulog", "crazyflie")
 EXPORTS = ("motive", "vicon-nexus", "vicon-tracker")
 
 def sniff_format(path: Path | str) -> str:
@@ -81,6 +73,8 @@ def sniff_format(path: Path | str) -> str:
         return "mav0"
     if is_ulog(path):
         return "ulog"
+    if path.is_file() and is_usd_log(path):
+        return "crazyflie"
     export = sniff_export(path) if path.is_file() else None
     if export is not None:
         return export
@@ -181,14 +175,17 @@ class _Reader:
         given = [f"--{k.replace('_', '-')}" for k in self.units]
         if given:
             self.notes.append(f"ignored {', '.join(given)} for {path}: it is a "
-                              f"{FORMAT_NAMES[fmt]} (SI units)")
+                              f"{FORMAT_NAMES[fmt]} ({'its own' if fmt == 'crazyflie' else 'SI'} "
+                              "units)")
 
     def _recording(self, path: Path, fmt: str, imu: bool, mocap: bool
                    ) -> tuple[ImuSamples | None, MocapPoses | None]:
         """Read the IMU and/or mocap streams of a bag or ULog (opened once)."""
         self._ignore_options(path, fmt)
         got_imu = got_mocap = None
-        if fmt == "ulog":
+        if fmt == "crazyflie":
+            got_imu, got_mocap = _crazyflie(path, self.recording, imu, mocap, self.notes)
+        elif fmt == "ulog":
             if imu:
                 got_imu = read_ulog_imu(path, self.recording.imu_topic, self.notes)
             if mocap:
@@ -345,6 +342,15 @@ class _Reader:
         return self._note_mocap(mocap, "generic", path)
 
 
+def _crazyflie(path: Path, rec: RecordingOptions, imu: bool, mocap: bool, notes: list[str]
+               ) -> tuple[ImuSamples | None, MocapPoses | None]:
+    log = read_usd_log(path)
+    table = read_usd_imu(log, rec.imu_topic, notes) if imu else None
+    got = table.validate() if table is not None else None
+    notes.extend(table.notes(got) if table is not None and got is not None else [])
+    return got, read_usd_poses(log, rec.mocap_topic, notes).validate() if mocap else None
+
+
 def _column_map(columns: str) -> ColumnMap:
     """The ``--columns`` map, refused now if malformed or if it names no stream."""
     colmap = parse_columns(columns)
@@ -363,7 +369,8 @@ def _no_columns(path: Path, fmt: str) -> Exception:
 def is_recording(path: Path | str) -> bool:
     """True for a ROS bag (1 or 2), a bare MCAP file or a PX4 ULog."""
     path = Path(path)
-    return bag_kind(path) is not None or (not path.is_dir() and is_ulog(path))
+    return bag_kind(path) is not None or (not path.is_dir() and is_ulog(path)) or (
+        path.is_file() and is_usd_log(path))
 
 
 def _load_recording_imu(path: Path, topic: str | None, stamp: str
@@ -388,11 +395,7 @@ def load_imu_file(path: Path | str | None, *, columns: str | None = None,
                   ) -> tuple[ImuSamples, list[str]]:
     """Read an IMU log without mocap (:func:`load_inputs` needs both streams).
 
-    Format as for :func:`load_inputs`: a ROS bag, MCAP or PX4 ULog (``topic``, ``stamp``); a
-    folder is an EuRoC ``mav0``; a file with the EuRoC ``imu0`` header is EuRoC; anything else
-    is a generic CSV that needs ``columns``. Or imu_tk's two files (``accel_file``,
-    ``gyro_file``; :mod:`mocap_calib.io.formats.imu_tk`). New formats (and options) are added
-    here, as keywords, so every IMU-only command gets them.
+    Format as for :func:`load_inputs`, or imu_tk's two files (``accel_file``, ``gyro_file``).
 
     Args:
         path: ``--imu`` file or folder (None with ``accel_file`` and ``gyro_file``).

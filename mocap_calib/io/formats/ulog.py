@@ -44,15 +44,8 @@ import numpy as np
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import (
-    Lines,
-    check_increasing,
-    imu_gap_note,
-    validate_imu,
-    validate_mocap,
-)
+from mocap_calib.io.checks import Lines, imu_gap_note, validate_imu, validate_mocap
 from mocap_calib.io.formats.ulog_file import (
     Instance,
     dropout_note,
@@ -64,6 +57,7 @@ from mocap_calib.io.formats.ulog_file import (
     stamps_us,
     vector,
 )
+from mocap_calib.io.merge import merge_on_gyro
 
 IMU_TOPICS = ("sensor_combined", "sensor_gyro", "sensor_accel")
 MOCAP_TOPICS = ("vehicle_mocap_odometry", "vehicle_visual_odometry")
@@ -187,27 +181,9 @@ def _raw_pair(g: Instance, a: Instance, label: str, notes: list[str]
 
 def _pair(tg: np.ndarray, gyro: np.ndarray, ta: np.ndarray, accel: np.ndarray, label: str,
           notes: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gyro and accelerometer samples on the gyro's stamps (integer us)."""
-    if len(tg) == len(ta) and np.array_equal(tg, ta):
-        return tg, gyro, accel
-    check_increasing(ta * 1000, "accelerometer", Lines(label))
-    check_increasing(tg * 1000, "gyro", Lines(label))
-    j = np.searchsorted(ta, tg, side="right")  # ta[j-1] <= tg < ta[j]
-    inside = (j > 0) & ((j < len(ta)) | (tg == ta[-1]))
-    jc = np.clip(j, 1, len(ta) - 1)
-    # Relative to the first stamp: float64 cannot hold epoch microseconds' sums exactly.
-    span = (ta[jc] - ta[jc - 1]).astype(float)
-    keep = inside & ((span <= gap_threshold(ta.astype(float))) | (tg == ta[jc - 1]))
-    x, xp = (tg[keep] - ta[0]).astype(float), (ta - ta[0]).astype(float)
-    acc = np.stack([np.interp(x, xp, accel[:, k]) for k in range(3)], axis=1)
-    left = int(len(tg) - keep.sum())
-    apart = float(np.median(np.minimum(np.abs(tg - ta[jc - 1]), np.abs(ta[jc] - tg))))
-    notes.append(f"{label}: accelerometer stamps differ from the gyro's ({len(ta)} and "
-                 f"{len(tg)} samples, median {apart:.0f} us apart); interpolated linearly onto "
-                 "the gyro stamps"
-                 + (f", {left} gyro samples without accelerometer samples around them left out"
-                    if left else ""))
-    return tg[keep], gyro[keep], acc
+    """Gyro and accelerometer samples on the gyro's stamps (integer us): the shared merge
+    step, :func:`~mocap_calib.io.merge.merge_on_gyro`."""
+    return merge_on_gyro(tg, gyro, ta, accel, label=label, notes=notes, ns_per_unit=1000)
 
 
 def _refuse_switch(ulog: Any, origin_us: int, label: str) -> None:
