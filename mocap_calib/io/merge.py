@@ -22,11 +22,14 @@ and 10 Hz motion of 1 m/s^2: 5e-5 m/s^2, far below any accelerometer's noise).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.policy import gap_threshold
 from mocap_calib.io.checks import Lines, check_increasing
+from mocap_calib.io.streams import ImuTable
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -87,3 +90,34 @@ def merge_on_gyro(t_gyro: IntArray, gyro: Array, t_accel: IntArray, accel: Array
                  + (f", {left} gyro samples without accelerometer samples around them left out"
                     if left else ""))
     return tg[keep], gyro[keep], acc
+
+
+def split_rows(gyro: Array, accel: Array) -> tuple[IntArray, IntArray] | None:
+    """The rows holding the gyro and those holding the accelerometer, when a table keeps the
+    two on different rows (the other sensor's cells empty or NaN): every row has one triple
+    complete and the other complete or wholly missing, and some rows have only the gyro and
+    some only the accelerometer. None for any other table (its NaNs are then the checks'
+    business)."""
+    g_ok, a_ok = np.isfinite(gyro).all(axis=1), np.isfinite(accel).all(axis=1)
+    g_none, a_none = np.isnan(gyro).all(axis=1), np.isnan(accel).all(axis=1)
+    if not (np.all(g_ok | g_none) and np.all(a_ok | a_none) and np.all(g_ok | a_ok)):
+        return None
+    if not ((g_ok & a_none).any() and (a_ok & g_none).any()):
+        return None
+    return np.flatnonzero(g_ok), np.flatnonzero(a_ok)
+
+
+def merge_split_rows(table: ImuTable, notes: list[str]) -> ImuTable:
+    """A table whose gyro and accelerometer are on different rows (:func:`split_rows`),
+    merged by :func:`merge_on_gyro`; any other table as it is."""
+    rows = split_rows(table.gyro, table.accel)
+    if rows is None:
+        return table
+    g, a = rows
+    label = table.lines.source
+    notes.append(f"{label}: the gyro and the accelerometer are on different rows ({len(g)} "
+                 f"and {len(a)} rows)")
+    t, gyro, accel = merge_on_gyro(table.ns[g], table.gyro[g], table.ns[a], table.accel[a],
+                                   label=label, notes=notes, lines=table.lines.subset(g))
+    kept = g[np.searchsorted(table.ns[g], t)]
+    return replace(table.take(kept), gyro=gyro, accel=accel)

@@ -19,14 +19,17 @@ last part of its name (``gyro.x`` -> ``x``), within the group before the dot (``
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS
 from mocap_calib.errors import input_error
 from mocap_calib.io.checks import Lines
-from mocap_calib.io.formats.crazyflie.usd_file import Event, UsdLog
+from mocap_calib.io.formats.crazyflie.usd_file import Event, UsdLog, is_usd_log, read_usd_log
 from mocap_calib.io.merge import merge_on_gyro
+from mocap_calib.io.reading import Format, ReadOptions
 from mocap_calib.io.streams import ImuTable, PoseTable
 
 GYRO_EVENT = "estGyroscope"
@@ -139,3 +142,24 @@ def read_usd_poses(log: UsdLog, spec: str | None, notes: list[str]) -> PoseTable
                  "each pose reached the drone: the radio's latency is part of the clock offset")
     return PoseTable(event.stamps_ns, _values(event, quat[both[0]]), _values(event, pos[both[0]]),
                      Lines(label), time_unit="ms" if log.version == 1 else "us")
+
+
+# --- the registry's record -------------------------------------------------------------------
+
+def _imu(path: Path, opts: ReadOptions, notes: list[str]) -> ImuTable:
+    return read_usd_imu(read_usd_log(path), opts.recording.imu_topic, notes)
+
+
+def _poses(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    return read_usd_poses(read_usd_log(path), opts.recording.mocap_topic, notes)
+
+
+def _both(path: Path, opts: ReadOptions, notes: list[str]) -> tuple[ImuTable, PoseTable]:
+    log = read_usd_log(path)
+    return (read_usd_imu(log, opts.recording.imu_topic, notes),
+            read_usd_poses(log, opts.recording.mocap_topic, notes))
+
+
+FORMAT = Format("crazyflie", "Crazyflie uSD log", lambda p: p.is_file() and is_usd_log(p),
+                _imu, _poses, _both, frozenset({"imu_topic", "mocap_topic"}),
+                own_units="its own units: deg/s, g, ms")
