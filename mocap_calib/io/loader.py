@@ -165,12 +165,11 @@ def _combined(load: _Load, path: Path, fmt: Format | None
         held = "IMU samples" if fmt.holds(Stream.IMU) else "poses"
         raise input_error(f"the same file is given as --imu and --mocap but it holds only "
                           f"{held} ({fmt.name})", "pass the other stream's file too", str(path))
-    if fmt.read_both is None:
-        _, imu_t = read_stream(path, Stream.IMU, opts, load.notes, fmt)
-        imu = load.imu(imu_t, fmt, path)  # type: ignore[arg-type]
-        _, pose_t = read_stream(path, Stream.POSES, opts, load.notes, fmt)
-        return imu, load.poses(pose_t, fmt, path)  # type: ignore[arg-type]
     screen(fmt, path, (Stream.IMU, Stream.POSES), opts, load.notes)
+    assert fmt.read_imu is not None and fmt.read_poses is not None
+    if fmt.read_both is None:  # each stream checked before the next is read
+        imu = load.imu(fmt.read_imu(path, opts, load.notes), fmt, path)
+        return imu, load.poses(fmt.read_poses(path, opts, load.notes), fmt, path)
     imu_t, pose_t = fmt.read_both(path, opts, load.notes)
     imu = load.imu(imu_t, fmt, path)
     return imu, load.poses(pose_t, fmt, path)
