@@ -6,12 +6,12 @@ the layout Bitcraze documents (``tools/usdlog/cfusdlog.py``), independently of t
 from __future__ import annotations
 
 import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import shared_data
+from usd_logs import ACCEL, BARO, GYRO, POSE, usd_bytes
 
 from mocap_calib.core.model import so3
 from mocap_calib.errors import InputError
@@ -23,30 +23,6 @@ FLIGHTS = ("cfBolt-log00", "0425-traj1", "0422-log00")
 COUNTS = {"cfBolt-log00": (51521, 51521, 15313, 320959510),
           "0425-traj1": (43380, 43380, 12552, 27634364),
           "0422-log00": (47378, 47378, 13724, 82011054)}
-
-GYRO = ("estGyroscope", ("gyro.x(f)", "gyro.y(f)", "gyro.z(f)"))
-ACCEL = ("estAcceleration", ("acc.x(f)", "acc.y(f)", "acc.z(f)"))
-POSE = ("estPose", ("locSrv.x(f)", "locSrv.y(f)", "locSrv.z(f)", "locSrv.qx(f)",
-                    "locSrv.qy(f)", "locSrv.qz(f)", "locSrv.qw(f)"))
-BARO = ("estBarometer", ("baro.asl(f)",))
-
-
-def usd_bytes(events: list[tuple[str, tuple[str, ...]]],
-              records: list[tuple[int, int, tuple[float, ...]]], version: int = 2) -> bytes:
-    """A uSD log: header, event definitions (ids 0..), records (event index, stamp in the
-    version's unit, values), CRC-32."""
-    out = bytearray(struct.pack("<BHH", 0xBC, version, len(events)))
-    fmts = []
-    for eid, (name, fields) in enumerate(events):
-        out += struct.pack("<H", eid) + name.encode() + b"\0" + struct.pack("<H", len(fields))
-        for f in fields:
-            out += f.encode() + b"\0"
-        fmts.append("<" + "".join(f[-2] for f in fields))
-    head = "<HQ" if version == 2 else "<HI"
-    for eid, stamp, values in records:
-        out += struct.pack(head, eid, stamp) + struct.pack(fmts[eid], *values)
-    return bytes(out + struct.pack("<I", zlib.crc32(out)))
-
 
 def flight(seconds: float = 3.0, seed: int = 0, pose: bool = True
            ) -> tuple[bytes, dict[str, np.ndarray]]:

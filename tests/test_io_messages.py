@@ -97,7 +97,7 @@ def test_mocap_at_2_hz_names_the_rate_and_the_minimum(tmp_path: Path) -> None:
     slow = s.mocap.select(np.arange(len(s.mocap)) % 50 == 0)  # 100 Hz -> 2 Hz
     root = write_mav0(tmp_path / "s", s.imu, slow)
     cli_refusal(["calibrate", root, "--out", tmp_path / "c.yaml"], "2 Hz", "500 ms",
-                "at least 20 Hz", "higher rate")
+                "at least 10 Hz", "higher rate")
 
 
 def test_ulog_with_junk_appended_is_read_up_to_it(tmp_path: Path) -> None:

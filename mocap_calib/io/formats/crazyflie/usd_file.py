@@ -213,7 +213,7 @@ def read_usd_log(path: Path | str) -> UsdLog:
     (stored,) = struct.unpack_from("<I", data, len(data) - 4)
     if crc != stored:
         raise _damaged(path, f"its CRC-32 (0x{stored:08X}) does not match its contents "
-                       f"(0x{crc:08X}): the file is damaged")
+                       f"(0x{crc:08X}): the file is damaged or cut short")
     buf = np.frombuffer(data, dtype=np.uint8)
     ns_per = _STAMP[version][2]
     events = {}
