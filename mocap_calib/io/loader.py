@@ -3,7 +3,8 @@ streams, crop them to ``--start``/``--end``, then check them.
 
 :func:`load_inputs` reads the IMU and the mocap streams (``calibrate``, ``diagnose``,
 ``groundtruth``, ``drift --mocap``); :func:`load_imu_file` the IMU alone (``allan``,
-``multipos``, ``drift``). Both go through :func:`read_stream`: the registry
+``multipos``, ``drift``). Both go through :func:`read_imu_table` / :func:`read_pose_table`:
+the registry
 (:mod:`mocap_calib.io.registry`) says which format a path holds and reads it into a table
 (:mod:`mocap_calib.io.streams`); the options the format cannot use are refused or noted
 (:func:`~mocap_calib.io.reading.screen`); the table is cropped, and only then checked
@@ -67,11 +68,19 @@ def _describe(kind: str, n: int, rate: float, duration: float, fmt: Format, path
             f"({fmt.name} {path})")
 
 
+@dataclass(frozen=True)
+class ColumnMaps:
+    """The column map of each file and the option each came from."""
+
+    imu: ColumnMap | None = None
+    mocap: ColumnMap | None = None
+    flags: tuple[str, str] = ("--columns", "--columns")
+
+
 def column_maps(columns: str | None, imu_columns: str | None = None,
-                mocap_columns: str | None = None) -> dict[str, object]:
-    """The per-stream maps (:class:`ReadOptions` fields) from the three options, refused now
-    if malformed, if ``--columns`` is combined with a per-file map, or if a per-file map
-    names the other stream's columns."""
+                mocap_columns: str | None = None) -> ColumnMaps:
+    """The per-file maps from the three options, refused now if malformed, if ``--columns``
+    is combined with a per-file map, or if a per-file map names the other stream's columns."""
     if columns is not None and (imu_columns is not None or mocap_columns is not None):
         given = " and ".join(f for f, v in (("--imu-columns", imu_columns),
                                              ("--mocap-columns", mocap_columns)) if v)
@@ -79,7 +88,7 @@ def column_maps(columns: str | None, imu_columns: str | None = None,
                           "both files) or --imu-columns/--mocap-columns (one per file), not both")
     if columns is not None:
         cmap = _column_map(columns, "--columns")
-        return {"imu_columns": cmap, "mocap_columns": cmap}
+        return ColumnMaps(cmap, cmap)
     imu_map = None if imu_columns is None else _column_map(imu_columns, "--imu-columns")
     mocap_map = None if mocap_columns is None else _column_map(mocap_columns, "--mocap-columns")
     if imu_map is not None and (imu_map.has_mocap or not imu_map.has_imu):
@@ -88,8 +97,7 @@ def column_maps(columns: str | None, imu_columns: str | None = None,
     if mocap_map is not None and (mocap_map.has_imu or not mocap_map.has_mocap):
         raise input_error("the mocap file's map must name quat= and pos= and no gyro=/accel= "
                           "columns", "put the IMU's columns in --imu-columns", "--mocap-columns")
-    return {"imu_columns": imu_map, "mocap_columns": mocap_map,
-            "columns_flags": ("--imu-columns", "--mocap-columns")}
+    return ColumnMaps(imu_map, mocap_map, ("--imu-columns", "--mocap-columns"))
 
 
 def _column_map(columns: str, flag: str) -> ColumnMap:
@@ -143,16 +151,31 @@ def _refuse_stream(fmt: Format, stream: Stream, path: Path, imu_only: bool) -> E
                        "pass it with --imu and the pose file with --mocap", str(path))
 
 
-def read_stream(path: Path, stream: Stream, opts: ReadOptions, notes: list[str],
-                fmt: Format | None = None) -> tuple[Format, ImuTable | PoseTable]:
-    """The table of one stream of ``path`` (format from the registry unless given)."""
+def _format_for(path: Path, stream: Stream, opts: ReadOptions, notes: list[str],
+                fmt: Format | None) -> Format:
+    """The format of ``path`` (from the registry unless given), refused if it cannot hold
+    ``stream``, with the options it cannot use screened."""
     fmt = fmt or registry.sniff(path, columns=opts.columns(stream) is not None)
     if not fmt.holds(stream):
         raise _refuse_stream(fmt, stream, path, opts.imu_only)
     screen(fmt, path, (stream,), opts, notes)
-    reader = fmt.read_imu if stream is Stream.IMU else fmt.read_poses
-    assert reader is not None
-    return fmt, reader(path, opts, notes)
+    return fmt
+
+
+def read_imu_table(path: Path, opts: ReadOptions, notes: list[str],
+                   fmt: Format | None = None) -> tuple[Format, ImuTable]:
+    """The format and the IMU table of ``path``."""
+    fmt = _format_for(path, Stream.IMU, opts, notes, fmt)
+    assert fmt.read_imu is not None
+    return fmt, fmt.read_imu(path, opts, notes)
+
+
+def read_pose_table(path: Path, opts: ReadOptions, notes: list[str],
+                    fmt: Format | None = None) -> tuple[Format, PoseTable]:
+    """The format and the pose table of ``path``."""
+    fmt = _format_for(path, Stream.POSES, opts, notes, fmt)
+    assert fmt.read_poses is not None
+    return fmt, fmt.read_poses(path, opts, notes)
 
 
 def _combined(load: _Load, path: Path, fmt: Format | None
@@ -210,10 +233,10 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
     Raises:
         InputError: on missing or conflicting options and on any bad file.
     """
-    opts = ReadOptions(**column_maps(columns, imu_columns, mocap_columns),  # type: ignore[arg-type]
-                       time_unit=time_unit, gyro_unit=gyro_unit, accel_unit=accel_unit,
-                       quat_order=quat_order, position_unit=position_unit,
-                       recording=recording or RecordingOptions(),
+    maps = column_maps(columns, imu_columns, mocap_columns)
+    opts = ReadOptions(maps.imu, maps.mocap, maps.flags, time_unit=time_unit,
+                       gyro_unit=gyro_unit, accel_unit=accel_unit, quat_order=quat_order,
+                       position_unit=position_unit, recording=recording or RecordingOptions(),
                        export=export or ExportOptions(), pose_source=pose_source, crop=crop)
     load = _Load(opts)
     if mav0 is not None:
@@ -234,10 +257,10 @@ def load_inputs(imu: Path | None, mocap: Path | None, mav0: Path | None, *,
         if same and forced is None:
             got_imu, got_mocap = _combined(load, imu, None)
         else:
-            fmt, table = read_stream(imu, Stream.IMU, opts, load.notes)
-            got_imu = load.imu(table, fmt, imu)  # type: ignore[arg-type]
-            fmt, table = read_stream(mocap, Stream.POSES, opts, load.notes, forced)
-            got_mocap = load.poses(table, fmt, mocap)  # type: ignore[arg-type]
+            fmt, imu_t = read_imu_table(imu, opts, load.notes)
+            got_imu = load.imu(imu_t, fmt, imu)
+            fmt, pose_t = read_pose_table(mocap, opts, load.notes, forced)
+            got_mocap = load.poses(pose_t, fmt, mocap)
     if min_mocap_rate_hz is not None:
         check_mocap_rate(got_mocap, min_mocap_rate_hz)
     return got_imu, got_mocap, load.notes
@@ -296,8 +319,8 @@ def load_imu_file(path: Path | str | None, *, columns: str | None = None,
     if cmap is not None and not cmap.has_imu and "columns" in fmt.options:
         raise input_error("names no IMU columns (gyro=, accel=) for the IMU log",
                           COLUMNS_FIX, "--columns")
-    fmt, table = read_stream(path, Stream.IMU, opts, load.notes, fmt)
-    return load.imu(table, fmt, path), load.notes  # type: ignore[arg-type]
+    fmt, table = read_imu_table(path, opts, load.notes, fmt)
+    return load.imu(table, fmt, path), load.notes
 
 
 #: imu_tk's pair of files, for the notes (no single path to recognise: not in the registry).
