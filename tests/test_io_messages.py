@@ -261,3 +261,18 @@ def _rec(imu_topic: str | None, mocap_topic: str | None):
     from mocap_calib.io.reading import RecordingOptions
 
     return RecordingOptions(imu_topic, mocap_topic)
+
+
+def test_a_shared_map_naming_one_stream_is_for_that_file(tmp_path: Path) -> None:
+    """--columns naming only the IMU's columns reads the IMU file with it and leaves the pose
+    file (TUM here) to its own format; a column map is still refused by a file that has no
+    columns when it names that file's stream."""
+    s = clean()
+    imu = write_euroc_imu(tmp_path / "imu.csv", s.imu)
+    tum = write_tum(tmp_path / "traj.txt", s.mocap)
+    got, mocap, notes = load_inputs(imu, tum, None, columns="t=0,gyro=1:4,accel=4:7")
+    assert len(mocap) == len(s.mocap) and any("with the --columns map" in n for n in notes)
+    ulg = write_ulog(tmp_path / "log.ulg", s.imu, None)
+    refused(lambda: load_inputs(ulg, tum, None, columns="t=0,gyro=1:4,accel=4:7"),
+            "--columns given, but this is a PX4 ULog")
+    refused(lambda: load_imu_file(ulg, columns="t=0,quat=1:5,pos=5:8"), "no IMU columns")

@@ -155,7 +155,7 @@ def _format_for(path: Path, stream: Stream, opts: ReadOptions, notes: list[str],
                 fmt: Format | None) -> Format:
     """The format of ``path`` (from the registry unless given), refused if it cannot hold
     ``stream``, with the options it cannot use screened."""
-    fmt = fmt or registry.sniff(path, columns=opts.columns(stream) is not None)
+    fmt = fmt or registry.sniff(path, columns=opts.names_stream(stream))
     if not fmt.holds(stream):
         raise _refuse_stream(fmt, stream, path, opts.imu_only)
     screen(fmt, path, (stream,), opts, notes)
@@ -182,8 +182,8 @@ def _combined(load: _Load, path: Path, fmt: Format | None
               ) -> tuple[ImuSamples, MocapPoses]:
     """Both streams of one file (read in one pass when its format can)."""
     opts = load.opts
-    fmt = fmt or registry.sniff(path, columns=opts.imu_columns is not None
-                                or opts.mocap_columns is not None)
+    fmt = fmt or registry.sniff(path, columns=opts.names_stream(Stream.IMU)
+                                or opts.names_stream(Stream.POSES))
     if not (fmt.holds(Stream.IMU) and fmt.holds(Stream.POSES)):
         held = "IMU samples" if fmt.holds(Stream.IMU) else "poses"
         raise input_error(f"the same file is given as --imu and --mocap but it holds only "
@@ -314,12 +314,11 @@ def load_imu_file(path: Path | str | None, *, columns: str | None = None,
     if path is None:
         raise input_error("no --imu given", "pass the IMU log with --imu FILE (or imu_tk's two "
                           "files with --accel FILE --gyro FILE)")
-    path = Path(path)
-    fmt = registry.sniff(path, columns=cmap is not None)
-    if cmap is not None and not cmap.has_imu and "columns" in fmt.options:
+    if cmap is not None and not cmap.has_imu:
         raise input_error("names no IMU columns (gyro=, accel=) for the IMU log",
                           COLUMNS_FIX, "--columns")
-    fmt, table = read_imu_table(path, opts, load.notes, fmt)
+    path = Path(path)
+    fmt, table = read_imu_table(path, opts, load.notes)
     return load.imu(table, fmt, path), load.notes
 
 

@@ -111,6 +111,16 @@ class ReadOptions:
     def columns(self, stream: Stream) -> ColumnMap | None:
         return self.imu_columns if stream is Stream.IMU else self.mocap_columns
 
+    def names_stream(self, stream: Stream) -> bool:
+        """A map is given for ``stream``'s file: its own map, or ``--columns`` naming the
+        stream's columns (a shared map naming only the other stream's is for the other file)."""
+        cmap = self.columns(stream)
+        if cmap is None:
+            return False
+        if self.columns_flag(stream) != "--columns":
+            return True
+        return cmap.has_imu if stream is Stream.IMU else cmap.has_mocap
+
     def columns_flag(self, stream: Stream) -> str:
         return self.columns_flags[0 if stream is Stream.IMU else 1]
 
@@ -121,7 +131,7 @@ class ReadOptions:
     def value(self, name: str, stream: Stream) -> object:
         """The value of option ``name`` for ``stream``'s file (None or default: not given)."""
         if name == "columns":
-            return self.columns(stream)
+            return self.columns(stream) if self.names_stream(stream) else None
         if name in ("imu_topic", "mocap_topic", "mocap_frame"):
             return getattr(self.recording, name)
         if name == "stamp":
