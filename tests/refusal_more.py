@@ -109,6 +109,10 @@ MORE_CASES: list[Case] = [
          Expect(2, ("--start 100", "spans 0 to 30.0 s"))),
 ]
 
+#: The whole corpus (tests/test_refusals.py, scripts/refusal_table.py).
+ALL_CASES: list[Case] = [*CASES, *MORE_CASES]
+
+
 # --- inputs: formats, the crop before the checks, causes named ---------------------------------
 
 def _crazyflie(cut: int = 0, poses: bool = True) -> Callable[[Path], list[str]]:
@@ -184,5 +188,4 @@ IO_CASES: list[Case] = [
          Expect(2, ("--columns and --imu-columns both given",))),
 ]
 
-#: The whole corpus (tests/test_refusals.py, scripts/refusal_table.py).
-ALL_CASES: list[Case] = [*CASES, *MORE_CASES, *IO_CASES]
+ALL_CASES += IO_CASES
