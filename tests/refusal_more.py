@@ -277,3 +277,80 @@ SAFETY_CASES: list[Case] = [
 ]
 
 ALL_CASES += SAFETY_CASES
+
+# --- inputs: formats, the crop before the checks, causes named ---------------------------------
+
+def _crazyflie(cut: int = 0, poses: bool = True) -> Callable[[Path], list[str]]:
+    """The clean session as a Crazyflie uSD log (deg/s, g; one file), optionally cut short by
+    ``cut`` bytes or without its pose events."""
+    from usd_logs import session_log
+
+    def build(d: Path) -> list[str]:
+        data = session_log(clean().imu, clean().mocap if poses else None)
+        log = d / "log00"
+        log.write_bytes(data[:len(data) - cut])
+        return ["--imu", str(log), "--mocap", str(log)]
+    return build
+
+
+def _euroc_files(imu_text: Callable[[str], str] | None = None, gz: bool = False,
+                 mocap: MocapPoses | None = None, *extra: str) -> Callable[[Path], list[str]]:
+    """The clean session as EuRoC files given with --imu/--mocap, the IMU file's text changed
+    by ``imu_text`` or gzip-compressed."""
+    import gzip
+
+    def build(d: Path) -> list[str]:
+        root = write_mav0(d, clean().imu, mocap or clean().mocap)
+        imu = root / "imu0" / "data.csv"
+        if imu_text is not None:
+            imu.write_text(imu_text(imu.read_text()))
+        if gz:
+            imu = imu.with_suffix(".csv.gz")
+            imu.write_bytes(gzip.compress((root / "imu0" / "data.csv").read_bytes()))
+        return ["--imu", str(imu), "--mocap", str(root / "vicon0" / "data.csv"), *extra]
+    return build
+
+
+def _nan_row_at(seconds: float) -> Callable[[str], str]:
+    def edit(text: str) -> str:
+        lines = text.splitlines()
+        k = 1 + int(seconds * 200)
+        lines[k] = lines[k].rsplit(",", 1)[0] + ",nan"
+        return "\n".join(lines) + "\n"
+    return edit
+
+
+def _clock_reset(text: str) -> str:
+    """The IMU stamps from 15 s on moved back by 10 s (a logger whose clock restarted)."""
+    lines = text.splitlines()
+    for k in range(1 + 3000, len(lines)):
+        t, rest = lines[k].split(",", 1)
+        lines[k] = f"{int(t) - 10_000_000_000},{rest}"
+    return "\n".join(lines) + "\n"
+
+
+IO_CASES: list[Case] = [
+    Case("crazyflie_log", "file layout", "a Crazyflie uSD log (deg/s, g, both streams)",
+         _calibrate(_crazyflie()), Expect(0)),
+    Case("crazyflie_truncated", "file layout", "a Crazyflie uSD log cut short",
+         _calibrate(_crazyflie(cut=9)), Expect(2, ("truncated", "copy the log"))),
+    Case("crazyflie_no_pose", "file layout", "a Crazyflie uSD log without estPose events",
+         _calibrate(_crazyflie(poses=False)), Expect(2, ("no estPose", "--mocap-topic"))),
+    Case("imu_gzip", "file layout", "the IMU CSV gzip-compressed",
+         _calibrate(_euroc_files(gz=True)), Expect(2, ("gzip-compressed", "decompress"))),
+    Case("imu_clock_reset", "time units", "the IMU clock jumps back by 10 s at 15 s",
+         _calibrate(_euroc_files(_clock_reset)),
+         Expect(2, ("clock resets", "split the file", "--end"))),
+    Case("mocap_2hz", "option values", "mocap at 2 Hz",
+         _calibrate(_euroc_files(None, False, clean().mocap.select(
+             np.arange(len(clean().mocap)) % 50 == 0))),
+         Expect(2, ("2 Hz", "at least 10 Hz"))),
+    Case("bad_row_cropped_away", "option values", "a NaN IMU row at 25 s, --end 20",
+         _calibrate(_euroc_files(_nan_row_at(25.0), False, None, "--end", "20")), Expect(0)),
+    Case("columns_and_imu_columns", "option files", "--columns with --imu-columns",
+         _calibrate(_euroc_files(None, False, None, "--columns", "t=0,gyro=1:4,accel=4:7",
+                                 "--imu-columns", "t=0,gyro=1:4,accel=4:7")),
+         Expect(2, ("--columns and --imu-columns both given",))),
+]
+
+ALL_CASES += IO_CASES

@@ -14,13 +14,13 @@ import numpy as np
 from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.params import ParamInfo, check_value, group, param, param_info
-from mocap_calib.core.prepare.crop import crop_session
 from mocap_calib.core.result.priors import prior_problems, priors_from_results
 from mocap_calib.errors import InputError
-from mocap_calib.io.formats.bags import RecordingOptions
+from mocap_calib.io.checks import MIN_MOCAP_RATE_HZ
 from mocap_calib.io.formats.euroc import find_mav0
-from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
+from mocap_calib.io.reading import ExportOptions, RecordingOptions
+from mocap_calib.io.streams import Crop
 from mocap_calib.io.yaml_io import load_noise, load_result, noise_values
 
 #: The format options shared with the IMU-only commands (same names, same help).
@@ -31,8 +31,10 @@ GYRO_UNITS = ("rad/s", "deg/s")
 ACCEL_UNITS = ("m/s^2", "g")
 STAMPS = ("header", "receive")
 IMU_TOPIC_HELP = ("IMU topic of a bag or ULog (sensor_msgs/Imu; ULog: sensor_combined, or one "
-                  "IMU of several as sensor_gyro:N or sensor_accel:N); default: the only one "
-                  "(ULog: sensor_combined)")
+                  "IMU of several as sensor_gyro:N or sensor_accel:N), or the IMU's events of a "
+                  "Crazyflie uSD log (GYRO_EVENT,ACCEL_EVENT, or one event holding both); "
+                  "default: the only one (ULog: sensor_combined; Crazyflie: "
+                  "estGyroscope,estAcceleration)")
 
 
 @dataclass
@@ -46,8 +48,8 @@ class MocapFormat:
     mocap_topic: str | None = param(
         None, "pose topic of a bag or ULog (PoseStamped, TransformStamped, "
         "PoseWithCovarianceStamped, Odometry, or /tf with --mocap-frame; ULog: "
-        "vehicle_mocap_odometry or vehicle_visual_odometry); default: the only one",
-        show_default=False)
+        "vehicle_mocap_odometry or vehicle_visual_odometry), or the pose event of a Crazyflie "
+        "uSD log; default: the only one (Crazyflie: estPose)", show_default=False)
     mocap_frame: str | None = param(
         None, "the marker body's frame in a tf2_msgs/TFMessage topic: CHILD (its pose in the root "
         "of its TF tree, /tf_static included) or PARENT:CHILD (in PARENT)", show_default=False)
@@ -109,14 +111,22 @@ class InputSpec:
         "or Vicon CSV export, a bag/.mcap/.ulg; may be the same file as --imu", metavar="PATH",
         show_default=False)
     start: float | None = param(
-        None, "use the session from this many seconds after the IMU log's first sample",
-        unit="s", lo=0.0, show_default=False)
+        None, "crop: keep the session from this many seconds after the IMU log's first "
+        "sample (before any check of the data)", unit="s", lo=0.0, show_default=False)
     end: float | None = param(
-        None, "use the session up to this many seconds after the IMU log's first sample",
-        unit="s", lo=0.0, lo_open=True, show_default=False)
+        None, "crop: keep the session up to this many seconds after the IMU log's first "
+        "sample (before any check of the data)", unit="s", lo=0.0, lo_open=True,
+        show_default=False)
     pose_source: str = param("auto", "with a mav0 folder: which poses to read (auto: vicon0 if "
                              "present)", choices=("auto", "vicon0", "groundtruth"))
-    columns: str | None = columns_option()
+    columns: str | None = param(None, COLUMNS_HELP + "; covers both files",
+                                show_default=False)
+    imu_columns: str | None = param(
+        None, "column map of the IMU file alone (t=, gyro=, accel=), when the two files differ "
+        "in layout; not with --columns", show_default=False)
+    mocap_columns: str | None = param(
+        None, "column map of the mocap file alone (t=, quat=, pos=), when the two files "
+        "differ in layout; not with --columns", show_default=False)
     time_unit: str | None = time_unit_option()
     gyro_unit: str | None = gyro_unit_option()
     accel_unit: str | None = accel_unit_option()
@@ -138,6 +148,13 @@ class InputSpec:
     def export(self) -> ExportOptions:
         p = self.poses
         return ExportOptions(p.mocap_format, p.rigid_body, p.rotation, p.mocap_rate)
+
+    def crop(self, time_offset: float | None = None) -> Crop | None:
+        """``--start``/``--end``, the mocap kept 1 s (plus the clock offset) beyond them."""
+        if self.start is None and self.end is None:
+            return None
+        margin = 1.0 if time_offset is None else 1.0 + abs(time_offset)
+        return Crop(self.start, self.end, margin)
 
     def sources(self) -> list[Path]:
         """Every input path given (for reports' provenance)."""
@@ -284,8 +301,9 @@ class LoadedSession:
 
 
 def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSession:
-    """Read both streams (and, from a ``mav0`` folder, the IMU's ``sensor.yaml`` noise), and
-    cut them to ``--start``/``--end`` before anything else looks at them."""
+    """Read both streams (and, from a ``mav0`` folder, the IMU's ``sensor.yaml`` noise), cut
+    to ``--start``/``--end`` before any check looks at them (the mocap with a margin of 1 s
+    plus ``time_offset``)."""
     path, imu_path, mocap_path = spec.single()
     if path is None and (imu_path is None or mocap_path is None):
         raise InputError("give a mav0 folder, or both --imu and --mocap")
@@ -293,10 +311,11 @@ def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSes
         raise InputError("give either a mav0 folder or --imu/--mocap, not both")
     imu, mocap, notes = load_inputs(
         imu_path, mocap_path, path, pose_source=spec.pose_source, columns=spec.columns,
+        imu_columns=spec.imu_columns, mocap_columns=spec.mocap_columns,
         time_unit=spec.time_unit, gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit,
         quat_order=spec.poses.quat_order, position_unit=spec.poses.position_unit,
-        recording=spec.recording(), export=spec.export())
-    imu, mocap = crop_session(imu, mocap, spec.start, spec.end, time_offset)
+        recording=spec.recording(), export=spec.export(), crop=spec.crop(time_offset),
+        min_mocap_rate_hz=MIN_MOCAP_RATE_HZ)
     sensor_noise = None
     if path is not None:
         sensor = find_mav0(path) / "imu0" / "sensor.yaml"
