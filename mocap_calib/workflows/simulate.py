@@ -11,6 +11,7 @@ from mocap_calib.errors import InputError
 from mocap_calib.sim.injected import effect_help, injectable
 from mocap_calib.sim.motions import MOTIONS
 from mocap_calib.sim.presets import PRESET_HELP, PRESETS
+from mocap_calib.workflows.outputs import Named, OutputPlan, output
 
 #: What ``--effect`` accepts: every effect of the ladder and the stream faults.
 EFFECTS_DOC = "; ".join(f"{n}: {effect_help(n)}" for n in injectable())
@@ -20,8 +21,8 @@ EFFECTS_DOC = "; ".join(f"{n}: {effect_help(n)}" for n in injectable())
 class SimulateRequest:
     """Everything ``simulate`` can be told."""
 
-    out_dir: Path = param(MISSING, "folder to write the session into", argument=True,
-                          metavar="OUT_DIR")
+    out_dir: Path = output(MISSING, "folder to write the session into", kind="folder",
+                           argument=True, metavar="OUT_DIR")
     seed: int = param(0, "random seed (same seed, same output)", lo=0)
     duration: float = param(90.0, "session length", unit="s", lo=1.0, lo_open=True)
     imu_rate: float = param(200.0, "IMU rate", unit="Hz", lo=1.0, hi=1e5)
@@ -71,6 +72,14 @@ class SimulateRequest:
         1.0, "white gyro noise as a multiple of the data sheet's density", lo=0.0,
         lo_open=True, hi=1000.0)
 
+    def plan(self) -> OutputPlan:
+        """The session's files in OUT_DIR: ``mav0/imu0/data.csv`` (and ``mav0/vicon0/data.csv``
+        for a flight) and ``truth.yaml``."""
+        files = [self.out_dir / "mav0" / "imu0" / "data.csv", self.out_dir / "truth.yaml"]
+        if self.protocol == "flight":
+            files.insert(1, self.out_dir / "mav0" / "vicon0" / "data.csv")
+        return OutputPlan.of(self, outputs=[Named("OUT_DIR", f) for f in files])
+
 
 #: Options of a flight that a preset sets, and the SimConfig / Vibration field of each.
 _FLIGHT_KNOBS = ("imu_rate", "mocap_rate", "mocap_noise_corr", "motion", "max_motion_hz",
@@ -79,9 +88,29 @@ _VIBRATION_KNOBS = {"vibration": "accel_rms", "vibration_gyro": "gyro_rms",
                     "anti_alias_hz": "anti_alias_hz"}
 
 
+def _check_folder(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: exists and is not a folder; choose another OUT_DIR")
+
+
+def _refuse_recording(plan: OutputPlan, out_dir: Path) -> None:
+    """A folder that holds a recording but no simulator truth is a user's data, not an earlier
+    simulation: its files are not replaced."""
+    if (out_dir / "truth.yaml").is_file():
+        return
+    held = [o.path for o in plan.outputs if o.path.exists()]
+    if held:
+        raise InputError(f"OUT_DIR {out_dir}: holds {held[0]} and no truth.yaml, a recording "
+                         "rather than a simulation; simulate into another folder")
+
+
 def simulate_request(request: SimulateRequest) -> list[tuple[Path, str]]:
     """``simulate`` from its request (see :func:`simulate_to_folder`)."""
     r = request
+    plan = r.plan()
+    _check_folder(Path(r.out_dir))
+    _refuse_recording(plan, Path(r.out_dir))
+    plan.check()
     return simulate_to_folder(r.out_dir, protocol=r.protocol, seed=r.seed, duration=r.duration,
                               effects=list(r.effect), counts=r.counts, preset=r.preset,
                               **{k: getattr(r, k) for k in (*_FLIGHT_KNOBS, *_VIBRATION_KNOBS)})
@@ -115,8 +144,7 @@ def simulate_to_folder(out_dir: Path, *, protocol: str = "flight", seed: int = 0
         raise TypeError(f"simulate_to_folder: unknown options {sorted(unknown)}")
     given = _given(knobs)
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"{out_dir}: exists and is not a folder; choose another OUT_DIR")
+    _check_folder(out_dir)
     check_writable(out_dir / "truth.yaml")
     parsed = dict(parse_effect(e) for e in (effects or []))
     if counts and protocol != "multipos":
