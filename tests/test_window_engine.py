@@ -116,7 +116,7 @@ def _process_noise(noise: NoiseModel, R: np.ndarray, h: float) -> np.ndarray:
         R @ np.diag(noise.accelerometer_axis_scale) @ R.T)
     Q = np.zeros((15, 15))
     Q[0:3, 0:3] = noise.gyroscope_noise_density**2 * h * np.eye(3)
-    Q[3:6, 3:6] = Qa * h**3 / 3.0 + noise.velocity_noise_density**2 * h * np.eye(3)
+    Q[3:6, 3:6] = Qa * h**3 / 3.0
     Q[6:9, 6:9] = Qa * h
     Q[3:6, 6:9] = Q[6:9, 3:6] = Qa * h**2 / 2.0
     Q[9:12, 9:12] = noise.gyroscope_random_walk**2 * h * np.eye(3)
@@ -175,14 +175,11 @@ def _dense_cov(ex: dict, w: int, m1: int, noise: NoiseModel, full: np.ndarray, r
                 mocap_noise_corr_fraction=0.7), np.array([2.0, 0.5, 1.0, 0.25, 3.0, 1.0])),
     # The accelerometer noisier along one IMU axis (a drone's thrust axis).
     (NoiseModel(accelerometer_axis_scale=(0.5, 0.7, 2.9)), np.ones(6)),
-    # White velocity noise (an accelerometer error rising with frequency).
-    (NoiseModel(velocity_noise_density=5e-4), np.ones(6)),
     (NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
-                mocap_noise_corr_fraction=0.7, accelerometer_axis_scale=(3.0, 0.5, 0.6),
-                velocity_noise_density=2e-4),
+                mocap_noise_corr_fraction=0.7, accelerometer_axis_scale=(3.0, 0.5, 0.6)),
      np.array([2.0, 0.5, 1.0, 0.25, 3.0, 1.0]))],
     ids=["white", "white-axes", "correlated", "correlated-axes", "accel-axes",
-         "velocity-noise", "correlated-accel-axes-velocity"])
+         "correlated-accel-axes"])
 def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session, noise, axes):
     sim, s, v = short_session
     model = Model.parse("base+time_offset")

@@ -83,10 +83,10 @@ class CalibrationOptions:
         check_options(self)
         nz = self.noise
         for k, v in nz.to_dict().items():
-            if k.startswith("mocap_noise_corr") or k == "velocity_noise_density":
+            if k.startswith("mocap_noise_corr"):
                 continue
-            if not np.all(np.isfinite(v) & (np.asarray(v) > 0)):
-                raise InputError(f"noise model: {k} = {v} must be positive numbers")
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"noise model: {k} = {v} must be a positive number")
         if not (0.0 <= nz.mocap_noise_corr_time <= 10.0
                 and 0.0 <= nz.mocap_noise_corr_fraction < 1.0):
             raise InputError("noise model: mocap_noise_corr_time must be 0-10 s and "

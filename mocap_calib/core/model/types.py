@@ -144,22 +144,15 @@ class NoiseModel:
     # The accelerometer's white-noise variance per IMU axis, as factors on its density's square
     # (a drone's vibration is strongest along the thrust axis); all ones: the same on each.
     accelerometer_axis_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    # White noise on the integrated velocity (m/s/sqrt(Hz)): an accelerometer error whose power
-    # rises with frequency (rotor vibration, aliased by the IMU's sampling), which a white
-    # density would also spread over the low frequencies; 0: none.
-    velocity_noise_density: float = 0.0
 
     @property
     def isotropic(self) -> bool:
         return tuple(self.accelerometer_axis_scale) == (1.0, 1.0, 1.0)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data (the per-axis factors only when they are not all one, the velocity noise
-        only when there is one)."""
+        """Plain data (the per-axis factors only when they are not all one)."""
         out: dict[str, Any] = {k: float(v) for k, v in self.__dict__.items()
-                               if k not in ("accelerometer_axis_scale", "velocity_noise_density")}
-        if self.velocity_noise_density:
-            out["velocity_noise_density"] = float(self.velocity_noise_density)
+                               if k != "accelerometer_axis_scale"}
         if not self.isotropic:
             out["accelerometer_axis_scale"] = [float(x) for x in self.accelerometer_axis_scale]
         return out

@@ -54,7 +54,6 @@ def noise_params(nz: NoiseModel, axis_scale: Array = UNIT_AXES) -> Array:
     par[kn.SIG2:kn.SIG2 + 3] = nz.mocap_rotation_sigma**2 * scale[0:3]
     par[kn.SIG2 + 3:kn.SIG2 + 6] = nz.mocap_position_sigma**2 * scale[3:6]
     par[kn.ACCEL_AXES:kn.ACCEL_AXES + 3] = nz.accelerometer_axis_scale
-    par[kn.Q_VEL] = nz.velocity_noise_density**2
     return par
 
 

@@ -26,9 +26,9 @@ from mocap_calib.core.jit import kernel
 #: Index of the noise parameters in ``par``: the densities squared, the mocap noise's AR(1)
 #: fraction and time constant, its six white variances, and the accelerometer's white-noise
 #: variance factors per IMU axis (all ones: isotropic).
-Q_GYRO, Q_ACCEL, Q_GYRO_WALK, Q_ACCEL_WALK, RHO, T_CORR, SIG2, ACCEL_AXES, Q_VEL = (
-    0, 1, 2, 3, 4, 5, 6, 12, 15)
-N_PAR = 16
+Q_GYRO, Q_ACCEL, Q_GYRO_WALK, Q_ACCEL_WALK, RHO, T_CORR, SIG2, ACCEL_AXES = (
+    0, 1, 2, 3, 4, 5, 6, 12)
+N_PAR = 15
 #: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
 DIFFUSE = (1.0, 1.0, 0.5)
 
@@ -142,7 +142,6 @@ def predict_cov(P, ns, Fb, hk, a, par, tmp, cov, R):  # pragma: no cover  (compi
     sa2 = par[Q_ACCEL]
     for i in range(3):
         P[i, i] += par[Q_GYRO] * hk
-        P[3 + i, 3 + i] += par[Q_VEL] * hk
         P[9 + i, 9 + i] += par[Q_GYRO_WALK] * hk
         P[12 + i, 12 + i] += par[Q_ACCEL_WALK] * hk
     if accel_noise(par, R, cov):
@@ -489,9 +488,8 @@ def state_space(inc, Rbar, h, M, par, F, Q, Rn, Hp, Fm, Qm,
                 Q[w, j, i, i] = par[Q_GYRO] * hk
                 Q[w, j, 9 + i, 9 + i] = par[Q_GYRO_WALK] * hk
                 Q[w, j, 12 + i, 12 + i] = par[Q_ACCEL_WALK] * hk
-                Q[w, j, 3 + i, 3 + i] = par[Q_VEL] * hk
                 for t in range(3):
-                    Q[w, j, 3 + i, 3 + t] += Qa[i, t] * hk ** 3 / 3.0
+                    Q[w, j, 3 + i, 3 + t] = Qa[i, t] * hk ** 3 / 3.0
                     Q[w, j, 6 + i, 6 + t] = Qa[i, t] * hk
                     Q[w, j, 3 + i, 6 + t] = Qa[i, t] * hk ** 2 / 2.0
                     Q[w, j, 6 + i, 3 + t] = Qa[i, t] * hk ** 2 / 2.0

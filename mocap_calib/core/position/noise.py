@@ -47,13 +47,10 @@ Array = NDArray[np.float64]
 PARAMETERS = ("accelerometer_noise_density", "gyroscope_noise_density",
               "mocap_position_sigma", "mocap_rotation_sigma", "mocap_noise_corr_time",
               "mocap_noise_corr_fraction", "accelerometer_axis_scale_x",
-              "accelerometer_axis_scale_y", "velocity_noise_density")
+              "accelerometer_axis_scale_y")
 #: The levels searched first, then the accelerometer's axes (with its level).
-LEVELS = (0, 1, 2, 3, 4, 5, 8)
+LEVELS = (0, 1, 2, 3, 4, 5)
 AXES = (0, 6, 7)
-#: The velocity noise's start (m/s/sqrt(Hz)) and lower bound (below it: none).
-VELOCITY_START = 3e-4
-VELOCITY_FLOOR = 1e-6
 #: Windows the likelihood is evaluated on, spread over every take.
 MAX_WINDOWS = 8
 #: Mocap rate (Hz) the windows are thinned to for the search.
@@ -141,8 +138,7 @@ class _Objective:
                        mocap_position_sigma=float(np.exp(x[2])),
                        mocap_rotation_sigma=float(np.exp(x[3])),
                        mocap_noise_corr_time=T, mocap_noise_corr_fraction=rho,
-                       accelerometer_axis_scale=tuple(float(np.exp(a)) for a in axes),
-                       velocity_noise_density=float(max(np.exp(x[8]), VELOCITY_FLOOR)))
+                       accelerometer_axis_scale=tuple(float(np.exp(a)) for a in axes))
 
     def __call__(self, xs: list[Array]) -> Array:
         return self.likelihood([self.noise(x) for x in xs]) + np.array(
@@ -169,8 +165,7 @@ def to_vector(nz: NoiseModel) -> Array:
     axes -= axes.mean()
     return np.array([np.log(nz.accelerometer_noise_density), np.log(nz.gyroscope_noise_density),
                      np.log(nz.mocap_position_sigma), np.log(nz.mocap_rotation_sigma),
-                     np.log(T), np.log(rho / (1.0 - rho)), axes[0], axes[1],
-                     np.log(max(nz.velocity_noise_density, VELOCITY_START))])
+                     np.log(T), np.log(rho / (1.0 - rho)), axes[0], axes[1]])
 
 
 def identify_noise(problems: list[tuple[PositionProblem, Theta]], start: NoiseModel,
