@@ -34,6 +34,7 @@ from mocap_calib.core.position.graph import (
     key_knot,
 )
 from mocap_calib.core.position.stage import PositionResult
+from mocap_calib.core.result.verdicts import EffectTest
 from mocap_calib.core.uncertainty.sensitivity import correlated_mocap_model
 
 Array = NDArray[np.float64]
@@ -48,7 +49,7 @@ ALPHA = 0.01
 MAX_TEST_WINDOWS = 240
 
 
-@dataclass
+@dataclass(frozen=True)
 class EffectScore:
     """One candidate's test."""
 
@@ -64,11 +65,11 @@ class EffectScore:
     def shown(self) -> bool:
         return self.significant and self.problem is None
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"effect": self.effect, "statistic": round(self.statistic, 2), "dof": self.dof,
-                "log10_p": round(self.log10_p, 2), "one_step_estimate": self.estimate,
-                "significant": self.significant, "plausible": self.problem is None,
-                **({"implausible": self.problem} if self.problem else {})}
+    def record(self) -> EffectTest:
+        """The test as the result keeps it (figures rounded as the file shows them)."""
+        return EffectTest(self.effect, round(self.statistic, 2), self.dof,
+                          round(self.log10_p, 2), self.estimate, self.significant,
+                          self.problem)
 
 
 def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | None = None,

@@ -397,8 +397,7 @@ def _score_candidates(ds: _Session, model: Model, current: PositionResult, noise
         except Interrupted:
             raise
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
-            # A candidate that cannot be fitted (GTSAM raises RuntimeError on an
-            # indeterminate system) is not the answer.
+            # A candidate that cannot be fitted (GTSAM: RuntimeError) is not the answer.
             ds.notes.append(f"step {step}: {cand} could not be fitted ({err})")
             continue
         score = _test(ds, cand, f, current, threshold)

@@ -82,7 +82,7 @@ class Effect:
             :mod:`mocap_calib.core.model.plausible`); overridable per session.
         range_sigma: the weak prior around the start value (parameter units) that keeps
             every graph well posed; a parameter whose posterior sigma is not well below it
-            was not determined by the data (:mod:`mocap_calib.core.model.ranges`).
+            was not determined by the data (:mod:`mocap_calib.core.model.parameters`).
         about_identity: a matrix term reported (and judged plausible) as ``M = I + E``, a
             scale-and-misalignment matrix near identity, rather than as ``E`` itself.
     """
