@@ -123,6 +123,7 @@ def summary_table(r: CalibrationResult) -> str:
         lines.append("")
         for k, why in r.unobservable.items():
             lines.append(f"UNOBSERVABLE {k}: {why}")
+    lines += [x.line() for x in r.degraded]
     for n in r.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)

@@ -1,5 +1,5 @@
 """The result's sections from the uncertainty passes: the consistency and sensitivity
-sections (the numbers as the file shows them)."""
+sections (the numbers as the file shows them) and what ran degraded."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.parameters import ROTATION, TIME_OFFSET, TRANSLATION, Parameter
 from mocap_calib.core.result.estimate import Estimate
+from mocap_calib.core.result.sections import Degradation
 from mocap_calib.core.result.verdicts import ConsistencyReport, SegmentRecord, SensitivityReport
 from mocap_calib.core.uncertainty.segments import Consistency, SegmentEstimate
-from mocap_calib.core.uncertainty.sensitivity import Sensitivity
+from mocap_calib.core.uncertainty.sensitivity import EFFECTS_SHOWN, MOCAP_AR1, Sensitivity
 
 Array = NDArray[np.float64]
 
@@ -49,3 +50,26 @@ def sensitivity_report(sens: Sensitivity, total: dict[Parameter, Array]) -> Sens
         {f: {p: round(v, 3) for p, v in m.items()} for f, m in sens.moved.items()}, moved,
         {k: round(v, 4) for k, v in sens.mocap_model.items()} or None,
         float(f"{sens.accel_density:.4g}") if sens.accel_density else None, sens.note)
+
+
+def consistency_degraded(c: Consistency, what: str, asked: bool) -> list[Degradation]:
+    """The consistency check that was asked for but could not compare ``what``s."""
+    if not asked or not c.note:
+        return []
+    return [Degradation(f"{what} consistency", c.note,
+                        f"the {what}s are not compared: the sigmas carry no consistency "
+                        "factor (1)")]
+
+
+#: What each alternative of the sensitivity is, for a reader.
+_ALTERNATIVES = {MOCAP_AR1: "the correlated mocap noise model",
+                 EFFECTS_SHOWN: "the model with the effects the data show"}
+
+
+def sensitivity_degraded(sens: Sensitivity) -> list[Degradation]:
+    """One entry per alternative whose refit failed."""
+    return [Degradation(f"sensitivity {key}",
+                        f"the refit under {_ALTERNATIVES.get(key, f'IMU noise densities {key}')} "
+                        f"failed ({why})",
+                        "its shift is not in the sigmas, which may be too small")
+            for key, why in sens.failed.items()]

@@ -36,7 +36,12 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.checks.degenerate import single_axis_refusal
 from mocap_calib.core.checks.plausibility import check_plausibility
-from mocap_calib.core.checks.reports import consistency_report, sensitivity_report
+from mocap_calib.core.checks.reports import (
+    consistency_degraded,
+    consistency_report,
+    sensitivity_degraded,
+    sensitivity_report,
+)
 from mocap_calib.core.clock.search import ClockSearch
 from mocap_calib.core.model.parameters import Parameter
 from mocap_calib.core.options import CalibrationOptions
@@ -114,6 +119,9 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
     r = replace(r, consistency=consistency_report(cons, takes),
                 sensitivity=sensitivity_report(sens, total))
     r = r.with_notes(*_notes(r, cons, takes, sens))
+    r = r.with_degraded(*consistency_degraded(cons, "segment", opts.segments >= 2),
+                        *consistency_degraded(takes, "take", len(pos.takes) > 1),
+                        *sensitivity_degraded(sens))
     return r, {"consistency": round(t1 - t0, 3), "sensitivity": round(t2 - t1, 3)}
 
 

@@ -60,7 +60,8 @@ def calibrate_auto(recordings: list[Recording], options: CalibrationOptions,
     # The diagnosis' time, its final calibration's steps included once.
     seconds = round(time.perf_counter() - t0 - float(result.solver.total_seconds or 0.0), 3)
     return replace(result, model_selection=_selection(reports, found),
-                   solver=result.solver.with_steps(last={"model_selection": seconds}))
+                   solver=result.solver.with_steps(last={"model_selection": seconds}),
+                   degraded=(*result.degraded, *(x for r in reports for x in r.degraded)))
 
 
 def _selection(reports: list[DiagnoseReport], found: list[str]) -> ModelSelection:

@@ -47,6 +47,7 @@ from mocap_calib.core.result.calibration import CalibrationResult, Diagnostics
 from mocap_calib.core.result.estimate import Estimate
 from mocap_calib.core.result.sections import (
     ClockSummary,
+    Degradation,
     ImuGapsSummary,
     SolverFigures,
     TakeResult,
@@ -58,6 +59,9 @@ from mocap_calib.core.stages.figures import StageStats
 from mocap_calib.errors import CalibrationError, ConvergenceError, Interrupted
 
 Array = NDArray[np.float64]
+
+#: Most rounds of the position stage (settling rounds and the final solve).
+SETTLING_ROUNDS = 6
 
 __all__ = ["calibrate", "calibrate_takes", "Recording", "ProgressFn", "IterationFn"]
 
@@ -181,6 +185,7 @@ def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: Positi
     try:
         return run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise,
                                   init, opts.priors, opts.robust, opts.max_iterations,
+                                  irls_rounds=SETTLING_ROUNDS,
                                   adapt_noise=opts.adapt_noise,
                                   adapt_accel=opts.adapt_noise and opts.accel_noise_from_data,
                                   on_iteration=on_iteration, progress=say)
@@ -206,6 +211,10 @@ def _effect_tests(r: CalibrationResult, pos: PositionResult, opts: CalibrationOp
     r = replace(r, effect_tests=EffectTests(
         ALPHA, tuple(s.record() for s in scores), tuple(s.effect for s in shown), total,
         tested))
+    r = r.with_degraded(*(Degradation(f"effect test {s.effect}", why,
+                                      "its evidence rests on the other statistic, or on none "
+                                      "(log10 p 0)")
+                          for s in scores for why in s.failures))
     if not shown:
         return r
     line = ("effects the data show (not in the model): "
@@ -284,7 +293,19 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
             effects[name]["ppm"] = 1e6 * float(value)
     solver = SolverFigures(round(seconds, 3), round(pos.chi2_per_dof, 4), dict(pos.solver),
                            per_axis_figures(att, posn))
-    return CalibrationResult(
+    result = CalibrationResult(
         estimates=estimates, gravity_magnitude=float(pos.g_mag), model=str(model),
         effects=effects, unobservable=unob, stages=tuple(stages), solver=solver,
         noise=pos.noise, notes=tuple(notes), session=session_info, diagnostics=diag)
+    return result.with_degraded(*_settling(pos))
+
+
+def _settling(pos: PositionResult) -> list[Degradation]:
+    """The position stage's settling rounds cut off by their cap."""
+    if pos.solver.get("position_rounds", 0) < SETTLING_ROUNDS:
+        return []
+    return [Degradation(
+        "position stage", f"the rounds that settle the mocap noise levels and robust weights "
+        f"reached their cap ({SETTLING_ROUNDS}) before the levels stopped moving, or just as "
+        "they did", "the answer and its sigmas are at the last levels and weights; the "
+        "sensitivity to the noise model covers what a further round could move")]

@@ -36,6 +36,7 @@ from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.result.estimate import Estimate, SigmaTerms, plain, read_sigma, read_value
 from mocap_calib.core.result.sections import (
     ClockSummary,
+    Degradation,
     ImuGapsSummary,
     SolverFigures,
     TakeResult,
@@ -101,6 +102,7 @@ class CalibrationResult:
     plausibility: Plausibility | None = None
     effect_tests: EffectTests | None = None
     model_selection: ModelSelection | None = None
+    degraded: tuple[Degradation, ...] = ()
     version: int = RESULT_VERSION
     diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
 
@@ -120,6 +122,9 @@ class CalibrationResult:
 
     def with_notes(self, *lines: str) -> CalibrationResult:
         return replace(self, notes=(*self.notes, *lines))
+
+    def with_degraded(self, *entries: Degradation) -> CalibrationResult:
+        return replace(self, degraded=(*self.degraded, *entries))
 
     # The values under the result file's names, for readers outside the core.
     @property
@@ -225,6 +230,7 @@ class CalibrationResult:
             "effect_tests": _or_empty(self.effect_tests),
             **({"model_selection": self.model_selection.to_dict()}
                if self.model_selection is not None else {}),
+            **({"degraded": [x.to_dict() for x in self.degraded]} if self.degraded else {}),
             "notes": list(self.notes),
         }
 
@@ -264,6 +270,7 @@ class CalibrationResult:
             plausibility=Plausibility.from_dict(d.get("plausibility")),
             effect_tests=EffectTests.from_dict(d.get("effect_tests")),
             model_selection=ModelSelection.from_dict(d.get("model_selection")),
+            degraded=tuple(Degradation.from_dict(x) for x in d.get("degraded") or []),
             version=version,
         )
 

@@ -1,5 +1,5 @@
 """Sections of a calibration result about the session and the run: the clock search, the IMU's
-gaps, each take's own answer and the solver's figures.
+gaps, each take's own answer, the solver's figures and what ran degraded.
 
 Each section is built once, by the pass that knows it, and never changed afterwards; it holds
 the numbers the result file shows (rounded where the file rounds). ``to_dict``/``from_dict``
@@ -21,6 +21,32 @@ from mocap_calib.core.result.estimate import Estimate, plain, read_sigma, read_v
 if TYPE_CHECKING:
     from mocap_calib.core.clock.search import ClockSearch
     from mocap_calib.core.prepare.gaps import ImuGaps
+
+
+@dataclass(frozen=True)
+class Degradation:
+    """A step that could not run as intended and what the result lacks because of it.
+
+    Attributes:
+        what: the step (``consistency``, ``sensitivity``, ``position stage``, ...).
+        why: what went wrong.
+        consequence: what the result does without it.
+    """
+
+    what: str
+    why: str
+    consequence: str
+
+    def line(self) -> str:
+        """One line for the text summary."""
+        return f"DEGRADED {self.what}: {self.why}; {self.consequence}"
+
+    def to_dict(self) -> dict[str, str]:
+        return {"what": self.what, "why": self.why, "consequence": self.consequence}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Degradation:
+        return cls(str(d["what"]), str(d.get("why", "")), str(d.get("consequence", "")))
 
 
 @dataclass(frozen=True)

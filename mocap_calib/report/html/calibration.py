@@ -136,6 +136,8 @@ def result_section(r: CalibrationResult) -> Section:
     if r.unobservable:
         blocks.append(Notes("unobservable", [f"{k}: {v}" for k, v in r.unobservable.items()],
                             "warning"))
+    if r.degraded:
+        blocks.append(Notes("degraded", [x.line() for x in r.degraded], "warning"))
     blocks.append(Notes("warnings", list(r.notes) or ["no warnings"],
                         "warning" if r.notes else "ok"))
     steps = r.solver.step_seconds or {}
