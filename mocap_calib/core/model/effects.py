@@ -220,7 +220,8 @@ def of_term(sensor: Sensor, acts_on: ActsOn) -> Effect:
     return eff
 
 
-#: The clock offset t_d (its name is also the result file's key) and the world's |g|.
+#: The clock offset t_d (its name is also the result file's key, and its base-parameter record
+#: :data:`~mocap_calib.core.model.parameters.TIME_OFFSET` shares it) and the world's |g|.
 CLOCK_OFFSET: Effect = of_kind("clock")
 GRAVITY_MAGNITUDE: Effect = of_kind("gravity")
 
