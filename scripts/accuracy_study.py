@@ -1,6 +1,7 @@
 """Accuracy study: calibrate many simulated sessions and compare every estimate with the
 simulator's truth; per parameter, the worst error and the spread of error / sigma (near 1 when
-the reported uncertainty is honest). The README's accuracy table comes from such a run.
+the reported uncertainty is honest). Prints the table of docs/validation.md (``--write-doc``
+rewrites its section there).
 
 The sessions run on the batch engine: a local process pool, or Dask (`pip install
 'mocap-calib[cluster]'`; a LocalCluster, or the cluster at --scheduler).
@@ -8,6 +9,7 @@ The sessions run on the batch engine: a local process pool, or Dask (`pip instal
 Usage: python scripts/accuracy_study.py [--seeds N] [--first-seed S] [--duration S]
                                         [--effect NAME=VALUE ...] [--engine local|dask]
                                         [--workers W] [--scheduler ADDRESS]
+                                        [--write-doc] [--doc PATH]
 """
 
 from __future__ import annotations
@@ -15,11 +17,14 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from _doc_section import add_doc_options, check, number, provenance, table, write
 
 from mocap_calib.batch.engine import map_jobs
 
+SECTIONS = ("accuracy_study",)
 
-def run_case(job: tuple[int, float, tuple[str, ...]]) -> dict[str, list[float]]:
+
+def run_case(job: tuple[int, float, tuple[str, ...]]) -> dict[str, tuple[str, float, float]]:
     """Per parameter, the error / sigma of every component (tangent spaces as the sigmas)."""
     seed, duration, effects = job
     from mocap_calib.core.options import CalibrationOptions
@@ -34,7 +39,21 @@ def run_case(job: tuple[int, float, tuple[str, ...]]) -> dict[str, list[float]]:
     sim = simulate_flight(SimConfig(seed=seed, duration=duration, effects=parsed))
     res = calibrate(sim.imu, sim.mocap, CalibrationOptions())
     rows = compare(res, CalibrationResult.from_dict(sim.truth))
-    return {r.name: [r.error, r.z if r.z is not None else float("nan")] for r in rows}
+    return {r.name: (r.unit, r.error, r.z if r.z is not None else float("nan")) for r in rows}
+
+
+def markdown(per: dict[str, tuple[str, list[list[float]]]], done: int, total: int,
+             duration: float) -> str:
+    """The section of docs/validation.md."""
+    rows = []
+    for name, (unit, vals) in per.items():
+        a = np.asarray(vals)
+        rows.append([name, f"{number(a[:, 0].max())} {unit}", f"{np.nanmedian(a[:, 1]):.2f}",
+                     f"{np.nanmax(a[:, 1]):.2f}"])
+    return (provenance("accuracy_study.py") + "\n"
+            f"{done}/{total} sessions of {duration:g} s calibrated.\n\n"
+            + table(["parameter", "worst error", "largest \\|error\\|/sigma per session: median",
+                     "max"], rows))
 
 
 def main() -> None:
@@ -47,25 +66,22 @@ def main() -> None:
     ap.add_argument("--engine", default="local", help="local or dask")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--scheduler", default=None, help="Dask scheduler address")
+    add_doc_options(ap)
     args = ap.parse_args()
+    check(args, list(SECTIONS))
     jobs = [(s, args.duration, tuple(args.effect))
             for s in range(args.first_seed, args.first_seed + args.seeds)]
     outcomes = map_jobs(run_case, jobs, args.engine, args.workers, args.scheduler)
-    per: dict[str, list[list[float]]] = {}
+    per: dict[str, tuple[str, list[list[float]]]] = {}
     for o in outcomes:
         if not o.ok:
             print(f"seed {jobs[o.index][0]}: {o.error}")
             continue
-        for name, (err, z) in o.value.items():
-            per.setdefault(name, []).append([err, z])
-    print(f"{sum(o.ok for o in outcomes)}/{len(jobs)} sessions of {args.duration:g} s")
-    print("worst error (unit of workflows.compare); per session the largest |err|/sigma over "
-          "the axes: its median and max over the sessions")
-    print(f"{'parameter':<18} {'worst error':>12} {'median':>7} {'max':>7}")
-    for name, vals in per.items():
-        a = np.asarray(vals)
-        print(f"{name:<18} {a[:, 0].max():12.3g} {np.nanmedian(a[:, 1]):7.2f} "
-              f"{np.nanmax(a[:, 1]):7.2f}")
+        for name, (unit, err, z) in o.value.items():
+            per.setdefault(name, (unit, []))[1].append([err, z])
+    text = markdown(per, sum(o.ok for o in outcomes), len(jobs), args.duration)
+    print(text)
+    write(args, {"accuracy_study": text})
 
 
 if __name__ == "__main__":

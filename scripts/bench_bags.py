@@ -8,9 +8,11 @@ and as a bare ROS 2 MCAP file (and, with ``--tf``, the mocap as ``/tf`` under a 
 process and prints the best and the median, and checks that the values read are the values
 written (bit for bit; for ``/tf``, to 1e-12 after composing the chain).
 
-The machine may be shared: the figures are wall times and move with other load.
+The machine may be shared: the figures are wall times and move with other load. Prints the
+table of docs/validation.md (``--write-doc`` rewrites its section there).
 
 Usage: python scripts/bench_bags.py [--minutes M] [--repeats N] [--tf] [--keep DIR]
+       [--write-doc] [--doc PATH]
 """
 
 from __future__ import annotations
@@ -21,12 +23,15 @@ import tempfile
 import time
 from pathlib import Path
 
+import _doc_section as doc
 import numpy as np
 
 from mocap_calib.io.formats.bags import RecordingOptions
 from mocap_calib.io.loader import load_inputs
 
 T0_NS = 1_700_000_000_000_000_000
+
+SECTIONS = ("bench_bags",)
 
 
 def _session(minutes: float, imu_hz: float, mocap_hz: float, seed: int = 0) -> dict:
@@ -160,7 +165,9 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--tf", action="store_true", help="also time a /tf + /tf_static mocap")
     ap.add_argument("--keep", type=Path, help="write the bags here (default: a temporary dir)")
+    doc.add_doc_options(ap)
     a = ap.parse_args()
+    doc.check(a, list(SECTIONS))
     d = _session(a.minutes, a.imu_rate, a.mocap_rate)
     print(f"{a.minutes:g} min: {len(d['ti'])} IMU messages at {a.imu_rate:g} Hz, "
           f"{len(d['tm'])} mocap messages at {a.mocap_rate:g} Hz")
@@ -168,6 +175,8 @@ def main() -> None:
     folder.mkdir(parents=True, exist_ok=True)
     cases = [("rosbag1", False), ("mcap", False)] + ([("rosbag1", True), ("mcap", True)]
                                                       if a.tf else [])
+    best: dict[tuple[str, bool], float] = {}
+    sizes: dict[str, list[float]] = {}
     try:
         for kind, tf in cases:
             name = f"bench{'_tf' if tf else ''}.{'bag' if kind == 'rosbag1' else 'mcap'}"
@@ -179,6 +188,8 @@ def main() -> None:
                 dt, imu, mocap = read(path, tf)
                 times.append(dt)
             check(imu, mocap, d, tf)
+            best[kind, tf] = min(times)
+            sizes.setdefault(kind, []).append(path.stat().st_size / 1e6)
             label = f"{'ROS 1 bag' if kind == 'rosbag1' else 'MCAP'}{' (/tf)' if tf else ''}"
             print(f"{label:16s} {path.stat().st_size / 1e6:7.1f} MB  written in {wrote:5.1f} s"
                   f"  read: best {min(times):5.2f} s, median {float(np.median(times)):5.2f} s "
@@ -186,6 +197,21 @@ def main() -> None:
     finally:
         if a.keep is None:
             shutil.rmtree(folder, ignore_errors=True)
+    n = len(d["ti"]) + len(d["tm"])
+    def size(kind: str) -> str:
+        lo, hi = f"{min(sizes[kind]):.0f}", f"{max(sizes[kind]):.0f}"
+        return f"{lo} MB" if lo == hi else f"{lo}-{hi} MB"
+
+    rows = [[f"{'ROS 1 bag' if kind == 'rosbag1' else 'MCAP'} ({size(kind)})",
+             f"{best[kind, False]:.1f} s", *([f"{best[kind, True]:.1f} s"] if a.tf else [])]
+            for kind in ("rosbag1", "mcap")]
+    count = f"{n:,}".replace(",", " ")
+    text = (doc.provenance("bench_bags.py") + "\n"
+            + doc.table([f"{a.minutes:g} min, {count} messages",
+                     f"`PoseStamped`, best of {a.repeats}",
+                     *(["`/tf` + `/tf_static` chain"] if a.tf else [])], rows))
+    print(text)
+    doc.write(a, {"bench_bags": text})
 
 
 if __name__ == "__main__":

@@ -2,17 +2,18 @@
 each, a slow bias trend), with 1 and 2 local workers and on a Dask LocalCluster.
 
 Each run is the whole command in a fresh process into an empty output folder (start-up, pool
-start, reading, calibrating, writing, fleet summary). Target: 2 local workers at least 1.7x
-faster than 1 on a 2-core machine. Also checks that the runs wrote the same results.
+start, reading, calibrating, writing, fleet summary), with 1 and 2 local workers and on a Dask
+LocalCluster of 2; also checks that the runs wrote the same results. Prints the table of
+docs/validation.md (``--write-doc`` rewrites its section there).
 
-Usage: python scripts/bench_batch.py [--duration S] [--repeats N] [--no-dask]
+Usage: python scripts/bench_batch.py [--duration S] [--repeats N] [--no-dask] [--write-doc]
+       [--doc PATH]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import re
 import resource
 import shutil
 import subprocess
@@ -21,9 +22,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import yaml
+from _doc_section import add_doc_options, check, provenance, table, write
+
 from mocap_calib.workflows.fleet_sim import FleetSimConfig, simulate_fleet
 
-TIMING = re.compile(r"^\s*-?\s*(seconds|total_seconds|position_batch_seconds):")
+SECTIONS = ("bench_batch",)
+
 
 
 def _busy_s() -> float:
@@ -57,9 +62,18 @@ def run(manifest: Path, out: Path, *options: str) -> tuple[float, float]:
     return wall, max(0.0, others) / (wall * (os.cpu_count() or 1))
 
 
-def results(out: Path) -> dict[str, str]:
-    return {p.parent.name: "".join(line for line in p.read_text().splitlines(True)
-                                   if not TIMING.match(line))
+def _untimed(obj: object) -> object:
+    """A result without its wall-time entries (every key that names seconds)."""
+    if isinstance(obj, dict):
+        return {k: _untimed(v) for k, v in obj.items() if "seconds" not in str(k)}
+    if isinstance(obj, list):
+        return [_untimed(v) for v in obj]
+    return obj
+
+
+def results(out: Path) -> dict[str, object]:
+    """Every session's result, wall times left out (they differ between any two runs)."""
+    return {p.parent.name: _untimed(yaml.safe_load(p.read_text()))
             for p in sorted(out.glob("*/calib.yaml"))}
 
 
@@ -68,7 +82,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=120.0, help="seconds per session")
     ap.add_argument("--repeats", type=int, default=2, help="runs per setting (the best counts)")
     ap.add_argument("--no-dask", action="store_true")
+    add_doc_options(ap)
     args = ap.parse_args()
+    check(args, list(SECTIONS))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         t0 = time.perf_counter()
@@ -80,7 +96,7 @@ def main() -> None:
             settings.append(("dask LocalCluster, 2 workers", ("--engine", "dask",
                                                                "--workers", "2")))
         best: dict[str, tuple[float, float]] = {}
-        files: dict[str, dict[str, str]] = {}
+        files: dict[str, dict[str, object]] = {}
         for r in range(args.repeats):
             for k, (name, opts) in enumerate(settings):
                 out = root / f"out{k}"
@@ -99,6 +115,15 @@ def main() -> None:
         same = all(f == ref for f in files.values())
         print(f"{len(ref)}/8 sessions calibrated; result files identical across settings "
               f"(wall-time lines aside): {same}")
+    rows = [[name, f"{best[name][0]:.1f} s", f"x{base / best[name][0]:.2f}",
+             f"{best[name][1]:.0%}"] for name, _ in settings]
+    text = (provenance("bench_batch.py") + "\n"
+            + table([f"8 sessions of {args.duration:g} s", f"best wall of {args.repeats}",
+                     "speed-up", "cores used by other processes meanwhile"], rows) + "\n"
+            f"{len(ref)}/8 sessions calibrated; result files identical across the settings "
+            f"(wall-time lines aside): {'yes' if same else 'no'}.\n")
+    print(text)
+    write(args, {"bench_batch": text})
 
 
 if __name__ == "__main__":

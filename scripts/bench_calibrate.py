@@ -7,10 +7,12 @@ Per-evaluation figures make the time attributable: the position stage's evaluati
 windows (its main solve; the refits of the consistency and sensitivity checks run more), their
 total time, and the time per 1000 window-steps (windows x padded steps).
 
-Targets (issue 27): 10 min <= 5 s and <= 700 MB; 60 min <= 30 s and <= 1 GB (memory flat in the
-session length). CPU time counts all threads (the window chunks run on two).
+CPU time counts all threads (the window chunks run on two). With ``--runs N`` every length runs
+N times (each in its own process) and the table gives the medians and the wall-time range.
+Prints the table of docs/validation.md (``--write-doc`` rewrites its section there).
 
-Usage: python scripts/bench_calibrate.py [minutes ...]      (default: 1 10 30 60)
+Usage: python scripts/bench_calibrate.py [minutes ...] [--runs N] [--write-doc] [--doc PATH]
+       (default minutes: 1 10 30 60)
 """
 
 from __future__ import annotations
@@ -18,9 +20,14 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import statistics
 import subprocess
 import sys
 import time
+
+from _doc_section import add_doc_options, check, provenance, table, write
+
+SECTIONS = ("bench_calibrate",)
 
 
 def run_one(minutes: float, seed: int = 1) -> dict:
@@ -56,38 +63,62 @@ def run_one(minutes: float, seed: int = 1) -> dict:
     }
 
 
+def markdown(by_minutes: dict[float, list[dict]]) -> str:
+    """The section of docs/validation.md: medians per session length."""
+    rows = []
+    for m, rs in by_minutes.items():
+        walls = [r["wall_s"] for r in rs]
+        wall = f"{statistics.median(walls):.2f} s" + (
+            f" ({min(walls):.2f}-{max(walls):.2f} s, median of {len(rs)})" if len(rs) > 1 else "")
+        rows.append([f"{m:g} min", wall, f"{statistics.median(r['cpu_s'] for r in rs):.2f} s",
+                     f"{statistics.median(r['peak_rss_mb'] for r in rs):.0f} MB"])
+    return (provenance("bench_calibrate.py") + "\n"
+            + table(["simulated session, in-process", "wall", "CPU", "peak RSS"], rows))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("minutes", nargs="*", type=float, default=[1.0, 10.0, 30.0, 60.0],
                         help="session lengths in minutes")
+    parser.add_argument("--runs", type=int, default=1, help="processes per session length")
     parser.add_argument("--one", type=float, help=argparse.SUPPRESS)
+    add_doc_options(parser)
     args = parser.parse_args()
     if args.one is not None:
         print(json.dumps(run_one(args.one)))
         return
-    minutes = args.minutes
-    results = []
-    for m in minutes:
-        out = subprocess.run([sys.executable, __file__, f"--one={m}"], capture_output=True,
-                             text=True, check=True)
-        r = json.loads(out.stdout.strip().splitlines()[-1])
-        results.append(r)
-        n_eval, t_eval = r["position_evaluations"], r["position_batch_s"]
-        per = 1e3 * t_eval / max(n_eval, 1)
-        per_k = per / max(r["windows"] * r["window_steps"] / 1000.0, 1e-9)
-        print(f"{m:5.0f} min: {r['wall_s']:7.2f} s wall, {r['cpu_s']:7.2f} s CPU, peak RSS "
-              f"{r['peak_rss_mb']:7.1f} MB (after simulating: {r['rss_after_simulation_mb']:.0f}"
-              f" MB), {r['windows']} windows x {r['window_steps']} steps, {n_eval} evaluations "
-              f"in {t_eval:.2f} s ({per:.0f} ms each, {per_k:.1f} ms per 1000 window-steps), "
-              f"stages {r['stages_s']}", flush=True)
-        for name, (unit, err, z) in r["errors"].items():
-            print(f"         {name:<17} error {err:<10.3g} {unit:<6} |err|/sigma {z}")
+    check(args, list(SECTIONS))
+    by_minutes: dict[float, list[dict]] = {}
+    for m in args.minutes:
+        for _ in range(args.runs):
+            out = subprocess.run([sys.executable, __file__, f"--one={m}"], capture_output=True,
+                                 text=True, check=True)
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            by_minutes.setdefault(m, []).append(r)
+            _print_run(m, r)
+    results = [rs[0] for rs in by_minutes.values()]
     if len(results) > 1:
         base = results[0]
         for r in results[1:]:
             ratio = (r["wall_s"] / base["wall_s"]) / (r["minutes"] / base["minutes"])
             print(f"time per minute, {r['minutes']:.0f} min vs {base['minutes']:.0f} min: "
                   f"x{ratio:.2f} (1.00 = linear)")
+    text = markdown(by_minutes)
+    print(text)
+    write(args, {"bench_calibrate": text})
+
+
+def _print_run(m: float, r: dict) -> None:
+    n_eval, t_eval = r["position_evaluations"], r["position_batch_s"]
+    per = 1e3 * t_eval / max(n_eval, 1)
+    per_k = per / max(r["windows"] * r["window_steps"] / 1000.0, 1e-9)
+    print(f"{m:5.0f} min: {r['wall_s']:7.2f} s wall, {r['cpu_s']:7.2f} s CPU, peak RSS "
+          f"{r['peak_rss_mb']:7.1f} MB (after simulating: {r['rss_after_simulation_mb']:.0f}"
+          f" MB), {r['windows']} windows x {r['window_steps']} steps, {n_eval} evaluations "
+          f"in {t_eval:.2f} s ({per:.0f} ms each, {per_k:.1f} ms per 1000 window-steps), "
+          f"stages {r['stages_s']}", flush=True)
+    for name, (unit, err, z) in r["errors"].items():
+        print(f"         {name:<17} error {err:<10.3g} {unit:<6} |err|/sigma {z}")
 
 
 if __name__ == "__main__":

@@ -11,10 +11,15 @@ Figures: best of ``--repeat`` runs, wall and CPU (all threads) ms per evaluation
 window-steps (windows x padded steps), on 1 and 2 chunk threads. CPU time is the steadier
 figure when other processes load the machine.
 
+``time`` prints the problem's row of the table of docs/validation.md (CPU ms per 1000
+window-steps on one thread); ``--write-doc`` puts it into that section (replacing the row with
+the same ``--label``, or adding it).
+
 Usage:
     python scripts/bench_engine.py capture SRC OUT.pkl     SRC: sim:MINUTES, a mav0 folder or
                                                            IMU.csv,MOCAP.csv (EuRoC layout)
-    python scripts/bench_engine.py time OUT.pkl [--repeat 5]
+    python scripts/bench_engine.py time OUT.pkl [--repeat 5] [--label TEXT] [--write-doc]
+                                   [--doc PATH]
 """
 
 from __future__ import annotations
@@ -24,6 +29,11 @@ import pickle
 import resource
 import time
 from pathlib import Path
+
+from _doc_section import add_doc_options, check, read_section, table, upsert_row, write
+
+SECTIONS = ("bench_engine",)
+HEADER = ["problem", "full evaluation", "frozen replay", "noise-model choice"]
 
 
 def capture(src: str, out: Path) -> None:
@@ -37,13 +47,13 @@ def capture(src: str, out: Path) -> None:
                                         effects={"time_offset": [0.004]}))
         res = calibrate(sim.imu, sim.mocap, CalibrationOptions())
     else:
-        from mocap_calib.workflows.calibrate import run_calibration
+        from mocap_calib.workflows.calibrate import CalibrateRequest, run_calibration
         from mocap_calib.workflows.session import InputSpec
 
         parts = src.split(",")
-        spec = (InputSpec(imu=Path(parts[0]), mocap=Path(parts[1])) if len(parts) == 2
-                else InputSpec(path=Path(src)))
-        res, _ = run_calibration(spec, CalibrationOptions())
+        spec = (InputSpec(imu=(Path(parts[0]),), mocap=(Path(parts[1]),)) if len(parts) == 2
+                else InputSpec(mav0=(Path(src),)))
+        res, _ = run_calibration(CalibrateRequest(inputs=spec))
     tr = res.diagnostics.trace
     pos = tr.position
     keep = {"session": tr.session, "model": tr.model_state.model, "noise": pos.noise,
@@ -66,12 +76,14 @@ def _timed(fn, repeat: int) -> tuple[float, float]:
     return wall, cpu
 
 
-def time_engine(path: Path, repeat: int) -> None:
+def time_engine(path: Path, repeat: int) -> list[float]:
+    """Prints the figures; returns CPU ms per 1000 window-steps on one thread: full
+    evaluation, frozen replay, noise-model choice."""
     import gtsam
-    from mocap_calib.core.position.noise_fit import fit_mocap_correlation
 
     from mocap_calib.core.position.engine import PositionProblem, Theta
     from mocap_calib.core.position.threads import set_chunk_threads
+    from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
 
     d = pickle.loads(path.read_bytes())
     win = d["windows"]
@@ -86,6 +98,7 @@ def time_engine(path: Path, repeat: int) -> None:
     pp.collect_scores = True
     pp.evaluate(th)
     print(f"  first evaluation (compiles or loads kernels): {time.perf_counter() - t_first:.2f} s")
+    one_thread: list[float] = []
     for threads in (1, 2):
         set_chunk_threads(threads)
         full = _timed(lambda: pp.evaluate(th), repeat)
@@ -101,8 +114,11 @@ def time_engine(path: Path, repeat: int) -> None:
             f"{name} {1e3 * w:.0f} / {1e3 * c:.0f} ({1e6 * w / steps:.1f} / {1e6 * c / steps:.1f})"
             for name, (w, c) in (("full", full), ("record", rec), ("frozen", frozen),
                                  ("noise-model choice", lik))), flush=True)
+        if threads == 1:
+            one_thread = [1e6 * c / steps for _, c in (full, frozen, lik)]
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"  peak RSS {rss:.0f} MB")
+    return one_thread
 
 
 def main() -> None:
@@ -114,11 +130,18 @@ def main() -> None:
     t = sub.add_parser("time")
     t.add_argument("pickle", type=Path)
     t.add_argument("--repeat", type=int, default=3)
+    t.add_argument("--label", help="the row's first cell (default: the pickle's name)")
+    add_doc_options(t)
     args = ap.parse_args()
     if args.cmd == "capture":
         capture(args.src, args.out)
-    else:
-        time_engine(args.pickle, args.repeat)
+        return
+    check(args, list(SECTIONS))
+    cells = [args.label or args.pickle.name,
+             *(f"{x:.1f}" for x in time_engine(args.pickle, args.repeat))]
+    print(table(HEADER, [cells]))
+    if args.write_doc:
+        write(args, {"bench_engine": upsert_row(read_section(args.doc, "bench_engine"), cells)})
 
 
 if __name__ == "__main__":

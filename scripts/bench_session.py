@@ -6,10 +6,11 @@ The session is not in the repository: give its path, a mav0 folder or ``IMU.csv,
 With ``--cold`` the first run compiles the kernels into an empty cache (as the first run after
 installing does) and the next runs load them from it (a fresh process with a warm cache).
 
-The reference: mocap2gt (C++/Ceres) on its real 65 s, 500 Hz example session on this machine:
-6.56 s wall, 6.25 s CPU, 268 MB.
+Prints the session's row of the table of docs/validation.md; ``--write-doc`` puts it into
+that section (replacing the row with the same ``--label``, or adding it).
 
-Usage: python scripts/bench_session.py PATH [--runs 3] [--cold] [-- extra calibrate options]
+Usage: python scripts/bench_session.py PATH [--runs 3] [--cold] [--label TEXT] [--write-doc]
+       [--doc PATH] [-- extra calibrate options]
 """
 
 from __future__ import annotations
@@ -22,6 +23,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _doc_section import add_doc_options, check, read_section, table, upsert_row, write
+
+SECTIONS = ("bench_session",)
+HEADER = ["session (`calibrate` as a user runs it)", "wall", "CPU", "peak RSS"]
 
 
 def run_once(args: list[str], env: dict[str, str]) -> tuple[float, float, float, int]:
@@ -44,10 +50,13 @@ def main() -> int:
     ap.add_argument("path", help="mav0 folder, or IMU.csv,MOCAP.csv")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--cold", action="store_true", help="first run into an empty kernel cache")
+    ap.add_argument("--label", help="the row's first cell (default: the path and options)")
+    add_doc_options(ap)
     argv = sys.argv[1:]
     cut = argv.index("--") if "--" in argv else len(argv)
     a = ap.parse_args(argv[:cut])
     extra = argv[cut + 1:]
+    check(a, list(SECTIONS))
     parts = a.path.split(",")
     inputs = ["--imu", parts[0], "--mocap", parts[1]] if len(parts) == 2 else [a.path]
     for p in parts:
@@ -72,6 +81,17 @@ def main() -> int:
         print(f"median of {len(warm)}: {statistics.median(r[0] for r in warm):.2f} s wall, "
               f"{statistics.median(r[1] for r in warm):.2f} s CPU, "
               f"{statistics.median(r[2] for r in warm):.0f} MB peak")
+    # The row: the cold run alone with --cold (what a first run after installing costs), else
+    # the medians of the runs.
+    use = rows[:1] if a.cold else rows
+    label = a.label or " ".join([a.path, *extra, *(["(first run, compiles)"] if a.cold else [])])
+    cells = [label, f"{statistics.median(r[0] for r in use):.2f} s"
+             + (f" (median of {len(use)})" if len(use) > 1 else ""),
+             f"{statistics.median(r[1] for r in use):.2f} s",
+             f"{statistics.median(r[2] for r in use):.0f} MB"]
+    print(table(HEADER, [cells]))
+    if a.write_doc:
+        write(a, {"bench_session": upsert_row(read_section(a.doc, "bench_session"), cells)})
     return 0
 
 

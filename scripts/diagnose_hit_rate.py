@@ -5,10 +5,12 @@ session; the diagnosis starts from the base model and must name that effect firs
 else. Sessions with no hidden effect must give "none": clean ones, and realistic ones whose
 mocap noise is correlated over 0.3 s (noise is not an effect; the bias random walk is on in
 all). Pairs hidden together must both be found, and nothing else. Also reported: the final
-low-band residual RMS over the noise floor.
+low-band residual RMS over the noise floor. Prints the table of docs/validation.md
+(``--write-doc`` rewrites its section there).
 
 Usage: python scripts/diagnose_hit_rate.py [--seeds N] [--duration S] [--jobs J] [--extra-nulls M]
        [--effects a,b,...] [--json out.json] [--engine local|dask] [--scheduler ADDRESS]
+       [--write-doc] [--doc PATH]
 The cases run on the batch engine: a local process pool, or Dask (`pip install
 'mocap-calib[cluster]'`; a LocalCluster, or the cluster at --scheduler).
 """
@@ -20,8 +22,12 @@ import json
 import os
 import time
 
+from _doc_section import add_doc_options, check, provenance, table, write
+
 from mocap_calib.batch.engine import map_jobs
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS
+
+SECTIONS = ("diagnose_hit_rate",)
 
 PAIRS = (("gyro_scale_misalignment", "accel_scale_misalignment"),
          ("time_offset", "clock_drift"))
@@ -58,7 +64,9 @@ def main() -> None:
     ap.add_argument("--json")
     ap.add_argument("--engine", default="local", help="local or dask")
     ap.add_argument("--scheduler", default=None, help="Dask scheduler address")
+    add_doc_options(ap)
     args = ap.parse_args()
+    check(args, list(SECTIONS))
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     d = args.duration
     cases = [((e,), s, d, 0.0) for e in args.effects.split(",") if e for s in seeds]
@@ -115,6 +123,56 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(results, fh, indent=1)
+    text = markdown(results, args.first_seed, args.seeds, d)
+    print(text)
+    write(args, {"diagnose_hit_rate": text})
+
+
+def markdown(results: list[dict], first: int, seeds: int, duration: float) -> str:
+    """The section of docs/validation.md (counts over the cases that ran)."""
+    from mocap_calib.sim.flight import DEFAULT_MAGNITUDE
+
+    rows, singles, nulls, pairs = [], {}, {}, {}
+    for r in results:
+        h = r["hidden"]
+        if len(h) == 1:
+            singles.setdefault(h[0], []).append(r)
+        elif not h:
+            nulls.setdefault(r["mocap_noise_corr"], []).append(r)
+        else:
+            pairs.setdefault(tuple(h), []).append(r)
+    hits = total = 0
+    for e, rs in singles.items():
+        first_ok = sum(bool(r["found"]) and r["found"][0] == e for r in rs)
+        alone = sum(r["found"] == [e] for r in rs)
+        hits, total = hits + first_ok, total + len(rs)
+        rows.append([f"`{e}` ({DEFAULT_MAGNITUDE[e]:g})", f"{first_ok}/{len(rs)}",
+                     f"{alone}/{len(rs)}"])
+    rows.append(["**hit rate**", f"**{hits}/{total} = {hits / max(total, 1):.0%}**", ""])
+    for c, rs in sorted(nulls.items()):
+        what = "white mocap noise" if c == 0 else f"mocap noise correlated over {c:g} s"
+        rows.append([f"nothing hidden, {what}: false alarms",
+                     f"{sum(bool(r['found']) for r in rs)}/{len(rs)}", ""])
+    for pr, rs in pairs.items():
+        rows.append([" + ".join(f"`{e}`" for e in pr) + " hidden together: both found, "
+                     "nothing else", f"{sum(set(r['found']) == set(pr) for r in rs)}/{len(rs)}",
+                     ""])
+    worst = [max(r["gyro_ratio"], r["accel_ratio"]) for r in results]
+    white = [w for w, r in zip(worst, results, strict=True) if r["mocap_noise_corr"] == 0]
+    corr = [w for w, r in zip(worst, results, strict=True) if r["mocap_noise_corr"] != 0]
+    ratio = f"max {max(worst):.2f}; within 5 % in {sum(w <= 1.05 for w in white)}/{len(white)} " \
+            "sessions with white mocap noise"
+    if corr:
+        lo, hi = f"{min(corr):.2f}", f"{max(corr):.2f}"
+        ratio += f"; {lo if lo == hi else f'{lo}-{hi}'} with correlated mocap noise"
+    rows.append(["final low-band residual RMS / noise floor, worst sensor per session", ratio,
+                 ""])
+    secs = [r["seconds"] for r in results]
+    rows.append(["run time of one diagnosis", f"{min(secs):.0f}-{max(secs):.0f} s", ""])
+    return (provenance("diagnose_hit_rate.py") + "\n"
+            f"{len(results)} cases, seeds {first}-{first + seeds - 1}, {duration:g} s sessions."
+            "\n\n" + table(["hidden (the simulator's default magnitude)", "named first",
+                             "`found` holds nothing else"], rows))
 
 
 if __name__ == "__main__":

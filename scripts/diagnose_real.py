@@ -1,7 +1,10 @@
 """The diagnosis on every real recording in ../shared/data: the gap (low-band residual over the
 noise floor) step by step, what was found, what was implausible, and the unexplained signature.
+Prints the table of docs/validation.md (``--write-doc`` rewrites its section there, from a run
+over every recording).
 
-Usage: python scripts/diagnose_real.py [--only euroc,broad21] [--json out.json]
+Usage: python scripts/diagnose_real.py [--only euroc,broad21] [--json out.json] [--write-doc]
+       [--doc PATH]
 """
 
 from __future__ import annotations
@@ -12,10 +15,14 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+from _doc_section import add_doc_options, check, provenance, table, write  # noqa: E402
 from real_data_study import RECORDINGS  # noqa: E402
 
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose  # noqa: E402
 from mocap_calib.workflows.session import NoiseSpec, load_session  # noqa: E402
+
+SECTIONS = ("diagnose_real",)
+ORDINAL = {1: "1st", 2: "2nd", 3: "3rd"}
 
 
 def run(key: str) -> dict:
@@ -35,18 +42,53 @@ def run(key: str) -> dict:
             "steps": steps, "unexplained": rep.unexplained, "seconds": round(rep.seconds, 1)}
 
 
+def markdown(reports: list[dict]) -> str:
+    """The section of docs/validation.md: one column per recording, one row per step."""
+    n_added = max(len(r["steps"]) - 2 for r in reports)  # base and final are no effect steps
+
+    def gap(st: dict) -> str:
+        return f"{st['gyro_gap']:.3g} / {st['accel_gap']:.3g}"
+
+    rows = [["base (no clock offset)", *(gap(r["steps"][0]) for r in reports)]]
+    clock_first = all(r["steps"][0]["added"] == "time_offset" for r in reports)
+    for k in range(1, n_added + 1):
+        named = not (k == 1 and clock_first)
+        name = "+ time_offset" if not named else f"+ {ORDINAL.get(k, f'{k}th')} effect"
+        cells = []
+        for r in reports:
+            st = r["steps"][k] if k < len(r["steps"]) - 1 else None
+            added = r["steps"][k - 1]["added"] if st else None
+            cells.append("-" if st is None else (f"{added}: {gap(st)}" if named else gap(st)))
+        rows.append([name, *cells])
+    rows.append(["final calibration", *(gap(r["steps"][-1]) for r in reports)])
+    rows.append(["significant but implausible (not in `found`)",
+                 *("; ".join(f"{x['effect']} ({x['reason']})" for x in r["implausible"]) or "-"
+                   for r in reports)])
+    rows.append(["run time", *(f"{r['seconds']:.0f} s" for r in reports)])
+    return (provenance("diagnose_real.py") + "\n"
+            + table(["step", *(r["recording"] for r in reports)], rows))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default=",".join(RECORDINGS))
     ap.add_argument("--json")
+    add_doc_options(ap)
     a = ap.parse_args()
+    keys = a.only.split(",")
+    full = set(RECORDINGS) <= set(keys)
+    if full:
+        check(a, list(SECTIONS))
     out = []
-    for key in a.only.split(","):
+    for key in keys:
         r = run(key)
         print(json.dumps(r, indent=1), flush=True)
         out.append(r)
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=1))
+    text = markdown(out)
+    print(text)
+    write(a, {"diagnose_real": text} if full else {})
 
 
 if __name__ == "__main__":

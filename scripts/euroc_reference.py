@@ -8,7 +8,11 @@ Three columns per parameter:
   of T_MI(t) over the session, and T_MI is the mean at that t_d. Its biases are the mean of
   the file's bias columns.
 
-Usage: python scripts/euroc_reference.py [path/to/mav0]   (default: ../shared/data/...)
+Prints the comparison, then the table of docs/validation.md (``--write-doc`` rewrites its
+section there).
+
+Usage: python scripts/euroc_reference.py [path/to/mav0] [--write-doc] [--doc PATH]
+       (default mav0: ../shared/data/euroc_V2_03_difficult/mav0)
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from _doc_section import add_doc_options, check, provenance, table, write
+from _shared_data import DATA
 from scipy.optimize import minimize_scalar
 
 from mocap_calib.core.model import so3
@@ -24,7 +30,9 @@ from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.io.formats.euroc import read_euroc_poses, read_t_bs
 from mocap_calib.workflows.calibrate import CalibrateRequest, InputSpec, run_calibration
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "euroc_V2_03_difficult" / "mav0"
+SECTIONS = ("euroc_reference",)
+
+DEFAULT = DATA / "euroc_V2_03_difficult" / "mav0"
 
 
 def _interp_poses(t_q, t, R, p):
@@ -85,11 +93,60 @@ def _mean_rotation(R: np.ndarray) -> np.ndarray:
     return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
 
+def _vec(x, fmt: str, scale: float = 1.0) -> str:
+    return "[" + ", ".join(format(a * scale, fmt) for a in np.asarray(x, float)) + "]"
+
+
+def _ang(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.linalg.norm(so3.log(Ra.T @ Rb))))
+
+
+def markdown(res, T_MI_pub: np.ndarray, gt: dict) -> str:
+    """The section of docs/validation.md: ours, the published T_BS and the ground truth's."""
+    R_ours = so3.quat_to_rotmat(res.rotation_wxyz)
+    s_rot = np.degrees(res.sigma_rotation)
+    p_pub, p_gt = T_MI_pub[:3, 3], gt["p_MI"]
+    tilt = np.degrees(np.arccos(-res.gravity_in_mocap[2]))
+    rows = [
+        ["`R_MI` (quaternion wxyz)", f"{_vec(res.rotation_wxyz, '.5f')}, sigma "
+         f"{s_rot.min():.2f}-{s_rot.max():.2f} deg",
+         f"{_ang(T_MI_pub[:3, :3], R_ours):.2f} deg away",
+         f"{_ang(gt['R_MI'], R_ours):.2f} deg away"],
+        ["`p_MI` (mm)", f"{_vec(res.translation, '.1f', 1e3)} +- "
+         f"{_vec(res.sigma_translation, '.1f', 1e3)}",
+         f"{_vec(p_pub, '.1f', 1e3)} ({1e3 * np.linalg.norm(p_pub - res.translation):.1f} mm away)",
+         f"{_vec(p_gt, '.1f', 1e3)} ({1e3 * np.linalg.norm(p_gt - res.translation):.1f} mm away)"],
+        ["`t_d` (ms)", f"{1e3 * res.time_offset:.2f} +- {1e3 * res.sigma_time_offset:.2f}",
+         "not given", f"{1e3 * gt['time_offset']:.2f}"],
+        ["gyro bias (1e-3 rad/s)", f"{_vec(res.gyro_bias, '.2f', 1e3)} +- "
+         f"{_vec(res.sigma_gyro_bias, '.2f', 1e3)}", "-",
+         f"{_vec(gt['gyro_bias'], '.2f', 1e3)} (mean of its bias columns)"],
+        ["accel bias (m/s^2)", f"{_vec(res.accel_bias, '.3f')} +- "
+         f"{_vec(res.sigma_accel_bias, '.3f')}", "-",
+         f"{_vec(gt['accel_bias'], '.3f')} (mean; range over the file "
+         f"{np.max(gt['accel_bias_range']):.3f})"],
+        ["tilt of the Vicon z axis", f"{tilt:.2f} +- {np.degrees(res.sigma_gravity.max()):.2f} "
+         "deg from vertical", "-", "-"],
+    ]
+    return (provenance("euroc_reference.py") + "\n"
+            + table(["parameter", "mocap-calib", "published `vicon0/sensor.yaml`",
+                     "implied by the ground truth"], rows) + "\n"
+            f"The published `T_BS` and the ground truth's `T_MI` differ by "
+            f"{_ang(T_MI_pub[:3, :3], gt['R_MI']):.2f} deg and "
+            f"{1e3 * np.linalg.norm(p_pub - p_gt):.1f} mm. The ground truth's own `T_MI` "
+            f"scatters over the session by {gt['rot_scatter_deg'].min():.2f}-"
+            f"{gt['rot_scatter_deg'].max():.2f} deg and {gt['p_scatter_mm'].min():.1f}-"
+            f"{gt['p_scatter_mm'].max():.1f} mm (RMS per axis).\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("mav0", nargs="?", type=Path, default=DEFAULT,
                         help=f"EuRoC mav0 folder (default {DEFAULT})")
-    root = parser.parse_args().mav0
+    add_doc_options(parser)
+    args = parser.parse_args()
+    check(args, list(SECTIONS))
+    root = args.mav0
     res, _ = run_calibration(CalibrateRequest(inputs=InputSpec(mav0=root),
                                               options=CalibrationOptions()))
     T_IM = read_t_bs(root / "vicon0" / "sensor.yaml")
@@ -139,6 +196,10 @@ def main() -> None:
     tilt = np.degrees(np.arccos(-res.gravity_in_mocap[2]))
     print(f"gravity: tilt of the Vicon z axis from vertical {tilt:.3f} deg "
           f"+- {np.degrees(res.sigma_gravity.max()):.3f}; direction {v(res.gravity_in_mocap)}")
+    print()
+    text = markdown(res, T_MI_pub, gt)
+    print(text)
+    write(args, {"euroc_reference": text})
 
 
 if __name__ == "__main__":

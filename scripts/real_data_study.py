@@ -10,8 +10,11 @@ The PX4 flight logs (``px4/*.ulg``, no mocap topic logged) are run through the c
 as a user would: ``calibrate`` (its exit code and refusal line) and ``allan`` on their IMU (its
 answer, or exit code and refusal line).
 
+Prints the tables of docs/validation.md; ``--write-doc`` rewrites its sections there (the
+recordings' table only from a full run: every recording, thirds and noise scalings).
+
 Usage: python scripts/real_data_study.py [--json out.json] [--only euroc,broad21,px4]
-       [--no-thirds]
+       [--no-thirds] [--no-sensitivity] [--write-doc] [--doc PATH]
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -27,13 +31,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from _doc_section import add_doc_options, check, provenance, table, write
+from _shared_data import DATA
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.errors import CalibrationError
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
-
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 RECORDINGS = {
     "euroc": ("EuRoC V2_03", InputSpec(mav0=(DATA / "euroc_V2_03_difficult" / "mav0",))),
@@ -54,11 +58,17 @@ RECORDINGS = {
 
 PX4_LOGS = ("sample.ulg", "sample_log_small.ulg")
 
+SECTIONS = ("real_data_study", "real_data_px4")
 
-def _cli(*args: str) -> tuple[int, str]:
-    """``python -m mocap_calib ARGS`` as a user runs it: exit code and the last stderr line."""
+
+def _cli(*args: str, cwd: Path | None = None) -> tuple[int, str]:
+    """``python -m mocap_calib ARGS`` as a user runs it (in ``cwd``): exit code and the last
+    stderr line."""
+    repo = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [repo, *filter(None, [os.environ.get("PYTHONPATH")])])}
     p = subprocess.run([sys.executable, "-m", "mocap_calib", *args], capture_output=True,
-                       text=True, check=False)
+                       text=True, check=False, cwd=cwd, env=env)
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     return p.returncode, lines[-1] if lines else ""
 
@@ -70,13 +80,13 @@ def px4_logs() -> list[dict]:
 
     out = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name in PX4_LOGS:
-            log = str(DATA / "px4" / name)
-            code, line = _cli("calibrate", "--imu", log, "--mocap", log, "--out",
-                              f"{tmp}/c.yaml", "-q")
+        for name in PX4_LOGS:  # run in the logs' folder: the lines name the file alone
+            here = DATA / "px4"
+            code, line = _cli("calibrate", "--imu", name, "--mocap", name, "--out",
+                              f"{tmp}/c.yaml", "-q", cwd=here)
             rec: dict = {"recording": f"PX4 {name}", "calibrate": {"exit": code, "line": line}}
             noise = Path(tmp) / f"{name}.yaml"
-            code, line = _cli("allan", "--imu", log, "--out", str(noise), "-q")
+            code, line = _cli("allan", "--imu", name, "--out", str(noise), "-q", cwd=here)
             rec["allan"] = {"exit": code, "line": line}
             if code == 0:
                 d = yaml.safe_load(noise.read_text())
@@ -212,6 +222,7 @@ def study(key: str, thirds: bool, sensitivity: bool, fulls: dict | None = None) 
                       "moved_sigmas": r["sensitivity"].get("moved_sigmas"),
                       "mocap_model": r["sensitivity"].get("mocap_noise_model"),
                       "effects_shown": r["effect_tests"].get("shown"),
+                      "sigma_factor": r["consistency"].get("sigma_factor", {}),
                       "consistency_factor": {k: v["consistency_factor"]
                                              for k, v in r["uncertainty"].items()}}
     dur = session.imu.duration
@@ -251,7 +262,7 @@ def trials_agree(fulls: dict[str, dict]) -> dict[str, dict[str, float]]:
 
 
 def summary(reports: list[dict]) -> str:
-    """One line per recording: the figures the README's real-data table shows."""
+    """One line per recording: the figures of docs/validation.md's real-data table."""
     lines = ["recording    exit  R_MI vs ref  t_d (ms)            thirds max z (R, p, t_d)"
              "   moved sigmas x3 / x1/3 (R, p, t_d)"]
     for rep in reports:
@@ -271,32 +282,117 @@ def summary(reports: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _three(x, fmt: str = ".1f") -> str:
+    return ", ".join(format(v, fmt) for v in x)
+
+
+def _row(rep: dict) -> list[str]:
+    """One recording's row of the table."""
+    f = rep["full"]
+    if f["exit"] != 0:
+        return [rep["recording"], f"exit {f['exit']}: {f['error']}", *["-"] * 6]
+    sR = f["sigma_R_deg"]
+    d = f.get("p_MI_vs_ref_mm")
+    own = rep.get("own", {})
+    z, fac = own.get("thirds_max_z") or {}, own.get("sigma_factor") or {}
+    own_z = ", ".join(f"{z[k]:.1f}" + (f" (sigma x{fac[k]:.2f})" if fac.get(k, 1.0) > 1.0
+                                       else "") for k in ("R_MI", "p_MI", "t_d") if k in z)
+    tz, tm = rep.get("thirds_max_z", {}), rep.get("thirds_max_diff", {})
+    thirds = (", ".join(f"{tz[k]:.1f}" for k in ("R_MI", "p_MI", "t_d") if k in tz)
+              + (f"; {tm['R_MI_deg']:.2f} deg, {tm['p_MI_mm']:.1f} mm" if tm else ""))
+    return [rep["recording"], f"{f['R_MI_vs_ref_deg']:.2f} deg (sigma {min(sR):.2f}-{max(sR):.2f})",
+            f"{_three(f['p_MI_mm'])} +- {_three(f['sigma_p_mm'])}",
+            "-" if d is None else f"{_three(d)} ({float(np.linalg.norm(d)):.1f})",
+            f"{f['t_d_ms']:.2f} +- {f['sigma_t_d_ms']:.2f}", own_z, thirds,
+            ", ".join(own.get("effects_shown") or []) or "none"]
+
+
+def _noise_line(reports: list[dict], limit: float = 1.0) -> str:
+    """How far the answers move with the noise densities x3 and x1/3 (independent reruns)."""
+    over = []
+    for rep in reports:
+        for scale, moved_by in rep.get("noise_sensitivity_sigmas", {}).items():
+            for k, v in moved_by.items():
+                if k != "exit" and k != "error" and v > limit:
+                    over.append(f"`{k}` at {scale.replace('x0.333', 'x1/3')} on "
+                                f"{rep['recording']} ({v:.2f} sigma)")
+    return (f"Noise densities x3 and x1/3 (independent reruns) move every answer by at most "
+            f"{limit:.1f} sigma" + (", except " + "; ".join(over) if over else "") + ".\n")
+
+
+def markdown(reports: list[dict], pairs: dict[str, dict[str, float]]) -> str:
+    """Section real_data_study: the recordings' table, the noise scalings, the BROAD pairs."""
+    recs = [r for r in reports if "full" in r]
+    out = (provenance("real_data_study.py") + "\n"
+           + table(["recording", "`R_MI` vs reference", "`p_MI` (mm) +- sigma",
+                    "`p_MI` vs reference (mm)", "`t_d` (ms)", "own check: thirds z (R, p, t_d)",
+                    "independent thirds: max z (R, p, t_d); max difference",
+                    "effects the data show"], [_row(r) for r in recs])
+           + "\n" + _noise_line(recs))
+    if pairs:
+        out += "\n" + table(["BROAD trials", "`R_MI`: max \\|difference\\| / combined sigma",
+                             "`p_MI`"],
+                            [[k.replace("broad", ""), f"{v.get('R_MI', float('nan')):.1f}",
+                              f"{v.get('p_MI', float('nan')):.1f}"] for k, v in pairs.items()])
+    return out
+
+
+def px4_markdown(px4: list[dict]) -> str:
+    """Section real_data_px4: what calibrate and allan say on the PX4 logs."""
+    lines = [provenance("real_data_study.py").rstrip("\n"), "", "```"]
+    for rep in px4:
+        for cmd in ("calibrate", "allan"):
+            r = rep[cmd]
+            lines.append(f"{rep['recording']}, {cmd}: exit {r['exit']}")
+            lines.append(r["line"] if r["exit"] else
+                         f"gyro N {r['gyroscope_noise_density']:.3g}, accel N "
+                         f"{r['accelerometer_noise_density']:.3g}")
+    return "\n".join([*lines, "```"]) + "\n"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", type=Path)
     ap.add_argument("--only", default=",".join([*RECORDINGS, "px4"]))
     ap.add_argument("--no-thirds", action="store_true")
     ap.add_argument("--no-sensitivity", action="store_true")
+    add_doc_options(ap)
     a = ap.parse_args()
+    if not DATA.is_dir():
+        print(f"error: {DATA}: no such folder; the recordings live in ../shared/data next to "
+              "the repository", file=sys.stderr)
+        sys.exit(2)
+    keys = a.only.split(",")
+    full = set(RECORDINGS) <= set(keys) and not a.no_thirds and not a.no_sensitivity
+    check(a, [*(["real_data_study"] if full else []), *(["real_data_px4"] if "px4" in keys
+                                                         else [])])
     reports = []
     fulls: dict[str, dict] = {}
-    keys = a.only.split(",")
     for key in (k for k in keys if k != "px4"):
         rep = study(key, not a.no_thirds, not a.no_sensitivity, fulls)
         print(json.dumps(rep, indent=1), flush=True)
         reports.append(rep)
     print(summary(reports))
+    px4: list[dict] = []
     if "px4" in keys:
         px4 = px4_logs()
         print(px4_summary(px4))
-        reports += px4
     broad = {k: v for k, v in fulls.items() if k.startswith("broad")}
-    if len(broad) > 1:
-        pairs = trials_agree(broad)
+    pairs = trials_agree(broad) if len(broad) > 1 else {}
+    if pairs:
         print("BROAD trials pairwise max z (R_MI, p_MI):", json.dumps(pairs))
-        reports.append({"broad_pairs_max_z": pairs})
+    sections = {}
+    if reports:
+        sections["real_data_study"] = markdown(reports, pairs)
+    if px4:
+        sections["real_data_px4"] = px4_markdown(px4)
+    for text in sections.values():
+        print(text)
     if a.json:
-        a.json.write_text(json.dumps(reports, indent=1))
+        a.json.write_text(json.dumps([*reports, *px4, {"broad_pairs_max_z": pairs}], indent=1,
+                                     default=str))
+    # The recordings' table is written only from a full run (a partial one would drop rows).
+    write(a, {k: v for k, v in sections.items() if k != "real_data_study" or full})
 
 
 if __name__ == "__main__":

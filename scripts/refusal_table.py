@@ -87,6 +87,34 @@ BEFORE = {
                     "too short or the mocap has too many gaps'",
     "start_beyond_session": "d8dff8f: exit 2, 'only 0 IMU samples; a calibration needs at "
                             "least a few thousand'",
+    # The cases of files, processes and numbers, before their checks (commit 1da82c7).
+    "out_is_imu": "1da82c7: exit 0, the IMU log replaced by the result",
+    "out_is_html": "1da82c7: exit 0, the HTML page written over the result, 'wrote r.yaml' "
+                   "printed twice",
+    "export_onto_itself": "1da82c7: exit 0, the calibration replaced by the Kalibr file",
+    "groundtruth_sidecar_onto_calibration": "1da82c7: exit 0, the calibration replaced by the "
+                                            "sidecar",
+    "prior_translation_1e308": "1da82c7: exit 0, a result written",
+    "prior_negative_sigma": "1da82c7: exit 70, internal error: ValueError (GTSAM: sigma values "
+                            "must be non-negative)",
+    "noise_1e30": "1da82c7: exit 3, 'the data do not determine every parameter (GTSAM: "
+                  "indeterminate linear system)' (wrong cause)",
+    "plausible_nan": "1da82c7: exit 0, the accel bias check off",
+    "manifest_4301_digits": "1da82c7: exit 70, internal error: ValueError (integer string "
+                            "conversion)",
+    "manifest_impossible_date": "1da82c7: exit 70, internal error: ValueError: day is out of "
+                                "range for month",
+    "manifest_alias_bomb": "1da82c7: not rerun; hundreds of MB of error text, then MemoryError",
+    "batch_id_batch_yaml": "1da82c7: exit 70 after the first session, internal error: "
+                           "NotADirectoryError",
+    "scheduler_without_port": "1da82c7: exit 70, internal error: ValueError: missing port "
+                              "number",
+    "groundtruth_rate_100k": "1da82c7: not rerun; no bound, memory grows with the rate "
+                             "(gigabytes)",
+    "export_nan_quaternion": "1da82c7: exit 0, '\"px\": NaN' in the JSON (invalid JSON)",
+    "export_zero_quaternion": "1da82c7: exit 0, 'EKF2_EV_POS_X nan'",
+    "html_name_not_utf8": "1da82c7: exit 70, internal error: UnicodeEncodeError (surrogates "
+                          "not allowed)",
 }
 
 

@@ -24,6 +24,7 @@ from mocap_calib.batch.manifest import load_manifest
 from mocap_calib.batch.runner import run_batch
 from mocap_calib.cli.main import main
 from mocap_calib.core.model.parameters import GYRO_BIAS
+from mocap_calib.io.atomic import TMP_TAG, temporary_name
 from mocap_calib.io.yaml_io import load_result
 from mocap_calib.workflows.compare import compare
 from mocap_calib.workflows.fleet_sim import FleetSimConfig, simulate_fleet
@@ -150,15 +151,18 @@ def test_killed_batch_resumes_without_redoing(fleet, tmp_path) -> None:
     for p in out.glob("*/calib.yaml"):
         load_result(p)  # every result present is whole
     # A kill while the status file was being written leaves its temporary file (the kill
-    # above does so now and then): the resumed run clears it.
-    (out / ".batch.yaml.1.dead.tmp").write_text("")
+    # above does so now and then): the resumed run clears it, and only it (a user's own
+    # '.draft.tmp' stays).
+    temporary_name(out / "batch.yaml", proc.pid).write_text("")
+    (out / ".draft.tmp").write_text("mine\n")
     report = run_batch(fleet[0], out, workers=2)
     status = {s.id: s.status for s in report.sessions}
     assert {k for k, v in status.items() if v == "skipped"} == set(kept)
     assert sum(v == "ok" for v in status.values()) == 8 - len(kept)
     for sid, mtime in kept.items():
         assert (out / sid / "calib.yaml").stat().st_mtime_ns == mtime
-    assert not list(out.rglob("*.tmp"))
+    assert not list(out.rglob(f"*{TMP_TAG}*"))
+    assert (out / ".draft.tmp").read_text() == "mine\n"
     # A changed option changes the content hash: that session alone is calibrated again.
     text = fleet[0].read_text().replace("mav0: drone2-2024-03-25",
                                         "mav0: drone2-2024-03-25\n  window: 4.0")

@@ -46,8 +46,10 @@ ALLOWED = {
     # The first stages' range priors (RANGE_SIGMA by block).
     "mocap_calib/core/stages/attitude.py",
     "mocap_calib/core/stages/velocity.py",
-    # File boundary outside the core: recognising a result file by its keys.
+    # File boundary outside the core: recognising a result file by its keys; the readers'
+    # options (``rotation``: the form of a Vicon export's rotations).
     "mocap_calib/io/result_files.py",
+    "mocap_calib/io/reading.py",
     # The coarse clock search's own file form (its candidates' ``time_offset``).
     "mocap_calib/core/clock/search.py",
 }

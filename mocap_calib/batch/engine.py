@@ -19,6 +19,8 @@ import logging
 import multiprocessing
 import os
 import signal
+import sys
+import threading
 import time
 from collections.abc import Callable, Generator, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -81,10 +83,45 @@ class Engine:
 
 
 _started: Any = None  # in a local worker: where it reports the job it starts
+#: How often a worker's watchdog looks whether its parent is still there (s).
+WATCHDOG_S = 0.5
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
-def _init_worker(started: Any, chunk_threads: int = 1) -> None:
+def _exit_now() -> None:
+    os._exit(1)  # no clean-up: the parent that would collect the result is gone
+
+
+def _watch_parent(parent: int) -> None:
+    while True:
+        time.sleep(WATCHDOG_S)
+        if os.getppid() != parent:
+            _exit_now()
+
+
+def die_with_parent(parent: int) -> None:
+    """End this process when ``parent`` ends, however it ends (``kill -9`` included): on Linux
+    the kernel sends SIGKILL at once (``PR_SET_PDEATHSIG``); everywhere a daemon thread also
+    checks every :data:`WATCHDOG_S` s that the parent is still ours (a process whose parent
+    died is given another). A parent already gone ends this one now."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no prctl (another C library): the watchdog alone
+    if os.getppid() != parent:
+        _exit_now()
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True,
+                     name="mocap-calib-parent-watchdog").start()
+
+
+def _init_worker(started: Any, chunk_threads: int = 1, parent: int | None = None) -> None:
     global _started
+    if parent is not None:
+        die_with_parent(parent)
     _started = started
     # The pool already runs one session per core: the window engine's own threads would only
     # contend with the other workers.
@@ -130,7 +167,8 @@ class LocalEngine(Engine):
                                    initializer=_init_worker,
                                    initargs=(self._started,
                                              max(1, (os.cpu_count() or 1)
-                                                 // (workers or self.workers))))
+                                                 // (workers or self.workers)),
+                                             os.getpid()))
 
     def __enter__(self) -> LocalEngine:
         self._started = self._ctx.SimpleQueue()
@@ -227,7 +265,7 @@ class DaskEngine(Engine):
         if self.scheduler:
             try:
                 self._client = Client(self.scheduler, timeout="20s")
-            except (OSError, TimeoutError) as err:
+            except (OSError, TimeoutError, ValueError) as err:
                 why = one_line(str(err))
                 raise InputError(f"--scheduler {self.scheduler}: cannot connect ({why}); start "
                                  "the scheduler or check the address") from None
@@ -271,6 +309,24 @@ class DaskEngine(Engine):
             self._client.cancel([f for f in futures if not f.done()])
 
 
+def check_scheduler_address(address: str) -> None:
+    """A scheduler address Dask can connect to, checked before any work (without connecting):
+    ``tcp://HOST:PORT`` (or ``HOST:PORT``, or another of Dask's protocols).
+
+    Raises:
+        InputError: naming the address, the problem and the form.
+    """
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            parse_host_port(location)
+    except ValueError as err:
+        raise InputError(f"--scheduler {address}: {one_line(str(err))}; give the address as "
+                         "tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786") from None
+
+
 def make_engine(name: str = "local", workers: int | None = None,
                 scheduler: str | None = None) -> Engine:
     """``local`` (default) or ``dask``; raises :class:`InputError` for anything else."""
@@ -286,6 +342,8 @@ def make_engine(name: str = "local", workers: int | None = None,
         if scheduler and workers is not None:
             raise InputError("--workers with --scheduler: the cluster has its own workers; "
                              "drop --workers")
+        if scheduler:
+            check_scheduler_address(scheduler)
         return DaskEngine(workers, scheduler)
     raise InputError(f"unknown --engine '{name}'; choose {' or '.join(ENGINES)}")
 

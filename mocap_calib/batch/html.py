@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import yaml
+from mocap_calib.io.yaml_io import load_yaml
 
 
 def check_html_available() -> None:
@@ -17,5 +17,5 @@ def write_html(path: Path, sessions: list[dict[str, Any]], fleet_dir: Path) -> P
     from mocap_calib.workflows.html.report import write_batch_report
 
     fleet_file = fleet_dir / "fleet.yaml"
-    fleet = yaml.safe_load(fleet_file.read_text()) if fleet_file.is_file() else None
+    fleet = load_yaml(fleet_file, "fleet summary") if fleet_file.is_file() else None
     return Path(write_batch_report(path, sessions, fleet))

@@ -43,6 +43,8 @@ ARG_KEYS = tuple(_LEAVES)
 #: Keys whose values are folders, not files.
 _FOLDERS = ("mav0",)
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+#: Names in OUT that the batch's own files take (OUT/batch.yaml, OUT/fleet/).
+RESERVED_IDS = ("batch.yaml", "fleet")
 
 
 class ManifestError(InputError):
@@ -179,7 +181,7 @@ class _Checker:
 
 
 def _session(chk: _Checker, n: int, raw: Any, defaults: dict[str, Any],
-             seen: dict[str, int]) -> SessionEntry | None:
+             seen: dict[str, tuple[int, str]]) -> SessionEntry | None:
     where = f"session #{n}"
     if not isinstance(raw, dict):
         chk.bad(where, "is not a mapping", "write each session as 'key: value' lines under '- '")
@@ -188,10 +190,17 @@ def _session(chk: _Checker, n: int, raw: Any, defaults: dict[str, Any],
     if isinstance(sid, (str, int)) and not isinstance(sid, bool) and _ID.match(str(sid)):
         sid = str(sid)
         where = f"session '{sid}' (#{n})"
-        if sid in seen:
-            chk.bad(where, f"duplicate id (also session #{seen[sid]})",
+        key = sid.casefold()  # one folder on the file systems of macOS and Windows
+        if key in seen:
+            first, other = seen[key]
+            case = "" if other == sid else f" '{other}': ids that differ in case only name one " \
+                "folder on macOS and Windows"
+            chk.bad(where, f"duplicate id (also session #{first}{case})",
                     "give every session its own id")
-        seen.setdefault(sid, n)
+        seen.setdefault(key, (n, sid))
+        if key in RESERVED_IDS:
+            chk.bad(where, f"the id '{sid}' names the batch's own OUT/{sid}",
+                    "give the session another id")
     else:
         chk.bad(where, "missing or invalid id" if sid is None else f"invalid id {sid!r}",
                 "give an id of letters, digits, '.', '_' or '-' (it names OUT/<id>/)")
@@ -244,7 +253,7 @@ def load_manifest(path: str | Path) -> Manifest:
     if not isinstance(raw_sessions, list) or not raw_sessions:
         chk.bad("top level", "no sessions", "list them under 'sessions:'")
         raw_sessions = []
-    seen: dict[str, int] = {}
+    seen: dict[str, tuple[int, str]] = {}
     sessions = []
     for n, raw in enumerate(raw_sessions, start=1):
         if isinstance(raw, dict) and "date" not in raw and "date" in defaults_raw:

@@ -18,16 +18,19 @@ from typing import Any
 from mocap_calib.batch.engine import ENGINES, Engine, make_engine
 from mocap_calib.batch.manifest import Manifest, SessionEntry, load_manifest
 from mocap_calib.batch.session import SessionJob, run_session
-from mocap_calib.batch.store import Digests, finished_hash, input_hash
+from mocap_calib.batch.store import Digests, batch_id, finished_hash, input_hash
 from mocap_calib.core import interrupt
 from mocap_calib.core.model.versioned import header
 from mocap_calib.core.params import param
 from mocap_calib.core.result.calibration import CalibrationResult
-from mocap_calib.errors import InputError
-from mocap_calib.io.atomic import check_writable, remove_leftovers
+from mocap_calib.errors import ConvergenceError, InputError
+from mocap_calib.io.atomic import remove_leftovers
 from mocap_calib.io.yaml_io import load_result, save_result, save_yaml
+from mocap_calib.workflows.outputs import Named, OutputPlan, output
 
 BATCH_KIND, BATCH_VERSION = "batch", 1
+#: The fleet summary's files in OUT/fleet/ (:func:`mocap_calib.batch.fleet.write_fleet`).
+FLEET_FILES = ("history.csv", "trends.csv", "fleet.yaml")
 
 
 @dataclass
@@ -163,7 +166,7 @@ class _Batch:
             st.input_hash = input_hash(self.m.sessions[i], self.digests,
                                        [self.status[j].input_hash for j in preds])
             path = self.result_path(i)
-            remove_leftovers(path.parent)
+            remove_leftovers(path.parent, within=self.out)
             if finished_hash(path) == st.input_hash:
                 try:
                     self.results[i] = load_result(path)
@@ -205,12 +208,18 @@ class _Batch:
             result.session["batch"] = {"id": st.id, "imu_id": st.imu_id, "date": st.date,
                                        "input_hash": st.input_hash,
                                        "priors_from": list(st.priors_from)}
-            save_result(path, result)
+            try:
+                save_result(path, result)
+            except ConvergenceError as err:  # a number that is not finite: this session fails
+                ok, error = False, str(err)
+        if ok:
             self.results[i] = result
             st.status, st.error = "ok", ""
         else:
-            # A result for other inputs or options would now be wrong: it goes.
-            path.unlink(missing_ok=True)
+            # A result for other inputs or options would now be wrong: it goes (a file that
+            # is not a batch's result for this session is not the batch's to remove).
+            if finished_hash(path) is not None and batch_id(path) == st.id:
+                path.unlink(missing_ok=True)
             st.status, st.error = "failed", error
         self.save_status()
 
@@ -221,7 +230,8 @@ class BatchRequest:
 
     manifest: Path = param(MISSING, "manifest YAML listing the sessions", argument=True,
                            metavar="MANIFEST")
-    out: Path = param(MISSING, "output folder (one subfolder per session)", metavar="PATH")
+    out: Path = output(MISSING, "output folder (one subfolder per session)", kind="folder",
+                       metavar="PATH")
     engine: str = param("local", "local (a process pool on this machine) or dask (needs "
                         "pip install 'mocap-calib\\[cluster]')", choices=ENGINES)
     scheduler: str | None = param(None, "with --engine dask: address of a running Dask "
@@ -232,9 +242,22 @@ class BatchRequest:
     prior_from_history: bool = param(
         False, "calibrate each session with the earlier sessions of the same imu_id as priors "
         "(a trend from two dates on)", decls=("--prior-from-history",))
-    html: Path | None = param(None, "also write one HTML page over every session",
-                              metavar="PATH", show_default=False)
+    html: Path | None = output(None, "also write one HTML page over every session",
+                               metavar="PATH", show_default=False)
     quiet: bool = param(False, "no progress bar", decls=("--quiet", "-q"))
+
+    def plan(self, manifest: Manifest | None = None) -> OutputPlan:
+        """The batch's own files (OUT/batch.yaml, OUT/fleet/, --html) and the manifest; with
+        the ``manifest`` read, also every session's result and input files."""
+        own = [self.out / "batch.yaml", *(self.out / "fleet" / f for f in FLEET_FILES)]
+        outputs = [Named("--out", p) for p in own]
+        inputs: list[Named] = []
+        for s in manifest.sessions if manifest is not None else []:
+            outputs.append(Named("--out", self.out / s.id / "calib.yaml", f"session '{s.id}'"))
+            inputs += [Named(f"{self.manifest}:", n.path, f"session '{s.id}' "
+                             f"{n.option.lstrip('-').replace('-', '_').lower()}")
+                       for n in OutputPlan.of(s.request).inputs]
+        return OutputPlan.of(self, outputs=outputs, inputs=inputs)
 
 
 def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "local",
@@ -250,11 +273,13 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
     from mocap_calib.batch.fleet import write_fleet
     from mocap_calib.batch.html import check_html_available, write_html
 
-    manifest = load_manifest(manifest_path)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder; choose another --out")
-    check_writable(out / "batch.yaml")
+    request = BatchRequest(Path(manifest_path), out, html=None if html is None else Path(html))
+    request.plan().check()  # the manifest is not OUT/batch.yaml, before it is read
+    manifest = load_manifest(manifest_path)
+    request.plan(manifest).check()
     if html is not None:
         check_html_available()
     make_engine(engine, workers, scheduler)  # checks the choice before any work
@@ -265,7 +290,7 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
         # A run killed while writing its status or fleet files left their temporary files
         # (each session's folder is cleaned when its turn comes).
         remove_leftovers(out)
-        remove_leftovers(out / "fleet")
+        remove_leftovers(out / "fleet", within=out)
         batch.save_status()
         for indices in _rounds(manifest.sessions, prior_from_history):
             batch.run_round(indices)

@@ -8,6 +8,8 @@ from typing import Any
 
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.priors import priors_from_results
+from mocap_calib.errors import ConvergenceError
+from mocap_calib.io.yaml_io import non_finite
 from mocap_calib.workflows.calibrate import CalibrateRequest, run_calibration
 
 #: ``calibrate`` options that make no sense per session in a batch, and what to do instead.
@@ -47,4 +49,9 @@ def run_session(job: SessionJob) -> CalibrationResult:
     """The worker's function: calibrate, drop what is only for inspection, return the result."""
     result, _ = run_calibration(job.request,
                                 extra_priors=history_priors(job.history, job.at_ns))
-    return replace(result, diagnostics=None)  # residual series: large, not in the result file
+    result = replace(result, diagnostics=None)  # residual series: not in the result file
+    bad = non_finite(result.to_dict())
+    if bad:  # refused here, so the session fails with the reason (save_result refuses too)
+        raise ConvergenceError(f"{bad}, not a number a calibration can have (no trustworthy "
+                               "solution)")
+    return result

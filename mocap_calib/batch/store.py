@@ -8,12 +8,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 import mocap_calib
 from mocap_calib.batch.manifest import SessionEntry
 from mocap_calib.batch.session import REFUSED
 from mocap_calib.errors import InputError
+from mocap_calib.io.yaml_io import load_yaml
 from mocap_calib.workflows.requests import to_flat
 
 #: Files of a mav0 folder that can change a calibration (not the camera images).
@@ -69,10 +68,21 @@ def input_hash(entry: SessionEntry, digests: Digests, history: list[str] | None 
     return hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()
 
 
+def _batch_record(result_path: Path, key: str) -> str | None:
+    if not result_path.is_file():
+        return None
+    try:
+        data = load_yaml(result_path, "calibration result")
+        return str(data["session"]["batch"][key])
+    except (InputError, KeyError, TypeError):
+        return None
+
+
 def finished_hash(result_path: Path) -> str | None:
     """The ``session.batch.input_hash`` of an existing result, or None (absent, unreadable)."""
-    try:
-        data = yaml.safe_load(result_path.read_text())
-        return str(data["session"]["batch"]["input_hash"])
-    except (OSError, yaml.YAMLError, KeyError, TypeError):
-        return None
+    return _batch_record(result_path, "input_hash")
+
+
+def batch_id(result_path: Path) -> str | None:
+    """The ``session.batch.id`` of an existing result: the session a batch wrote it for."""
+    return _batch_record(result_path, "id")

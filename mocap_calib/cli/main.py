@@ -96,9 +96,19 @@ def _one_malloc_arena() -> None:
     mallopt(-8, 1)  # M_ARENA_MAX
 
 
+def _names_as_given() -> None:
+    """File names with bytes that are not UTF-8 reach Python as lone surrogates; printed to a
+    strict stream (the default outside the C locale) they ended the run with exit 70 after
+    its files were written. stdout writes them back as the bytes they were."""
+    reconfigure = getattr(sys.stdout, "reconfigure", None)
+    if reconfigure is not None and getattr(sys.stdout, "errors", None) == "strict":
+        reconfigure(errors="surrogateescape")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return (and exit with) its exit code."""
     _one_malloc_arena()
+    _names_as_given()
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
     from mocap_calib.workflows.html.provenance import record_command_line
     from mocap_calib.workflows.interrupts import stop_on_signals

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.intrinsics.multipos.result import MultiposResult
+from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import save_text
 
 Array = NDArray[np.float64]
@@ -40,14 +41,25 @@ def calib_text(T: Array, K: Array, b: Array) -> str:
     return "".join(f"{_block(x)}\n\n" for x in (T, K, np.asarray(b).reshape(3, 1)))
 
 
-def write_imu_tk(prefix: Path | str, result: MultiposResult) -> list[Path]:
+def write_imu_tk(prefix: Path | str, result: MultiposResult, source: str = "the intrinsics"
+                 ) -> list[Path]:
     """Write ``PREFIX_acc.calib`` and ``PREFIX_gyro.calib``.
 
     Returns:
         The two paths.
+
+    Raises:
+        InputError: a number to write is not finite (nothing is written).
     """
+    forms = result.imu_tk()
+    for sensor, form in forms.items():
+        for name in ("T", "K", "b"):
+            if not np.all(np.isfinite(np.asarray(form[name], dtype=float))):
+                raise InputError(f"{source}: imu_tk's {sensor} {name} is "
+                                 f"{np.asarray(form[name]).tolist()}, not finite; nothing "
+                                 "exported: calibrate again")
     out = []
-    for sensor, form in result.imu_tk().items():
+    for sensor, form in forms.items():
         path = Path(f"{prefix}{SUFFIXES[sensor]}")
         out.append(save_text(path, calib_text(form["T"], form["K"], form["b"])))
     return out

@@ -211,7 +211,7 @@ def _basalt(inp: ExportInputs, notes: list[str]) -> str:
              "mocap_time_offset_ns": int(round(-_t_d(inp) * 1e9)), "mocap_to_imu_offset_ns": 0}
     notes.append("Basalt's world is the gravity-aligned frame of 'mocap-calib groundtruth' "
                  "(z up, yaw of the mocap world)")
-    return json.dumps({"value0": value}, indent=4) + "\n"
+    return json.dumps({"value0": value}, indent=4, allow_nan=False) + "\n"
 
 
 def _px4(inp: ExportInputs, notes: list[str]) -> str:
@@ -270,14 +270,52 @@ def _not_exported(result: CalibrationResult, target: str) -> list[str]:
     return notes
 
 
+def _numbers_used(inp: ExportInputs) -> list[tuple[str, Any]]:
+    """Every number a writer can take, by its key in the result file (or its option)."""
+    r = inp.result
+    pairs: list[tuple[str, Any]] = [
+        ("T_marker_imu.rotation_wxyz", r.rotation_wxyz), ("T_marker_imu.translation",
+                                                          r.translation),
+        ("gravity_in_mocap", r.gravity_in_mocap), ("time_offset", r.time_offset),
+        ("gravity_magnitude", r.gravity_magnitude), ("the IMU rate", inp.imu_rate_hz)]
+    pairs += [(f"noise.{k}", v) for k, v in inp.noise.to_dict().items()]
+    for name, rec in r.effects.items():
+        eff = EFFECTS.get(name)
+        if eff is not None and isinstance(rec, dict):
+            pairs.append((f"effects.{name}.{eff.param}", rec.get(eff.param)))
+    return [(k, v) for k, v in pairs if v is not None]
+
+
+def _refuse_non_finite(inp: ExportInputs, target: str) -> None:
+    """A NaN or infinite value would be written as ``nan`` (a PX4 parameter), ``NaN`` (invalid
+    JSON for Basalt) or ``.nan``: refuse it, and a rotation or gravity direction of no
+    length, whose frames would be NaN."""
+    for key, value in _numbers_used(inp):
+        try:
+            a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            continue  # not a plain array (a mapping): its effect is not exported as numbers
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"{inp.source}: {key} is {a.tolist()}, not a finite number; "
+                             f"nothing exported to {target}: calibrate again")
+    for key, value in (("T_marker_imu.rotation_wxyz", inp.result.rotation_wxyz),
+                       ("gravity_in_mocap", inp.result.gravity_in_mocap)):
+        if value is not None and not np.any(np.asarray(value, dtype=float) != 0):
+            raise InputError(f"{inp.source}: {key} is {np.asarray(value).tolist()}, of zero "
+                             f"length (no direction); nothing exported to {target}: calibrate "
+                             "again")
+
+
 def export_calibration(inp: ExportInputs, target: str) -> Exported:
     """The file for ``target``.
 
     Raises:
-        InputError: unknown target, or a parameter the target needs is null in the result.
+        InputError: unknown target, a parameter the target needs is null in the result, or a
+            number it would write is not finite.
     """
     if target not in _WRITERS:
         raise InputError(f"unknown --to '{target}'; choose one of: {', '.join(TARGETS)}")
+    _refuse_non_finite(inp, target)
     notes = _not_exported(inp.result, target)
     text = _WRITERS[target](inp, notes)
     return Exported(target, text, notes)

@@ -15,8 +15,11 @@ no space left) is the one line. :func:`check_writable` checks outputs before a l
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
+import re
 import secrets
+import socket
 import stat
 import tempfile
 from collections.abc import Callable
@@ -24,8 +27,16 @@ from pathlib import Path
 
 from mocap_calib.errors import InputError
 
-#: The temporary files' names: ``.<name>.<pid>.<random>.tmp`` next to the target.
+#: The temporary files' names, next to the target: ``.<name>.mocap-calib-<host>-<pid>-<random>
+#: .tmp`` (``host``: 6 hex digits of this machine's name, so that a folder shared between
+#: machines is swept only of this machine's files). Nothing else is ever removed as a leftover.
 TMP_SUFFIX = ".tmp"
+TMP_TAG = "mocap-calib"
+_HOST = hashlib.sha1(socket.gethostname().encode("utf-8", "surrogateescape")).hexdigest()[:6]
+_TMP_NAME = re.compile(rf"^\..+\.{TMP_TAG}-(?P<host>[0-9a-f]{{6}})-(?P<pid>[0-9]+)-[0-9a-f]{{8}}"
+                       rf"{re.escape(TMP_SUFFIX)}$", re.DOTALL)
+#: How much of the target's name a temporary name keeps (file names are at most 255 bytes).
+_NAME_KEPT = 120
 _COPY_CHUNK = 1 << 20
 
 
@@ -60,8 +71,21 @@ def _special(target: Path) -> bool:
     return not stat.S_ISREG(mode) or os.path.abspath(target).startswith(_STREAM_FOLDERS)
 
 
-def _tmp_name(target: Path) -> Path:
-    return target.with_name(f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}{TMP_SUFFIX}")
+def temporary_name(target: Path, pid: int | None = None) -> Path:
+    """The temporary file for ``target`` of process ``pid`` (default: this one)."""
+    pid = os.getpid() if pid is None else pid
+    return target.with_name(f".{target.name[:_NAME_KEPT]}.{TMP_TAG}-{_HOST}-{pid}-"
+                            f"{secrets.token_hex(4)}{TMP_SUFFIX}")
+
+
+def _discard(path: Path) -> None:
+    """Remove a temporary file if it is there. A read-only file system refuses even the removal
+    of a file that does not exist (EROFS, not ENOENT); a cleanup never adds an error of its own
+    to the one being reported."""
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
 
 
 def _fsync(path: Path, directory: bool = False) -> None:
@@ -115,7 +139,7 @@ def write_with(path: str | Path, write: Callable[[Path], object]) -> Path:
                 raise write_error(path, err) from None
         return path
     target = Path(os.path.realpath(path))  # through symlinks: the link stays a link
-    tmp = _tmp_name(target)
+    tmp = temporary_name(target)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         write(tmp)
@@ -129,7 +153,7 @@ def write_with(path: str | Path, write: Callable[[Path], object]) -> Path:
     except OSError as err:
         raise write_error(path, err) from None
     finally:
-        tmp.unlink(missing_ok=True)
+        _discard(tmp)
     return path
 
 
@@ -138,9 +162,21 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     return write_with(path, lambda tmp: _write_new(tmp, data))
 
 
+#: Bytes of a file name that are not UTF-8 reach Python as lone surrogates U+DC80-U+DCFF.
+_UNDECODED = re.compile("[\udc80-\udcff]")
+
+
+def printable(text: str) -> str:
+    """``text`` with the bytes of a file name that were not UTF-8 shown as ``\\xNN`` (as
+    ``ls -b`` shows them), so that it can be written as UTF-8; other text is unchanged."""
+    text = _UNDECODED.sub(lambda m: f"\\x{ord(m.group()) - 0xDC00:02x}", text)
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8, newlines as given) to ``path`` atomically; returns ``path``."""
-    return write_bytes(path, text.encode("utf-8"))
+    """Write ``text`` (UTF-8, newlines as given) to ``path`` atomically; returns ``path``.
+    File names with bytes that are not UTF-8 appear as ``\\xNN`` (:func:`printable`)."""
+    return write_bytes(path, printable(text).encode("utf-8"))
 
 
 def _existing_ancestor(folder: Path) -> Path:
@@ -176,21 +212,58 @@ def check_writable(*paths: str | Path | None) -> None:
         if not folder.is_dir():
             raise InputError(f"{path}: {folder} is a file, not a folder; choose another output "
                              "path")
-        probe = _tmp_name(folder / target.name)
+        probe = temporary_name(folder / target.name)
         try:
             _write_new(probe, b"")
         except OSError as err:
             raise write_error(path, err) from None
         finally:
-            probe.unlink(missing_ok=True)
+            _discard(probe)
         st = os.statvfs(folder)
         free = st.f_bfree if os.geteuid() == 0 else st.f_bavail
         if st.f_blocks > 0 and free == 0:  # (pseudo file systems report no blocks at all)
             raise write_error(path, OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
 
 
-def remove_leftovers(folder: Path) -> None:
-    """Temporary files of a run that was killed while writing into ``folder``."""
-    if folder.is_dir():
-        for tmp in folder.glob(f".*{TMP_SUFFIX}"):
-            tmp.unlink(missing_ok=True)
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return pid > 0  # another user's process (or a pid this system cannot have)
+    return True
+
+
+def leftover(name: str) -> bool:
+    """Whether ``name`` is a temporary file of a mocap-calib process of this machine that is
+    gone, or of this process (a write it did not finish)."""
+    m = _TMP_NAME.match(name)
+    if m is None or m["host"] != _HOST:
+        return False
+    pid = int(m["pid"])
+    return pid == os.getpid() or not _alive(pid)
+
+
+def remove_leftovers(folder: Path, within: Path | None = None) -> list[Path]:
+    """Remove the temporary files a killed run left directly in ``folder``: only names of
+    mocap-calib's pattern (:func:`leftover`), only regular files (never through a symbolic
+    link), and nothing when ``folder`` is itself a link or lies, through links, outside
+    ``within``. Returns what was removed."""
+    folder = Path(folder)
+    if folder.is_symlink() or not folder.is_dir():
+        return []
+    if within is not None:
+        real, root = os.path.realpath(folder), os.path.realpath(within)
+        if real != root and not real.startswith(root.rstrip(os.sep) + os.sep):
+            return []
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return []
+    for entry in entries:
+        if leftover(entry.name) and entry.is_file(follow_symlinks=False):
+            _discard(Path(entry.path))
+            removed.append(Path(entry.path))
+    return removed

@@ -36,25 +36,34 @@ def sidecar_path(out: Path | str) -> Path:
         ".yaml")
 
 
-def write_groundtruth(out: Path | str, gt: GroundTruth, fmt: str,
-                      provenance: dict[str, Any]) -> tuple[Path, Path]:
-    """Write the trajectory and its sidecar; returns both paths."""
+def write_trajectory(out: Path | str, gt: GroundTruth, fmt: str) -> Path:
+    """Write the trajectory in ``fmt`` (:data:`GT_FORMATS`); returns its path."""
     if fmt not in GT_FORMATS:
         raise InputError(f"unknown --format '{fmt}'; use euroc or tum")
     q = np.where(gt.quat_wxyz[:, :1] < 0, -gt.quat_wxyz, gt.quat_wxyz)
     try:
         if fmt == "euroc":
-            path = write_table(out, GT_HEADER, [gt.t_ns, *gt.position.T, *q.T, *gt.velocity.T,
+            return write_table(out, GT_HEADER, [gt.t_ns, *gt.position.T, *q.T, *gt.velocity.T,
                                                 *gt.gyro_bias.T, *gt.accel_bias.T])
-        else:
-            path = write_table(out, TUM_HEADER,
-                               [format_seconds(gt.t_ns), *gt.position.T, *q[:, [1, 2, 3, 0]].T],
-                               sep=" ")
+        return write_table(out, TUM_HEADER,
+                           [format_seconds(gt.t_ns), *gt.position.T, *q[:, [1, 2, 3, 0]].T],
+                           sep=" ")
     except OSError as err:
         raise InputError(f"{out}: cannot write ({err.strerror or err}); choose another output "
                          "path") from None
-    report = {**header(REPORT_KIND, REPORT_VERSION), "trajectory": str(path), "format": fmt,
+
+
+def write_sidecar(out: Path | str, gt: GroundTruth, fmt: str,
+                  provenance: dict[str, Any]) -> Path:
+    """Write the trajectory's sidecar (:func:`sidecar_path`): how it was made."""
+    report = {**header(REPORT_KIND, REPORT_VERSION), "trajectory": str(out), "format": fmt,
               **provenance, **gt.report}
-    side = save_yaml(sidecar_path(path), report,
+    return save_yaml(sidecar_path(out), report,
                      "mocap-calib ground truth: how the trajectory was made")
-    return path, side
+
+
+def write_groundtruth(out: Path | str, gt: GroundTruth, fmt: str,
+                      provenance: dict[str, Any]) -> tuple[Path, Path]:
+    """Write the trajectory and its sidecar; returns both paths."""
+    path = write_trajectory(out, gt, fmt)
+    return path, write_sidecar(path, gt, fmt, provenance)

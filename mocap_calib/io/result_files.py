@@ -12,7 +12,7 @@ from mocap_calib.core.intrinsics.multipos.result import MultiposResult
 from mocap_calib.core.intrinsics.noise_result import AllanResult
 from mocap_calib.core.model.versioned import KindError
 from mocap_calib.errors import InputError
-from mocap_calib.io.yaml_io import NOISE_KEYS, load_yaml
+from mocap_calib.io.yaml_io import INTRINSICS_NUMBERS, NOISE_KEYS, load_yaml, non_finite
 
 #: How messages name each kind of file.
 KIND_NAMES = {
@@ -62,6 +62,9 @@ def read_intrinsics(path: Path | str) -> MultiposResult:
     if not isinstance(data.get("sigma"), dict):
         raise InputError(f"{path}: no 'sigma: {{...}}' (a simulator truth file has no "
                          f"sigmas); {INTRINSICS_FIX}")
+    bad = non_finite(data, INTRINSICS_NUMBERS)
+    if bad:
+        raise InputError(f"{path}: {bad}, not a finite number; {INTRINSICS_FIX}")
     try:
         return MultiposResult.from_dict(data)
     except KindError as err:

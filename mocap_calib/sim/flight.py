@@ -2,13 +2,19 @@
 
 The IMU samples are computed exactly from the trajectory's analytic derivatives through the
 measurement model of ``docs/conventions.md``; the mocap poses are the exact marker poses plus
-noise. Effects beyond the base model are injected by their canonical names. One seeded
-generator drives every random draw, so the same configuration gives the same bytes.
+noise. Effects beyond the base model are injected as their registry records say
+(:mod:`mocap_calib.sim.injected`) and applied here by kind; a real flight's roughness (white
+noise above the data sheet, rotor vibration: :mod:`mocap_calib.sim.vibration`) is switched on
+per knob. One seeded generator drives the draws of the rig, the effects and the noise, in a
+fixed order; every other stream (other motions, vibration, IMU logging faults) has a generator
+of its own seeded from the same seed, so the same configuration gives the same bytes and a knob
+switched on leaves every other draw as it was.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -16,12 +22,20 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
+from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.model.versioned import header
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
-from mocap_calib.sim.faults import imu_gaps
+from mocap_calib.sim.faults import FAULTS, imu_gaps, mocap_dropouts, mocap_outliers
+from mocap_calib.sim.injected import (
+    OWN_QUANTITY,
+    Truth,
+    draw_truth,
+    effect_help,
+    parse_effect,
+    truth_effects,
+)
 from mocap_calib.sim.motions import MOTIONS, motion_trajectory
 from mocap_calib.sim.trajectory import (
     Trajectory,
@@ -29,95 +43,15 @@ from mocap_calib.sim.trajectory import (
     random_trajectory,
     with_fast_motion,
 )
+from mocap_calib.sim.vibration import Rotors, Vibration, draw_rotors, vibration_truth
 
 Array = NDArray[np.float64]
 
-#: Effects only the simulator knows: faults of the streams, not of the IMU model.
-MOCAP_FAULTS = ("mocap_dropouts", "mocap_outliers")
-#: IMU logging faults, as flight controllers' logs have them: dropped samples and stalls.
-IMU_FAULTS = ("imu_dropouts", "imu_stalls")
-SIM_FAULTS = (*MOCAP_FAULTS, *IMU_FAULTS)
+#: Faults only the simulator knows (of the streams, not of the IMU model).
+SIM_FAULTS: tuple[str, ...] = tuple(FAULTS)
 
-#: What a bare ``--effect NAME`` injects: a realistic magnitude (see ``effect_help``).
-DEFAULT_MAGNITUDE: dict[str, float] = {
-    "time_offset": 0.005,
-    "gyro_scale_misalignment": 0.003,
-    "accel_scale_misalignment": 0.003,
-    "gyro_g_sensitivity": 3e-4,
-    "gyro_bias_drift": 2e-5,
-    "accel_bias_drift": 2e-3,
-    "gravity_magnitude": 9.79,
-    "clock_drift": 1e-4,
-    "accel_delay": 0.004,
-    "accel_size_effect": 0.01,
-    "mocap_dropouts": 5,
-    "mocap_outliers": 5,
-    "imu_dropouts": 30,
-    "imu_stalls": 0.5,
-}
-
-EFFECT_HELP: dict[str, str] = {
-    "time_offset": "t_d in s (IMU stamp t was measured at mocap time t + t_d)",
-    "gyro_scale_misalignment": "std of the entries of M_g - I, or 9 values row-major",
-    "accel_scale_misalignment": "std of the entries of the lower-triangular M_a - I, or 9 values",
-    "gyro_g_sensitivity": "std of the entries of G in rad/s per m/s^2, or 9 values",
-    "gyro_bias_drift": "trend magnitude in rad/s per s, or 3 values",
-    "accel_bias_drift": "trend magnitude in m/s^2 per s, or 3 values",
-    "gravity_magnitude": f"true |g| in m/s^2 (the calibration assumes {GRAVITY})",
-    "clock_drift": "IMU clock rate error s (1e-4 = 100 ppm); default: 100 ppm, random sign",
-    "accel_delay": "how much the accelerometer lags the gyro, in s",
-    "accel_size_effect": "distance of the y and z accelerometers from the x one (m, random "
-    "directions), or 6 values r_y, r_z",
-    "mocap_dropouts": "number of mocap gaps (0.05-1 s each, rows removed)",
-    "mocap_outliers": "number of marker-swap events (1-4 samples jump by 3-10 cm, 5-30 deg)",
-    "imu_dropouts": "number of IMU gaps of 12-161 ms (logger buffer overruns, as PX4 logs have "
-    "them), plus one after the first sample",
-    "imu_stalls": "lengths of IMU stalls in s (1-5 values, e.g. 0.5,3)",
-}
-
-
-def parse_effect(spec: str) -> tuple[str, list[float] | None]:
-    """Parse ``NAME`` or ``NAME=VALUE`` or ``NAME=v1,v2,...``."""
-    name, _, value = spec.partition("=")
-    name = name.strip()
-    known = (*CANONICAL_EFFECTS, *SIM_FAULTS)
-    if name not in known:
-        raise InputError(f"unknown effect '{name}'; choose one of: {', '.join(known)}")
-    if not value.strip():
-        return name, None
-    try:
-        values = [float(v) for v in value.split(",")]
-    except ValueError:
-        raise InputError(f"effect '{spec}': value must be a number or comma-separated numbers, "
-                         f"e.g. {name}=0.01") from None
-    if not all(np.isfinite(values)):
-        raise InputError(f"effect '{spec}': value must be finite")
-    allowed = _VALUE_COUNTS.get(name, (1,))
-    if len(values) not in allowed:
-        counts = " or ".join(str(c) for c in allowed)
-        raise InputError(f"effect '{spec}': give {counts} value(s) ({EFFECT_HELP[name]})")
-    if name in _NON_NEGATIVE and len(values) == 1 and values[0] < 0:
-        raise InputError(f"effect '{spec}': the magnitude must not be negative")
-    if name in ("mocap_dropouts", "mocap_outliers", "imu_dropouts") and (
-            values[0] != int(values[0]) or values[0] > 1000):
-        raise InputError(f"effect '{spec}': give a whole number of events between 0 and 1000")
-    return name, values
-
-
-#: How many values an effect accepts (a magnitude, or the full matrix / vector).
-_VALUE_COUNTS: dict[str, tuple[int, ...]] = {
-    "gyro_scale_misalignment": (1, 9),
-    "accel_scale_misalignment": (1, 9),
-    "gyro_g_sensitivity": (1, 9),
-    "gyro_bias_drift": (1, 3),
-    "accel_bias_drift": (1, 3),
-    "accel_size_effect": (1, 6),
-    "imu_stalls": (1, 2, 3, 4, 5),
-}
-#: Effects whose single value is a magnitude (std or count), so it cannot be negative.
-_NON_NEGATIVE = ("gyro_scale_misalignment", "accel_scale_misalignment", "gyro_g_sensitivity",
-                 "gyro_bias_drift", "accel_bias_drift", "gravity_magnitude", "accel_size_effect",
-                 *MOCAP_FAULTS, "imu_dropouts")
+__all__ = ["SIM_FAULTS", "SimConfig", "SimulatedSession", "effect_help", "parse_effect",
+           "simulate_flight"]
 
 
 @dataclass(frozen=True)
@@ -139,6 +73,26 @@ class SimConfig:
     periodic_motion_s: float = 0.0  # > 0: a flight repeating with this period (clock tests)
     motion: str = "flight"  # a key of sim.motions.MOTIONS (turntable, planar, slow, ...)
     max_motion_hz: float = 0.0  # > 0: the flight also moves at 1 Hz up to this (vibration-like)
+    # A real flight's roughness, each off by default. ``noise`` holds the data sheet's
+    # densities; the white noise simulated is these factors times them.
+    gyro_noise_factor: float = 1.0
+    accel_noise_factor: float = 1.0
+    vibration: Vibration = Vibration()
+    preset: str = "none"  # the named regime this came from (sim.presets), for the truth file
+
+    @property
+    def true_noise(self) -> NoiseModel:
+        """The noise simulated: ``noise`` with its white densities times the factors."""
+        n = self.noise
+        return replace(n, gyroscope_noise_density=n.gyroscope_noise_density
+                       * self.gyro_noise_factor,
+                       accelerometer_noise_density=n.accelerometer_noise_density
+                       * self.accel_noise_factor)
+
+    @property
+    def rough(self) -> bool:
+        """Whether any in-flight roughness beyond the data sheet is on."""
+        return self.vibration.on or (self.gyro_noise_factor, self.accel_noise_factor) != (1, 1)
 
     def validate(self) -> None:
         if self.motion not in MOTIONS:
@@ -165,6 +119,13 @@ class SimConfig:
         if self.max_motion_hz and (self.motion != "flight" or self.periodic_motion_s > 0):
             raise InputError("--max-motion-hz: only for the random flight (motion 'flight', no "
                              "periodic_motion_s)")
+        for name, factor in (("gyro", self.gyro_noise_factor),
+                             ("accel", self.accel_noise_factor)):
+            if not 0.0 < factor <= 1000.0:
+                raise InputError(f"--{name}-noise-factor {factor:g}: give the white noise's "
+                                 "density as a multiple of the data sheet's, above 0 and at "
+                                 "most 1000")
+        self.vibration.validate()
         for name, values in self.effects.items():
             spec = name if values is None else f"{name}={','.join(repr(v) for v in values)}"
             parse_effect(spec)
@@ -179,26 +140,6 @@ class SimulatedSession:
     truth: dict[str, Any]
     gyro_bias_true: Array  # (N, 3) per IMU sample
     accel_bias_true: Array  # (N, 3) per IMU sample
-
-
-def _matrix_effect(rng: np.random.Generator, values: list[float] | None, default: float,
-                   lower: bool = False) -> Array:
-    if values is not None and len(values) == 9:
-        m = np.asarray(values, dtype=float).reshape(3, 3)
-    else:
-        scale = default if values is None else values[0]
-        m = rng.normal(0.0, scale, (3, 3))
-    if lower:
-        m = np.tril(m)
-    return m
-
-
-def _vector_effect(rng: np.random.Generator, values: list[float] | None, default: float) -> Array:
-    if values is not None and len(values) == 3:
-        return np.asarray(values, dtype=float)
-    mag = default if values is None else values[0]
-    d = rng.normal(size=3)
-    return mag * d / np.linalg.norm(d)
 
 
 def ar1(white: Array, tau_samples: float) -> Array:
@@ -227,22 +168,6 @@ class _Rig:
     ba0: Array
 
 
-@dataclass
-class _Truth:
-    """The injected effects' true values (neutral when not injected)."""
-
-    t_d: float = 0.0
-    g: float = GRAVITY
-    M_g: Array = field(default_factory=lambda: np.eye(3))
-    M_a: Array = field(default_factory=lambda: np.eye(3))
-    G: Array = field(default_factory=lambda: np.zeros((3, 3)))
-    dbg: Array = field(default_factory=lambda: np.zeros(3))
-    dba: Array = field(default_factory=lambda: np.zeros(3))
-    drift: float = 0.0  # clock_drift s
-    lag: float = 0.0  # accel_delay (s)
-    r_size: Array = field(default_factory=lambda: np.zeros(6))  # r_y, r_z (m)
-
-
 def simulate_flight(cfg: SimConfig) -> SimulatedSession:
     """Simulate one mocap session of a drone flight with known calibration.
 
@@ -264,18 +189,24 @@ def simulate_flight(cfg: SimConfig) -> SimulatedSession:
         # Its own generator, so every other draw stays the seed's.
         traj = with_fast_motion(traj, np.random.default_rng([cfg.seed, 29]), cfg.max_motion_hz)
     rig = _draw_rig(rng, cfg)
-    tr = _draw_effects(rng, effects, cfg.gravity)
-    t_imu, gyro, accel, b_g, b_a = _imu_samples(rng, cfg, traj, rig, tr)
+    tr = draw_truth(rng, effects, cfg.gravity)
+    # Rotor vibration: its own generator, so every other draw stays the seed's.
+    rotors = (draw_rotors(np.random.default_rng([cfg.seed, 53]), cfg.vibration)
+              if cfg.vibration.on else None)
+    t_imu, gyro, accel, b_g, b_a = _imu_samples(rng, cfg, traj, rig, tr, rotors)
     t_moc, R_meas, p_meas, keep, outlier_rows, gaps = _mocap_samples(rng, cfg, traj, rig,
                                                                      effects)
     # IMU logging faults last, with their own generator: every other draw stays the seed's.
     kept, dropped = imu_gaps(np.random.default_rng([cfg.seed, 41]), cfg.duration, t_imu,
-                             effects, DEFAULT_MAGNITUDE)
+                             effects)
+    in_flight = _in_flight(cfg, rotors, t_imu) if cfg.rough else None
     t_imu, gyro, accel, b_g, b_a = (x[kept] for x in (t_imu, gyro, accel, b_g, b_a))
     imu = ImuSamples(t_imu, gyro, accel, cfg.imu_time_origin_ns, "simulated imu")
     mocap = MocapPoses(t_moc[keep], so3.rotmat_to_quat(R_meas[keep]), p_meas[keep],
                        cfg.mocap_time_origin_ns, "simulated mocap")
     truth = _truth_file(cfg, effects, rig, tr, b_g, b_a)
+    if in_flight is not None:
+        truth["simulation"]["in_flight"] = in_flight
     truth["simulation"].update({"mocap_outlier_rows": outlier_rows,
                                 "mocap_gaps_start_length_s": gaps,
                                 "mocap_rows_removed": int((~keep).sum()),
@@ -305,69 +236,62 @@ def _draw_rig(rng: np.random.Generator, cfg: SimConfig) -> _Rig:
     return _Rig(R_MI, p_MI, g_dir, bg0, ba0)
 
 
-def _draw_effects(rng: np.random.Generator, effects: dict[str, list[float] | None],
-                  gravity: float) -> _Truth:
-    """The injected effects' values: given, or drawn at their default magnitude."""
-    tr = _Truth(g=gravity)
-
-    def value(name: str) -> list[float] | None:
-        return effects[name]
-
-    def scalar(name: str) -> float:
-        v = value(name)
-        return DEFAULT_MAGNITUDE[name] if v is None else v[0]
-
-    if "time_offset" in effects:
-        tr.t_d = scalar("time_offset")
-    if "gravity_magnitude" in effects:
-        tr.g = scalar("gravity_magnitude")
-        if not 5.0 < tr.g < 15.0:
-            raise InputError(f"gravity_magnitude={tr.g}: give |g| in m/s^2, e.g. 9.79")
-    if "gyro_scale_misalignment" in effects:
-        tr.M_g = np.eye(3) + _matrix_effect(rng, value("gyro_scale_misalignment"),
-                                            DEFAULT_MAGNITUDE["gyro_scale_misalignment"])
-    if "accel_scale_misalignment" in effects:
-        tr.M_a = np.eye(3) + _matrix_effect(rng, value("accel_scale_misalignment"),
-                                            DEFAULT_MAGNITUDE["accel_scale_misalignment"],
-                                            lower=True)
-    if "gyro_g_sensitivity" in effects:
-        tr.G = _matrix_effect(rng, value("gyro_g_sensitivity"),
-                              DEFAULT_MAGNITUDE["gyro_g_sensitivity"])
-    if "gyro_bias_drift" in effects:
-        tr.dbg = _vector_effect(rng, value("gyro_bias_drift"), DEFAULT_MAGNITUDE["gyro_bias_drift"])
-    if "accel_bias_drift" in effects:
-        tr.dba = _vector_effect(rng, value("accel_bias_drift"),
-                                DEFAULT_MAGNITUDE["accel_bias_drift"])
-    if "clock_drift" in effects:  # a rate error of either sign
-        v = value("clock_drift")
-        tr.drift = (DEFAULT_MAGNITUDE["clock_drift"] * rng.choice([-1.0, 1.0]) if v is None
-                    else v[0])
-    if "accel_delay" in effects:
-        tr.lag = scalar("accel_delay")
-    if "accel_size_effect" in effects:
-        v = value("accel_size_effect")
-        if v is not None and len(v) == 6:
-            tr.r_size = np.asarray(v, dtype=float)
-        else:
-            mag = DEFAULT_MAGNITUDE["accel_size_effect"] if v is None else v[0]
-            tr.r_size = np.r_[_vector_effect(rng, [mag], mag), _vector_effect(rng, [mag], mag)]
-    return tr
-
-
 def _imu_samples(rng: np.random.Generator, cfg: SimConfig, traj: Trajectory, rig: _Rig,
-                 tr: _Truth) -> tuple[Array, Array, Array, Array, Array]:
+                 tr: Truth, rotors: Rotors | None) -> tuple[Array, Array, Array, Array, Array]:
     """IMU stamps on the IMU clock; a gyro sample stamped ``t`` was measured at mocap time
-    ``t + t_d + s (t - t_mid)``, an accel sample ``lag`` earlier."""
-    noise = cfg.noise
+    ``t + t_d + s (t - t_mid)``, an accel sample ``lag`` earlier. Each sensor measures its own
+    quantity through ``I + E`` and the other through its cross term (when the registry has
+    one), plus its bias (random walk and trend) and white noise."""
+    noise = cfg.true_noise
     n_imu = int(round(cfg.duration * cfg.imu_rate)) + 1
     t_imu = np.arange(n_imu) / cfg.imu_rate
     t_mid = 0.5 * (t_imu[0] + t_imu[-1])
     s_g = t_imu + tr.t_d + tr.drift * (t_imu - t_mid)
     s_a = s_g - tr.lag
-    w_I = traj.angular_velocity_body(s_g)
-    f_g = np.einsum("nji,nj->ni", traj.rotation(s_g), traj.acceleration(s_g) - tr.g * rig.g_dir)
-    f_a = f_g if tr.lag == 0.0 else np.einsum(
-        "nji,nj->ni", traj.rotation(s_a), traj.acceleration(s_a) - tr.g * rig.g_dir)
+    at_gyro, at_accel = _true_signals(traj, rig, tr, rotors, s_g, s_a)
+    dt = 1.0 / cfg.imu_rate
+    rw_g = np.cumsum(rng.normal(0.0, noise.gyroscope_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
+    rw_a = np.cumsum(rng.normal(0.0, noise.accelerometer_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
+    rw_g -= rw_g[0]
+    rw_a -= rw_a[0]
+    b_g = rig.bg0 + rw_g + np.outer(t_imu - t_mid, tr.bias_rate("gyro"))
+    b_a = rig.ba0 + rw_a + np.outer(t_imu - t_mid, tr.bias_rate("accel"))
+    n_g = rng.normal(0.0, noise.gyroscope_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
+    n_a = rng.normal(0.0, noise.accelerometer_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
+    gyro = _sensed(tr, "gyro", at_gyro) + b_g + n_g
+    accel = _sensed(tr, "accel", at_accel) + b_a + n_a
+    return t_imu, gyro, accel, b_g, b_a
+
+
+def _sensed(tr: Truth, sensor: str, at: dict[str, Callable[[], Array]]) -> Array:
+    """The sensor's reading without bias and noise: ``M q_own + sum E q_other``, with a term
+    for every other quantity the registry has a matrix effect of for this sensor."""
+    own = OWN_QUANTITY[sensor]
+    terms = {e.acts_on for e in EFFECTS.values() if e.sensor == sensor}
+    out = at[own]() @ tr.sensor_matrix(sensor, own).T
+    for q in ("w", "f"):
+        if q != own and q in terms:
+            out = out + at[q]() @ tr.sensor_matrix(sensor, q).T
+    return out
+
+
+def _true_signals(traj: Trajectory, rig: _Rig, tr: Truth, rotors: Rotors | None, s_g: Array,
+                  s_a: Array) -> tuple[dict[str, Callable[[], Array]],
+                                       dict[str, Callable[[], Array]]]:
+    """The true rate ``w`` and specific force ``f`` at the gyro's and at the accelerometer's
+    instants (computed when asked for), with the size effect on the accelerometer's ``f``
+    and the rotor vibration on both."""
+
+    def rate(s: Array) -> Array:
+        w = traj.angular_velocity_body(s)
+        return w if rotors is None else w + rotors.signal(s, rotors.amp_gyro)
+
+    def force(s: Array) -> Array:
+        f = np.einsum("nji,nj->ni", traj.rotation(s), traj.acceleration(s) - tr.g * rig.g_dir)
+        return f if rotors is None else f + rotors.signal(s, rotors.amp_accel)
+
+    f_g = force(s_g)
+    f_a = f_g if tr.lag == 0.0 else force(s_a)
     if np.any(tr.r_size):
         # y and z accelerometers at r_y, r_z: e_i.(alpha x r_i + w x (w x r_i)).
         e = 1e-5
@@ -377,25 +301,15 @@ def _imu_samples(rng: np.random.Generator, cfg: SimConfig, traj: Trajectory, rig
         f_a = f_a.copy()
         for i, r in ((1, tr.r_size[0:3]), (2, tr.r_size[3:6])):
             f_a[:, i] += (np.cross(alpha, r) + np.cross(w_a, np.cross(w_a, r)))[:, i]
-    dt = 1.0 / cfg.imu_rate
-    rw_g = np.cumsum(rng.normal(0.0, noise.gyroscope_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
-    rw_a = np.cumsum(rng.normal(0.0, noise.accelerometer_random_walk * np.sqrt(dt), (n_imu, 3)), 0)
-    rw_g -= rw_g[0]
-    rw_a -= rw_a[0]
-    b_g = rig.bg0 + rw_g + np.outer(t_imu - t_mid, tr.dbg)
-    b_a = rig.ba0 + rw_a + np.outer(t_imu - t_mid, tr.dba)
-    n_g = rng.normal(0.0, noise.gyroscope_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
-    n_a = rng.normal(0.0, noise.accelerometer_noise_density * np.sqrt(cfg.imu_rate), (n_imu, 3))
-    gyro = w_I @ tr.M_g.T + f_g @ tr.G.T + b_g + n_g
-    accel = f_a @ tr.M_a.T + b_a + n_a
-    return t_imu, gyro, accel, b_g, b_a
+    return ({"w": lambda: rate(s_g), "f": lambda: f_g},
+            {"w": lambda: rate(s_a), "f": lambda: f_a})
 
 
 def _mocap_samples(rng: np.random.Generator, cfg: SimConfig, traj: Trajectory, rig: _Rig,
                    effects: dict[str, list[float] | None]):
     """Marker poses ``T_WM = T_WI T_MI^-1`` at mocap stamps plus noise, marker swaps and
     dropouts: (stamps, R, p, rows kept, outlier rows, gaps)."""
-    noise = cfg.noise
+    noise = cfg.true_noise
     n_moc = int(round(cfg.duration * cfg.mocap_rate)) + 1
     t_moc = np.arange(n_moc) / cfg.mocap_rate
     R_WM = traj.rotation(t_moc) @ rig.R_MI.T
@@ -407,36 +321,12 @@ def _mocap_samples(rng: np.random.Generator, cfg: SimConfig, traj: Trajectory, r
         n_pos = ar1(n_pos, cfg.mocap_noise_corr * cfg.mocap_rate)
     R_meas = R_WM @ so3.exp(n_rot)
     p_meas = p_WM + n_pos
-    outlier_rows: list[int] = []
-    if "mocap_outliers" in effects:
-        v = effects["mocap_outliers"]
-        count = int(DEFAULT_MAGNITUDE["mocap_outliers"] if v is None else v[0])
-        if count > (n_moc - 20) // 10:
-            raise InputError(f"mocap_outliers={count}: too many for {n_moc} mocap samples; "
-                             f"use at most {(n_moc - 20) // 10}")
-        for start in np.sort(rng.choice(np.arange(10, n_moc - 10), size=count, replace=False)):
-            length = int(rng.integers(1, 5))
-            jump = rng.normal(size=3)
-            jump *= rng.uniform(0.03, 0.10) / np.linalg.norm(jump)
-            axis = rng.normal(size=3)
-            rot = so3.exp(np.radians(rng.uniform(5, 30)) * axis / np.linalg.norm(axis))
-            rows = np.arange(start, min(start + length, n_moc))
-            p_meas[rows] += jump
-            R_meas[rows] = R_meas[rows] @ rot
-            outlier_rows.extend(int(r) for r in rows)
-    keep = np.ones(n_moc, dtype=bool)
-    gaps: list[list[float]] = []
-    if "mocap_dropouts" in effects:
-        v = effects["mocap_dropouts"]
-        count = int(DEFAULT_MAGNITUDE["mocap_dropouts"] if v is None else v[0])
-        for start in np.sort(rng.uniform(0.05, 0.95, count) * cfg.duration):
-            length = rng.uniform(0.05, 1.0)
-            keep &= ~((t_moc >= start) & (t_moc < start + length))
-            gaps.append([float(start), float(length)])
+    outlier_rows = mocap_outliers(rng, effects, R_meas, p_meas)
+    keep, gaps = mocap_dropouts(rng, effects, t_moc, cfg.duration)
     return t_moc, R_meas, p_meas, keep, outlier_rows, gaps
 
 
-def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Rig, tr: _Truth,
+def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Rig, tr: Truth,
                 b_g: Array, b_a: Array) -> dict[str, Any]:
     """The truth in the result file's keys, the injected effects and how it was simulated."""
     truth: dict[str, Any] = {
@@ -454,9 +344,9 @@ def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Ri
             "translation": [0.0] * 3, "gravity_in_mocap": [0.0] * 2, "time_offset": 0.0,
         },
         "gravity_magnitude": float(tr.g),
-        "model": "+".join(["base", *[e for e in effects if e in CANONICAL_EFFECTS]]),
-        "effects": {},
-        "noise": cfg.noise.to_dict(),
+        "model": "+".join(["base", *[e for e in effects if e in EFFECTS]]),
+        "effects": truth_effects(effects, tr),
+        "noise": cfg.true_noise.to_dict(),
         "simulation": {
             "seed": int(cfg.seed),
             "duration": float(cfg.duration),
@@ -465,19 +355,33 @@ def _truth_file(cfg: SimConfig, effects: dict[str, list[float] | None], rig: _Ri
             "mocap_noise_corr_s": float(cfg.mocap_noise_corr),
             **({"motion": cfg.motion} if cfg.motion != "flight" else {}),
             **({"max_motion_hz": float(cfg.max_motion_hz)} if cfg.max_motion_hz > 0 else {}),
+            **({"preset": cfg.preset} if cfg.preset != "none" else {}),
             "bias_definition": "mean of the true bias over the IMU samples",
             "gyro_bias_initial": b_g[0].tolist(),
             "accel_bias_initial": b_a[0].tolist(),
         },
     }
-    values = {"time_offset": float(tr.t_d), "gravity_magnitude": float(tr.g),
-              "gyro_scale_misalignment": tr.M_g.tolist(),
-              "accel_scale_misalignment": tr.M_a.tolist(), "gyro_g_sensitivity": tr.G.tolist(),
-              "gyro_bias_drift": tr.dbg.tolist(), "accel_bias_drift": tr.dba.tolist(),
-              "clock_drift": float(tr.drift), "accel_delay": float(tr.lag),
-              "accel_size_effect": {"r_y": tr.r_size[0:3].tolist(),
-                                    "r_z": tr.r_size[3:6].tolist()}}
-    for name in effects:
-        if name in EFFECTS:
-            truth["effects"][name] = {EFFECTS[name].param: values[name]}
     return truth
+
+
+def _in_flight(cfg: SimConfig, rotors: Rotors | None, t_imu: Array) -> dict[str, Any]:
+    """The truth file's record of the roughness beyond the data sheet: the white noise
+    factors and the data sheet's densities (``noise`` holds the true ones), the vibration,
+    and per axis the total white-equivalent density (white and vibration in quadrature)."""
+    true = cfg.true_noise
+    out: dict[str, Any] = {
+        "white_noise_factor": {"gyroscope": float(cfg.gyro_noise_factor),
+                               "accelerometer": float(cfg.accel_noise_factor)},
+        "data_sheet_noise": {"gyroscope_noise_density": cfg.noise.gyroscope_noise_density,
+                             "accelerometer_noise_density":
+                                 cfg.noise.accelerometer_noise_density},
+    }
+    vib_g = vib_a = np.zeros(3)
+    if rotors is not None:
+        vib = vibration_truth(rotors, t_imu, cfg.imu_rate)
+        out["vibration"] = vib
+        vib_g = np.asarray(vib["effective_density_gyro"])
+        vib_a = np.asarray(vib["effective_density_accel"])
+    out["total_density_gyro"] = np.hypot(true.gyroscope_noise_density, vib_g).tolist()
+    out["total_density_accel"] = np.hypot(true.accelerometer_noise_density, vib_a).tolist()
+    return out

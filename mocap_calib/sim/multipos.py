@@ -22,9 +22,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.effects import of_term
 from mocap_calib.core.model.types import ImuSamples, NoiseModel
 from mocap_calib.core.policy import GRAVITY, STANDARD_GRAVITY
 from mocap_calib.errors import InputError
+from mocap_calib.sim.injected import sim_of
 
 Array = NDArray[np.float64]
 
@@ -99,8 +101,9 @@ def _check_given(name: str, value: ArrayLike | None, shape: tuple[int, ...]) -> 
     return arr
 
 
-#: Default magnitude of ``G``: std of its entries, rad/s per m/s^2 (``sim.flight``'s default).
-G_STD = 3e-4
+#: Default magnitude of ``G``: std of its entries, rad/s per m/s^2 (the effect registry's
+#: simulation default, as the flight simulator draws it).
+G_STD: float = sim_of(of_term("gyro", "f")).default
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,10 @@ from mocap_calib.core.pipeline.calibrate import (
 )
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.io.atomic import write_with
-from mocap_calib.io.yaml_io import check_writable, load_plausible, save_result, save_text
+from mocap_calib.io.yaml_io import load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
 from mocap_calib.workflows.html.provenance import RunClock
+from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
 from mocap_calib.workflows.session import (
     InputSpec,
     LoadedSession,
@@ -37,13 +38,13 @@ QUIET_HELP = "no progress lines"
 class CalibrateOutputs:
     """Files a ``calibrate`` run writes (``out`` always, the others when given)."""
 
-    out: Path = param(Path("calib.yaml"), "result YAML to write", metavar="PATH")
-    report: Path | None = param(None, "also write the summary (estimates, 1-sigma, stage "
-                                "figures, notes) as a text report", metavar="PATH",
-                                show_default=False)
-    rrd: Path | None = param(None, "also write a rerun recording of residuals and "
-                             "trajectories", metavar="PATH", show_default=False)
-    html: Path | None = param(None, HTML_HELP, metavar="PATH", show_default=False)
+    out: Path = output(Path("calib.yaml"), "result YAML to write", metavar="PATH")
+    report: Path | None = output(None, "also write the summary (estimates, 1-sigma, stage "
+                                 "figures, notes) as a text report", metavar="PATH",
+                                 show_default=False)
+    rrd: Path | None = output(None, "also write a rerun recording of residuals and "
+                              "trajectories", metavar="PATH", show_default=False)
+    html: Path | None = output(None, HTML_HELP, metavar="PATH", show_default=False)
     quiet: bool = param(False, QUIET_HELP, decls=("--quiet", "-q"))
 
 
@@ -63,6 +64,9 @@ class CalibrateRequest:
         metavar="PATH", show_default=False)
     outputs: CalibrateOutputs = group(CalibrateOutputs, "Output")
 
+    def plan(self) -> OutputPlan:
+        return OutputPlan.of(self)
+
 
 def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = None,
                     on_iteration: IterationFn | None = None, extra_priors: list | None = None,
@@ -79,11 +83,13 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
             if progress is not None:
                 progress(note)
     first = sessions[0]
-    priors = (load_priors(request.prior, first.imu.time_origin_ns) if request.prior else [])
-    opts = replace(opts, noise=request.noise.resolve(first.sensor_noise),
-                   priors=[*opts.priors, *priors, *(extra_priors or [])],
-                   plausible=(opts.plausible if request.plausible is None
-                              else load_plausible(request.plausible)))
+    plausible = (opts.plausible if request.plausible is None
+                 else load_plausible(request.plausible))
+    priors = (load_priors(request.prior, first.imu.time_origin_ns, plausible)
+              if request.prior else [])
+    opts = replace(opts, noise=request.noise.resolve(first.sensor_noise,
+                                                     NoiseSpec.sensor_file(request.inputs)),
+                   priors=[*opts.priors, *priors, *(extra_priors or [])], plausible=plausible)
     recordings = [Recording(s.imu, s.mocap, *_names(spec))
                   for s, spec in zip(sessions, request.inputs.takes(), strict=True)]
     if opts.model.auto:
@@ -121,33 +127,34 @@ class CalibrateRun:
 
 def calibrate_to_files(request: CalibrateRequest,
                        progress: ProgressFn | None = None) -> CalibrateRun:
-    """The ``calibrate`` command: check the outputs, calibrate, write result/report/recording."""
+    """The ``calibrate`` command: check the outputs, calibrate, write result/report/recording
+    (the result file last, so that an interrupted run leaves no result behind)."""
     clock = RunClock()
     outputs = request.outputs
-    check_writable(outputs.out, outputs.report, outputs.rrd, outputs.html)
+    request.plan().check()
     result, session = run_calibration(request, progress)
-    # The result file is written last, so that an interrupted run leaves no result behind.
     table = summary_table(result)
-    run = CalibrateRun(result, table, [])
-    if outputs.rrd is not None:
+
+    def recording() -> None:
         from mocap_calib.viz.recording import write_calibration_recording
 
-        if progress is not None:
-            progress("writing rerun recording")
-        path = write_with(outputs.rrd, lambda tmp: write_calibration_recording(
+        write_with(outputs.rrd, lambda tmp: write_calibration_recording(
             tmp, result, session.imu, session.mocap))
-        run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
-    if outputs.report is not None:
-        save_text(outputs.report, f"mocap-calib calibration report\n\n{table}\n")
-        run.written.append(f"wrote {outputs.report}")
-    if outputs.html is not None:
+
+    def html() -> None:
         from mocap_calib.workflows.html.report import write_calibration_html
 
-        if progress is not None:
-            progress("writing HTML report")
         write_calibration_html(outputs.html, result, [*request.inputs.sources(),
                                                       request.noise.noise, *request.prior], clock)
-        run.written.append(f"wrote {outputs.html}")
-    save_result(outputs.out, result)
-    run.written.insert(0, f"wrote {outputs.out}")
-    return run
+
+    written = write_products([
+        Product("--out", outputs.out, lambda: save_result(outputs.out, result)),
+        None if outputs.rrd is None else Product(
+            "--rrd", outputs.rrd, recording, f"open with: mocap-calib view {outputs.rrd}",
+            "writing rerun recording"),
+        None if outputs.report is None else Product("--report", outputs.report, lambda: save_text(
+            outputs.report, f"mocap-calib calibration report\n\n{table}\n")),
+        None if outputs.html is None else Product("--html", outputs.html, html,
+                                                  step="writing HTML report"),
+    ], progress)
+    return CalibrateRun(result, table, [p.line() for p in written])

@@ -9,10 +9,11 @@ from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, DiagnoseReport
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import ProgressFn
 from mocap_calib.io.atomic import write_with
-from mocap_calib.io.yaml_io import check_writable, load_plausible, save_yaml
+from mocap_calib.io.yaml_io import load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
 from mocap_calib.workflows.calibrate import HTML_HELP, QUIET_HELP
 from mocap_calib.workflows.html.provenance import RunClock
+from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
 #: Calibration options that the diagnosis sets itself (its model is --start-model plus what it
@@ -23,10 +24,10 @@ NOT_OPTIONS = ("model", "segments", "accept_implausible")
 
 @dataclass
 class DiagnoseOutputs:
-    out: Path = param(Path("report.yaml"), "report YAML to write", metavar="PATH")
-    rrd: Path | None = param(None, "also write a rerun recording with the residuals of every "
-                             "step", metavar="PATH", show_default=False)
-    html: Path | None = param(None, HTML_HELP, metavar="PATH", show_default=False)
+    out: Path = output(Path("report.yaml"), "report YAML to write", metavar="PATH")
+    rrd: Path | None = output(None, "also write a rerun recording with the residuals of every "
+                              "step", metavar="PATH", show_default=False)
+    html: Path | None = output(None, HTML_HELP, metavar="PATH", show_default=False)
     quiet: bool = param(False, QUIET_HELP, decls=("--quiet", "-q"))
 
 
@@ -44,6 +45,9 @@ class DiagnoseRequest:
         show_default=False)
     outputs: DiagnoseOutputs = group(DiagnoseOutputs, "Output")
 
+    def plan(self) -> OutputPlan:
+        return OutputPlan.of(self)
+
 
 def run_diagnosis(request: DiagnoseRequest, progress: ProgressFn | None = None):
     """Read the inputs (several takes: repeated --imu/--mocap pairs or mav0 folders, as
@@ -60,7 +64,8 @@ def run_diagnosis(request: DiagnoseRequest, progress: ProgressFn | None = None):
         if progress is not None:
             progress(note)
     first = sessions[0]
-    cal = replace(options.calibration, noise=request.noise.resolve(first.sensor_noise))
+    noise = request.noise.resolve(first.sensor_noise, NoiseSpec.sensor_file(request.inputs))
+    cal = replace(options.calibration, noise=noise)
     if request.plausible is not None:
         limits = load_plausible(request.plausible)
         cal = replace(cal, plausible=limits)
@@ -108,29 +113,31 @@ class DiagnoseRun:
 
 def diagnose_to_files(request: DiagnoseRequest,
                       progress: ProgressFn | None = None) -> DiagnoseRun:
-    """The ``diagnose`` command: check the outputs, diagnose, write report, recording and
-    HTML page."""
+    """The ``diagnose`` command: check the outputs, diagnose, write recording, HTML page and
+    the report YAML (last)."""
     clock = RunClock()
     out, rrd, html = request.outputs.out, request.outputs.rrd, request.outputs.html
-    check_writable(out, rrd, html)
+    request.plan().check()
     report, session = run_diagnosis(request, progress)
-    if html is not None:
-        from mocap_calib.workflows.html.report import write_diagnosis_html
 
-        if progress is not None:
-            progress("writing HTML report")
-        write_diagnosis_html(html, report, [*request.inputs.sources(), request.noise.noise],
-                             clock)
-    save_yaml(out, report.to_dict(), "mocap-calib model diagnosis report (see docs/diagnosis.md)")
-    run = DiagnoseRun(report, diagnose_table(report), [f"wrote {out}"])
-    if html is not None:
-        run.written.append(f"wrote {html}")
-    if rrd is not None:
+    def recording() -> None:
         from mocap_calib.viz.recording import write_calibration_recording
 
-        if progress is not None:
-            progress("writing rerun recording")
-        path = write_with(rrd, lambda tmp: write_calibration_recording(
+        write_with(rrd, lambda tmp: write_calibration_recording(
             tmp, report.final, session.imu, session.mocap, diagnose_steps=diagnose_series(report)))
-        run.written.append(f"wrote {path}  (open with: mocap-calib view {path})")
-    return run
+
+    def page() -> None:
+        from mocap_calib.workflows.html.report import write_diagnosis_html
+
+        write_diagnosis_html(html, report, [*request.inputs.sources(), request.noise.noise],
+                             clock)
+
+    written = write_products([
+        Product("--out", out, lambda: save_yaml(
+            out, report.to_dict(), "mocap-calib model diagnosis report (see docs/diagnosis.md)")),
+        None if html is None else Product("--html", html, page, step="writing HTML report"),
+        None if rrd is None else Product("--rrd", rrd, recording,
+                                         f"open with: mocap-calib view {rrd}",
+                                         "writing rerun recording"),
+    ], progress)
+    return DiagnoseRun(report, diagnose_table(report), [p.line() for p in written])

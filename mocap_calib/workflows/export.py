@@ -7,6 +7,7 @@ from pathlib import Path
 
 from mocap_calib.core.params import param
 from mocap_calib.errors import InputError
+from mocap_calib.export.imu_tk import SUFFIXES
 from mocap_calib.export.targets import (
     FILE_NAMES,
     TARGETS,
@@ -14,8 +15,10 @@ from mocap_calib.export.targets import (
     ExportInputs,
     export_calibration,
 )
-from mocap_calib.io.yaml_io import check_writable, load_noise, load_result, save_text
+from mocap_calib.io.yaml_io import check_writable, load_result, save_text
 from mocap_calib.workflows.imu.intrinsics_export import INTRINSICS_FORMATS, export_intrinsics
+from mocap_calib.workflows.outputs import Named, OutputPlan, output
+from mocap_calib.workflows.session import NoiseSpec
 
 __all__ = ["TARGETS", "FILE_NAMES", "export_to_file", "export_result", "ALL_TARGETS"]
 
@@ -33,9 +36,9 @@ class ExportRequest:
         MISSING, "result YAML of 'mocap-calib calibrate' (for --to imu_tk: intrinsics of "
         "'mocap-calib multipos')", argument=True, metavar="CALIBRATION")
     to: str = param(MISSING, "target tool", choices=ALL_TARGETS, decls=("--to",))
-    out: Path | None = param(
+    out: Path | None = output(
         None, "file to write (default: the tool's own file name); imu_tk: the prefix of its "
-        "two files (default 'imu')", metavar="PATH", show_default=False)
+        "two files (default 'imu')", kind="prefix", metavar="PATH", show_default=False)
     noise: Path | None = param(
         None, "noise YAML (Kalibr keys, e.g. from 'mocap-calib allan'); default: the noise "
         "model the calibration used", metavar="PATH", show_default=False)
@@ -44,10 +47,20 @@ class ExportRequest:
                                    show_default=False)
     imu_topic: str = param("/imu0", "IMU topic for the targets that name it")
 
+    def plan(self) -> OutputPlan:
+        """The tool's file (``--out``, or its own name), or imu_tk's two files."""
+        if self.to in INTRINSICS_FORMATS:
+            prefix = self.out or Path("imu")
+            files = [Named("--out", Path(f"{prefix}{s}")) for s in SUFFIXES.values()]
+        else:
+            files = [Named("--out", self.out or Path(FILE_NAMES.get(self.to, "export")))]
+        return OutputPlan.of(self, outputs=files)
+
 
 def export_request(request: ExportRequest) -> list[str]:
     """``export`` from its request (see :func:`export_result`)."""
     r = request
+    r.plan().check()
     return export_result(r.calibration, r.to, r.out, r.noise, r.imu_rate, r.imu_topic)
 
 
@@ -86,7 +99,7 @@ def export_to_file(calibration: Path, target: str, out: Path | None = None,
     check_writable(out)
     result = load_result(calibration)
     if noise is not None:
-        noise_model, source = load_noise(noise), f"from {noise}"
+        noise_model, source = NoiseSpec(noise=Path(noise)).resolve(None), f"from {noise}"
     else:
         noise_model = result.noise
         source = f"the noise model of {calibration} (give --noise noise.yaml from 'allan')"

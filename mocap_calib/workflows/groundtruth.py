@@ -22,11 +22,17 @@ from mocap_calib.core.pipeline.calibrate import ProgressFn
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
 from mocap_calib.export.intrinsics import intrinsics_of
-from mocap_calib.io.groundtruth import GT_FORMATS, sidecar_path, write_groundtruth
-from mocap_calib.io.yaml_io import check_writable, load_result
+from mocap_calib.io.groundtruth import GT_FORMATS, sidecar_path, write_sidecar, write_trajectory
+from mocap_calib.io.yaml_io import load_result, non_finite
+from mocap_calib.workflows.outputs import Named, OutputPlan, Product, output, write_products
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
 __all__ = ["GT_FORMATS", "GroundTruthRun", "GroundtruthRequest", "run_groundtruth"]
+
+#: ``--rate``'s bound before the IMU's rate is known (``simulate``'s highest IMU rate) and how
+#: far above the IMU's measured rate a requested one may be (its stamps jitter).
+MAX_RATE_HZ = 1e5
+RATE_SLACK = 0.01
 
 
 @dataclass
@@ -101,12 +107,13 @@ class GroundtruthRequest:
     noise: NoiseSpec = group(NoiseSpec, "Noise model")
     calibration: Path = param(Path("calib.yaml"), "result YAML of 'mocap-calib calibrate' for "
                               "this rig (and clock)", metavar="PATH")
-    out: Path = param(Path("gt.csv"), "trajectory file to write", metavar="PATH")
+    out: Path = output(Path("gt.csv"), "trajectory file to write (and beside it its YAML "
+                       "sidecar: gt.csv -> gt.yaml)", metavar="PATH")
     format: str = param("euroc", "euroc (state_groundtruth_estimate0 layout) or tum",
                         choices=GT_FORMATS)
-    rate: float | None = param(None, "output rate on the IMU clock (default: at the IMU "
-                               "stamps)", unit="Hz", lo=0.0, lo_open=True,
-                               show_default=False)
+    rate: float | None = param(None, "output rate on the IMU clock, at most the IMU's own "
+                               "(default: at the IMU stamps)", unit="Hz", lo=0.0, lo_open=True,
+                               hi=MAX_RATE_HZ, show_default=False)
     max_position_sigma_mm: float = param(
         2.0, "leave out states whose smoothed position 1-sigma exceeds this", unit="mm",
         lo=0.0, lo_open=True)
@@ -115,18 +122,39 @@ class GroundtruthRequest:
         lo=0.0, lo_open=True, hi=180.0)
     quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
 
+    def plan(self) -> OutputPlan:
+        return OutputPlan.of(self, outputs=[Named("--out", sidecar_path(self.out), "its sidecar")])
+
+
+def _check_rate(rate: float | None, imu_rate_hz: float) -> None:
+    """A rate above the IMU's only interpolates between its states (and memory grows with
+    it: 100 kHz over a minute is gigabytes)."""
+    if rate is not None and rate > imu_rate_hz * (1.0 + RATE_SLACK):
+        raise InputError(f"--rate {rate:g} Hz: above the IMU's own {imu_rate_hz:.6g} Hz; states "
+                         "between IMU samples only interpolate them: give at most "
+                         f"{imu_rate_hz:.6g}, or leave --rate out for the IMU stamps")
+
+
+def _check_calibration(result: CalibrationResult, source: Path) -> None:
+    bad = non_finite(result.to_dict())
+    if bad:
+        raise InputError(f"{source}: {bad}, not a number a calibration can have; the ground "
+                         "truth needs a calibration of finite numbers: calibrate again")
+
 
 def run_groundtruth(request: GroundtruthRequest,
                     progress: ProgressFn | None = None) -> GroundTruthRun:
     """Read the session and the calibration, smooth, write the trajectory and its sidecar."""
     out, calibration = request.out, request.calibration
-    check_writable(out, sidecar_path(out))
+    request.plan().check()
     result = load_result(calibration)
+    _check_calibration(result, Path(calibration))
     session = load_session(request.inputs, result.time_offset)
+    _check_rate(request.rate, session.imu.rate_hz)
     for note in session.notes:
         if progress is not None:
             progress(note)
-    noise = request.noise.resolve(result.noise)
+    noise = request.noise.resolve(result.noise, f"{calibration} (its noise model)")
     cal = calibration_for_groundtruth(result, Path(calibration), session.imu.time_origin_ns)
     if progress is not None:
         progress("smoothing the IMU between the mocap poses (Kalman filter + RTS smoother)")
@@ -141,5 +169,10 @@ def run_groundtruth(request: GroundtruthRequest,
     provenance = {"calibration": str(calibration), "inputs": list(session.notes),
                   "rate_hz": request.rate if request.rate is not None else "IMU stamps",
                   "noise": noise.to_dict()}
-    path, side = write_groundtruth(out, gt, request.format, provenance)
-    return GroundTruthRun(path, side, gt, list(session.notes))
+    side = sidecar_path(out)
+    write_products([
+        Product("--out", out, lambda: write_trajectory(out, gt, request.format)),
+        Product("--out", side, lambda: write_sidecar(out, gt, request.format,
+                                                                provenance)),
+    ])
+    return GroundTruthRun(Path(out), side, gt, list(session.notes))

@@ -4,22 +4,24 @@ options, priors, and the part of the session to use."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.params import group, param
-from mocap_calib.core.prepare.crop import crop_session
-from mocap_calib.core.result.priors import priors_from_results
+from mocap_calib.core.params import ParamInfo, check_value, group, param, param_info
+from mocap_calib.core.result.priors import prior_problems, priors_from_results
 from mocap_calib.errors import InputError
-from mocap_calib.io.formats.bags import RecordingOptions
+from mocap_calib.io.checks import MIN_MOCAP_RATE_HZ
 from mocap_calib.io.formats.euroc import find_mav0
-from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
-from mocap_calib.io.yaml_io import load_noise, load_result
+from mocap_calib.io.reading import ExportOptions, RecordingOptions
+from mocap_calib.io.streams import Crop
+from mocap_calib.io.yaml_io import load_noise, load_result, noise_values
 
 #: The format options shared with the IMU-only commands (same names, same help).
 COLUMNS_HELP = ("column map of a generic CSV, e.g. 't=0,gyro=1:4,accel=4:7,quat=10:14,"
@@ -29,8 +31,10 @@ GYRO_UNITS = ("rad/s", "deg/s")
 ACCEL_UNITS = ("m/s^2", "g")
 STAMPS = ("header", "receive")
 IMU_TOPIC_HELP = ("IMU topic of a bag or ULog (sensor_msgs/Imu; ULog: sensor_combined, or one "
-                  "IMU of several as sensor_gyro:N or sensor_accel:N); default: the only one "
-                  "(ULog: sensor_combined)")
+                  "IMU of several as sensor_gyro:N or sensor_accel:N), or the IMU's events of a "
+                  "Crazyflie uSD log (GYRO_EVENT,ACCEL_EVENT, or one event holding both); "
+                  "default: the only one (ULog: sensor_combined; Crazyflie: "
+                  "estGyroscope,estAcceleration)")
 
 
 @dataclass
@@ -44,8 +48,8 @@ class MocapFormat:
     mocap_topic: str | None = param(
         None, "pose topic of a bag or ULog (PoseStamped, TransformStamped, "
         "PoseWithCovarianceStamped, Odometry, or /tf with --mocap-frame; ULog: "
-        "vehicle_mocap_odometry or vehicle_visual_odometry); default: the only one",
-        show_default=False)
+        "vehicle_mocap_odometry or vehicle_visual_odometry), or the pose event of a Crazyflie "
+        "uSD log; default: the only one (Crazyflie: estPose)", show_default=False)
     mocap_frame: str | None = param(
         None, "the marker body's frame in a tf2_msgs/TFMessage topic: CHILD (its pose in the root "
         "of its TF tree, /tf_static included) or PARENT:CHILD (in PARENT)", show_default=False)
@@ -107,14 +111,22 @@ class InputSpec:
         "or Vicon CSV export, a bag/.mcap/.ulg; may be the same file as --imu", metavar="PATH",
         show_default=False)
     start: float | None = param(
-        None, "use the session from this many seconds after the IMU log's first sample",
-        unit="s", lo=0.0, show_default=False)
+        None, "crop: keep the session from this many seconds after the IMU log's first "
+        "sample (before any check of the data)", unit="s", lo=0.0, show_default=False)
     end: float | None = param(
-        None, "use the session up to this many seconds after the IMU log's first sample",
-        unit="s", lo=0.0, lo_open=True, show_default=False)
+        None, "crop: keep the session up to this many seconds after the IMU log's first "
+        "sample (before any check of the data)", unit="s", lo=0.0, lo_open=True,
+        show_default=False)
     pose_source: str = param("auto", "with a mav0 folder: which poses to read (auto: vicon0 if "
                              "present)", choices=("auto", "vicon0", "groundtruth"))
-    columns: str | None = columns_option()
+    columns: str | None = param(None, COLUMNS_HELP + "; covers both files",
+                                show_default=False)
+    imu_columns: str | None = param(
+        None, "column map of the IMU file alone (t=, gyro=, accel=), when the two files differ "
+        "in layout; not with --columns", show_default=False)
+    mocap_columns: str | None = param(
+        None, "column map of the mocap file alone (t=, quat=, pos=), when the two files "
+        "differ in layout; not with --columns", show_default=False)
     time_unit: str | None = time_unit_option()
     gyro_unit: str | None = gyro_unit_option()
     accel_unit: str | None = accel_unit_option()
@@ -136,6 +148,13 @@ class InputSpec:
     def export(self) -> ExportOptions:
         p = self.poses
         return ExportOptions(p.mocap_format, p.rigid_body, p.rotation, p.mocap_rate)
+
+    def crop(self, time_offset: float | None = None) -> Crop | None:
+        """``--start``/``--end``, the mocap kept 1 s (plus the clock offset) beyond them."""
+        if self.start is None and self.end is None:
+            return None
+        margin = 1.0 if time_offset is None else 1.0 + abs(time_offset)
+        return Crop(self.start, self.end, margin)
 
     def sources(self) -> list[Path]:
         """Every input path given (for reports' provenance)."""
@@ -191,6 +210,17 @@ class NoiseSpec:
                                           unit="deg", lo=0.0, lo_open=True, hi=10.0,
                                           show_default=False)
 
+    #: A noise file's keys: the option that sets the same value and the value in that
+    #: option's unit (the file's are SI).
+    FILE_KEYS: ClassVar[dict[str, tuple[str, Callable[[float], float]]]] = {
+        "gyroscope_noise_density": ("gyro_noise", float),
+        "gyroscope_random_walk": ("gyro_walk", float),
+        "accelerometer_noise_density": ("accel_noise", float),
+        "accelerometer_random_walk": ("accel_walk", float),
+        "mocap_position_sigma": ("mocap_noise_mm", lambda m: 1e3 * m),
+        "mocap_rotation_sigma": ("mocap_noise_deg", lambda rad: float(np.degrees(rad))),
+    }
+
     def overrides(self) -> dict[str, float]:
         """The noise-model fields given as options, in SI units."""
         given = {
@@ -205,13 +235,61 @@ class NoiseSpec:
         }
         return {k: v for k, v in given.items() if v is not None}
 
-    def resolve(self, base: NoiseModel | None) -> NoiseModel:
-        """The noise model: ``base`` (or the defaults) < the file < the options."""
+    def resolve(self, base: NoiseModel | None, base_source: str | None = None) -> NoiseModel:
+        """The noise model: ``base`` (or the defaults) < the file < the options. The values
+        read from a file (the ``--noise`` file; ``base`` when ``base_source`` names the file
+        it came from) must be within the options' ranges (:meth:`check_values`)."""
+        if base is not None and base_source is not None:
+            self.check_values(base.to_dict(), base_source)
         noise = base or NoiseModel()
         if self.noise is not None:
             noise = load_noise(self.noise, noise)
+            self.check_values(noise_values(self.noise), str(self.noise))
         given = self.overrides()
         return replace(noise, **given) if given else noise
+
+    @staticmethod
+    def sensor_file(inputs: InputSpec) -> str | None:
+        """The first take's mav0 ``imu0/sensor.yaml`` (the base noise it gives), if any."""
+        mav0 = inputs.takes()[0].mav0
+        try:
+            return str(find_mav0(mav0[0]) / "imu0" / "sensor.yaml") if mav0 else None
+        except InputError:
+            return None
+
+    @classmethod
+    def check_values(cls, values: dict[str, float], source: str) -> None:
+        """Each noise value read from ``source`` within the range of the option that sets the
+        same value (``gyroscope_noise_density`` as ``--gyro-noise``, ...): a file is no
+        licence for what the command line refuses.
+
+        Raises:
+            InputError: naming the file, the key, the value and the range.
+        """
+        infos = {f.name: param_info(f) for f in fields(cls)}
+        for key, value in values.items():
+            if key not in cls.FILE_KEYS or value is None:
+                continue
+            name, in_option_unit = cls.FILE_KEYS[key]
+            info = infos[name]
+            assert info is not None
+            try:
+                check_value(name, in_option_unit(float(value)), info)
+            except InputError:
+                raise InputError(f"{source}: '{key}' is {float(value):g}; it must be "
+                                 f"{cls._in_file_units(info, in_option_unit)} (the range of "
+                                 f"{info.option_name(name)}); fix the noise values") from None
+
+    @staticmethod
+    def _in_file_units(info: ParamInfo, in_option_unit: Callable[[float], float]) -> str:
+        """An option's range said in the file's SI units (mm -> m, deg -> rad)."""
+        scale = in_option_unit(1.0)
+        if scale == 1.0:
+            return info.allowed()
+        lo = None if info.lo is None else info.lo / scale
+        hi = None if info.hi is None else info.hi / scale
+        unit = {"mm": "m", "deg": "rad"}.get(info.unit or "", info.unit)
+        return replace(info, lo=lo, hi=hi, unit=unit).allowed()
 
 
 @dataclass
@@ -223,8 +301,9 @@ class LoadedSession:
 
 
 def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSession:
-    """Read both streams (and, from a ``mav0`` folder, the IMU's ``sensor.yaml`` noise), and
-    cut them to ``--start``/``--end`` before anything else looks at them."""
+    """Read both streams (and, from a ``mav0`` folder, the IMU's ``sensor.yaml`` noise), cut
+    to ``--start``/``--end`` before any check looks at them (the mocap with a margin of 1 s
+    plus ``time_offset``)."""
     path, imu_path, mocap_path = spec.single()
     if path is None and (imu_path is None or mocap_path is None):
         raise InputError("give a mav0 folder, or both --imu and --mocap")
@@ -232,10 +311,11 @@ def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSes
         raise InputError("give either a mav0 folder or --imu/--mocap, not both")
     imu, mocap, notes = load_inputs(
         imu_path, mocap_path, path, pose_source=spec.pose_source, columns=spec.columns,
+        imu_columns=spec.imu_columns, mocap_columns=spec.mocap_columns,
         time_unit=spec.time_unit, gyro_unit=spec.gyro_unit, accel_unit=spec.accel_unit,
         quat_order=spec.poses.quat_order, position_unit=spec.poses.position_unit,
-        recording=spec.recording(), export=spec.export())
-    imu, mocap = crop_session(imu, mocap, spec.start, spec.end, time_offset)
+        recording=spec.recording(), export=spec.export(), crop=spec.crop(time_offset),
+        min_mocap_rate_hz=MIN_MOCAP_RATE_HZ)
     sensor_noise = None
     if path is not None:
         sensor = find_mav0(path) / "imu0" / "sensor.yaml"
@@ -248,7 +328,19 @@ def load_session(spec: InputSpec, time_offset: float | None = None) -> LoadedSes
     return LoadedSession(imu, mocap, notes, sensor_noise)
 
 
-def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int) -> list:
-    """Prior factors from one or more earlier results (a trend with two or more)."""
+def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int,
+                limits: PlausibleLimits | None = None) -> list:
+    """Prior factors from one or more earlier results (a trend with two or more).
+
+    Raises:
+        InputError: a file that is not a result, or whose values cannot be a prior: not finite,
+            beyond the plausibility ``limits`` (default: the defaults), sigmas that are not
+            positive, a rotation that is no quaternion (:func:`prior_problems`).
+    """
     results = [load_result(p) for p in paths]
+    for p, r in zip(paths, results, strict=True):
+        problems = prior_problems(r, limits or PlausibleLimits())
+        if problems:
+            raise InputError(f"{p}: as a --prior, {problems[0]}; give the result of a "
+                             "calibration that passed its checks")
     return priors_from_results(results, at_ns if len(results) > 1 else None)

@@ -26,7 +26,8 @@ full ``M_a`` would trade a rotation with ``R_MI``. The estimator inverts the mod
 sample; each unit says which kind of term it is (``acts_on``) and how it depends on its
 parameters, so adding an effect of an existing kind touches no other code; a new kind is taught
 once to :mod:`mocap_calib.core.model.imu_model` (and, for time terms, the engine's step
-Jacobian).
+Jacobian). Each record also says how the simulator draws its truth (:class:`EffectSim`); the
+simulator applies the truth by the same kind, with its own written-out measurement model.
 """
 
 from __future__ import annotations
@@ -37,12 +38,14 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.policy import GRAVITY
 from mocap_calib.errors import InputError
 
 Array = NDArray[np.float64]
 
 Sensor = Literal["gyro", "accel", "world"]
 ActsOn = Literal["w", "f", "time", "gravity", "clock", "clock_rate", "accel_lag", "size"]
+SimDraw = Literal["matrix", "lower_matrix", "vectors", "value", "signed"]
 
 
 def _basis_full() -> Array:
@@ -58,6 +61,38 @@ def _basis_lower() -> Array:
     for k, (i, j) in enumerate(idx):
         b[k, i, j] = 1.0
     return b
+
+
+@dataclass(frozen=True)
+class EffectSim:
+    """How the simulator makes the effect's truth (``simulate --effect NAME[=VALUE]``).
+
+    Attributes:
+        default: what a bare ``NAME`` injects: the std of a matrix's entries, the length of
+            each vector, or the value itself.
+        help: what ``VALUE`` means, for ``--help``.
+        draw: how the truth is made from one value ``v``: ``matrix``: 3x3 entries drawn from
+            N(0, v^2), or the 9 values given (row-major); ``lower_matrix``: the same with the
+            upper triangle zeroed; ``vectors``: ``dim / 3`` vectors of length ``v`` in random
+            directions, or the ``dim`` values given; ``value``: ``v`` itself; ``signed``: ``v``
+            itself, and without a value the default with a random sign.
+        non_negative: a single value is a magnitude (a std, a length), never negative.
+        bounds: the open interval a value must lie in, if any.
+    """
+
+    default: float
+    help: str
+    draw: SimDraw = "value"
+    non_negative: bool = False
+    bounds: tuple[float, float] | None = None
+
+    def value_counts(self, dim: int) -> tuple[int, ...]:
+        """How many values ``VALUE`` may hold: one, or the whole matrix or vector(s)."""
+        if self.draw in ("matrix", "lower_matrix"):
+            return (1, 9)
+        if self.draw == "vectors":
+            return (1, dim)
+        return (1,)
 
 
 @dataclass(frozen=True)
@@ -85,6 +120,7 @@ class Effect:
             was not determined by the data (:mod:`mocap_calib.core.model.parameters`).
         about_identity: a matrix term reported (and judged plausible) as ``M = I + E``, a
             scale-and-misalignment matrix near identity, rather than as ``E`` itself.
+        sim: how the simulator draws its truth (every registered effect has one).
     """
 
     name: str
@@ -97,6 +133,7 @@ class Effect:
     limits: tuple[tuple[str, float], ...] = ()
     range_sigma: float = 0.05  # weak prior (1 sigma) that keeps the graph well posed
     about_identity: bool = False
+    sim: EffectSim | None = None
 
     @property
     def in_effects(self) -> bool:
@@ -160,43 +197,62 @@ EFFECTS: dict[str, Effect] = {
     for e in (
         Effect("time_offset", "time_offset", 1, "world", "clock", "s",
                "IMU stamp t was measured at mocap time t + t_d",
-               range_sigma=0.05),
+               range_sigma=0.05,
+               sim=EffectSim(0.005, "t_d in s (IMU stamp t was measured at mocap time t + t_d)")),
         Effect("gyro_scale_misalignment", "gyro_matrix", 9, "gyro", "w", "-",
                "w_m = M_g w + b_g with M_g near identity (scale and axis misalignment)",
                (("scale", 0.03), ("misalignment_deg", 2.0)),
-               range_sigma=0.05, about_identity=True),
+               range_sigma=0.05, about_identity=True,
+               sim=EffectSim(0.003, "std of the entries of M_g - I, or 9 values row-major",
+                             "matrix", non_negative=True)),
         Effect("accel_scale_misalignment", "accel_matrix", 6, "accel", "f", "-",
                "a_m = M_a f + b_a with M_a lower-triangular near identity",
                (("scale", 0.03), ("misalignment_deg", 2.0)),
-               range_sigma=0.05, about_identity=True),
+               range_sigma=0.05, about_identity=True,
+               sim=EffectSim(0.003, "std of the entries of the lower-triangular M_a - I, or 9 "
+                             "values", "lower_matrix", non_negative=True)),
         Effect("gyro_g_sensitivity", "g_sensitivity", 9, "gyro", "f", "rad/s per m/s^2",
                "w_m = w + G f + b_g (gyro responds to specific force)",
                (("max", 1e-3),),
-               range_sigma=0.01),
+               range_sigma=0.01,
+               sim=EffectSim(3e-4, "std of the entries of G in rad/s per m/s^2, or 9 values",
+                             "matrix", non_negative=True)),
         Effect("gyro_bias_drift", "gyro_bias_rate", 3, "gyro", "time", "rad/s^2",
                "gyro bias trend beyond the random walk: b_g(t) = b_g + r_g (t - t_mid)",
                (("max", 1e-3),),
-               range_sigma=1e-3),
+               range_sigma=1e-3,
+               sim=EffectSim(2e-5, "trend magnitude in rad/s per s, or 3 values", "vectors",
+                             non_negative=True)),
         Effect("accel_bias_drift", "accel_bias_rate", 3, "accel", "time", "m/s^3",
                "accel bias trend beyond the random walk: b_a(t) = b_a + r_a (t - t_mid)",
                (("max", 0.05),),
-               range_sigma=0.05),
+               range_sigma=0.05,
+               sim=EffectSim(2e-3, "trend magnitude in m/s^2 per s, or 3 values", "vectors",
+                             non_negative=True)),
         Effect("gravity_magnitude", "gravity_magnitude", 1, "world", "gravity", "m/s^2",
                "|g| differs from the value assumed", (("min", 9.76), ("max", 9.84)),
-               range_sigma=0.5),
+               range_sigma=0.5,
+               sim=EffectSim(9.79, f"true |g| in m/s^2 (the calibration assumes {GRAVITY})",
+                             non_negative=True, bounds=(5.0, 15.0))),
         Effect("clock_drift", "clock_drift", 1, "world", "clock_rate", "-",
                "the IMU clock runs at another rate: IMU stamp t was measured at mocap time "
                "t + t_d + s (t - t_mid)", (("max", 1e-3),),
-               range_sigma=2e-3),
+               range_sigma=2e-3,
+               sim=EffectSim(1e-4, "IMU clock rate error s (1e-4 = 100 ppm); default: 100 ppm, "
+                             "random sign", "signed")),
         Effect("accel_delay", "accel_delay", 1, "accel", "accel_lag", "s",
                "the accelerometer lags the gyro: an accel sample stamped t measured the specific "
                "force at mocap time t + t_d - delta", (("max", 0.02),),
-               range_sigma=0.05),
+               range_sigma=0.05,
+               sim=EffectSim(0.004, "how much the accelerometer lags the gyro, in s")),
         Effect("accel_size_effect", "accel_size_effect", 6, "accel", "size", "m",
                "accelerometer triad size effect: the y and z accelerometers sit at r_y, r_z "
                "(IMU frame), a_m,i = e_i.(f + alpha x r_i + w x (w x r_i)) + b_a,i",
                (("max", 0.03),),
-               range_sigma=0.1),
+               range_sigma=0.1,
+               sim=EffectSim(0.01, "distance of the y and z accelerometers from the x one (m, "
+                             "random directions), or 6 values r_y, r_z", "vectors",
+                             non_negative=True)),
     )
 }
 

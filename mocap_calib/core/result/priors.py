@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.parameters import PARAMETERS, PER_TAKE
+from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.trend import extrapolate_trend
 from mocap_calib.core.position.stage import Prior
 from mocap_calib.core.result.calibration import CalibrationResult
@@ -60,6 +61,95 @@ def to_chart(name: str, value: object, ref: object) -> Array:
 def _from_chart(name: str, x: Array, ref: object) -> object:
     p = PARAMETERS.get(name)
     return x if p is None else p.from_chart(ref, x)
+
+
+def _numbers(value: object) -> Array | None:
+    """``value`` as an array of floats (a mapping's values joined: the size effect's
+    ``{r_y: [..], r_z: [..]}``), or None when it holds something else."""
+    if isinstance(value, dict):
+        parts = [_numbers(v) for v in value.values()]
+        if any(p is None for p in parts) or not parts:
+            return None
+        return np.concatenate([p for p in parts if p is not None])
+    try:
+        return np.atleast_1d(np.asarray(value, dtype=float))
+    except (TypeError, ValueError):
+        return None
+
+
+def _value_problem(key: str, value: object) -> str | None:
+    a = _numbers(value)
+    if a is None:
+        return f"{key} is {value!r}, not numbers"
+    if not np.all(np.isfinite(a)):
+        return f"{key} is {a.tolist()}, not finite"
+    return None
+
+
+def _sigma_problem(key: str, sigma: object) -> str | None:
+    """A sigma must be positive and finite, and its information (1/sigma^2) finite too."""
+    a = _numbers(sigma)
+    if a is None or not np.all(np.isfinite(a)):
+        return f"{key} is {sigma!r}, not finite"
+    with np.errstate(divide="ignore", over="ignore"):
+        if not np.all((a > 0) & np.isfinite(1.0 / a**2)):
+            return f"{key} is {a.tolist()}: a sigma must be positive"
+    return None
+
+
+def _result_values(r: CalibrationResult) -> list[tuple[str, object]]:
+    """Every value of a result that a prior can take, by its key in the result file."""
+    pairs: list[tuple[str, object]] = [
+        ("T_marker_imu.rotation_wxyz", r.rotation_wxyz),
+        ("T_marker_imu.translation", r.translation), ("gravity_in_mocap", r.gravity_in_mocap),
+        ("gyro_bias", r.gyro_bias), ("accel_bias", r.accel_bias), ("time_offset", r.time_offset)]
+    for name, rec in r.effects.items():
+        eff = EFFECTS.get(name)
+        if eff is not None and isinstance(rec, dict):
+            pairs.append((f"effects.{name}.{eff.param}", rec.get(eff.param)))
+    return [(k, v) for k, v in pairs if v is not None]
+
+
+def _result_sigmas(r: CalibrationResult) -> list[tuple[str, object]]:
+    pairs: list[tuple[str, object]] = [
+        ("sigma.rotation", r.sigma_rotation), ("sigma.translation", r.sigma_translation),
+        ("sigma.gravity_in_mocap", r.sigma_gravity), ("sigma.gyro_bias", r.sigma_gyro_bias),
+        ("sigma.accel_bias", r.sigma_accel_bias)]
+    if r.sigma_time_offset is not None and r.sigma_time_offset != 0:  # 0: no prior on it
+        pairs.append(("sigma.time_offset", r.sigma_time_offset))
+    for name, rec in r.effects.items():
+        if isinstance(rec, dict) and rec.get("sigma") is not None:
+            pairs.append((f"effects.{name}.sigma", rec["sigma"]))
+    return [(k, v) for k, v in pairs if v is not None]
+
+
+def prior_problems(r: CalibrationResult, limits: PlausibleLimits) -> list[str]:
+    """Why an earlier result cannot be a prior, one line each naming its key: a value that is
+    not finite, a rotation quaternion or gravity direction of no length, a lever arm or an
+    effect beyond the plausibility ``limits`` (the gate the new result must pass too), a sigma
+    that is not positive. Empty when it can be one. (Whether the prior agrees with the new
+    session's data is the verdict's question, not this one.)"""
+    problems = [p for k, v in _result_values(r) if (p := _value_problem(k, v))]
+    problems += [p for k, s in _result_sigmas(r) if (p := _sigma_problem(k, s))]
+    if problems:
+        return problems
+    for key, v in (("T_marker_imu.rotation_wxyz", r.rotation_wxyz),
+                   ("gravity_in_mocap", r.gravity_in_mocap)):
+        if v is not None and not np.any(np.asarray(v, dtype=float) != 0):
+            problems.append(f"{key} is {np.asarray(v).tolist()}, of zero length: no direction")
+    if r.translation is not None:
+        arm = float(np.hypot.reduce(np.abs(np.asarray(r.translation, dtype=float))))
+        if arm > limits.lever_arm:
+            problems.append(f"T_marker_imu.translation puts the IMU {arm:.4g} m from the "
+                            f"markers, beyond the plausible {limits.lever_arm:g} m "
+                            "(--plausible lever_arm)")
+    for name, rec in r.effects.items():
+        eff = EFFECTS.get(name)
+        if eff is not None and isinstance(rec, dict):
+            problem = effect_problem(name, rec.get(eff.param), limits)
+            if problem:
+                problems.append(f"effects.{problem} (--plausible effects)")
+    return problems
 
 
 #: Blocks that change from one power-up or recording to the next: no prior by default.

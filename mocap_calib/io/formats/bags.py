@@ -24,7 +24,6 @@ import sqlite3
 import struct
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,10 +31,14 @@ import numpy as np
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError, input_error
-from mocap_calib.io.checks import Lines, imu_gap_note, validate_imu, validate_mocap
+from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.ros.tf import chain, compose, frame, links, parse_frames
 from mocap_calib.io.formats.ros.tf_wire import Transforms, deserialise_tf, read_tf
 from mocap_calib.io.formats.ros.wire import deserialise_fixed, read_fixed
+from mocap_calib.io.reading import Format, ReadOptions, RecordingOptions
+from mocap_calib.io.streams import ImuTable, PoseTable
+
+__all__ = ["RecordingOptions", "open_bag", "read_bag_imu", "read_bag_mocap"]  # re-exported
 
 IMU_TYPES = ("sensor_msgs/msg/Imu",)
 #: Pose message types -> where the pose sits in the message.
@@ -49,25 +52,6 @@ POSE_TYPES: dict[str, str] = {
 STAMP_SOURCES = ("header", "receive")
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _BAG1_MAGIC = b"#ROSBAG V2.0"
-
-
-@dataclass(frozen=True)
-class RecordingOptions:
-    """How to read bags and logs: topics, the TF child frame and the stamp source.
-
-    Attributes:
-        imu_topic: IMU topic (None: the only ``sensor_msgs/Imu`` topic; ULog:
-            ``sensor_combined``, or ``sensor_gyro:N`` / ``sensor_accel:N`` for one IMU).
-        mocap_topic: pose topic (None: the only pose topic, ``/tf`` last).
-        mocap_frame: the marker body's frame in a ``TFMessage`` topic: ``CHILD`` (posed in the
-            root of its TF tree) or ``PARENT:CHILD``.
-        stamp: ``header`` (message header stamps) or ``receive`` (the bag's record time).
-    """
-
-    imu_topic: str | None = None
-    mocap_topic: str | None = None
-    mocap_frame: str | None = None
-    stamp: str = "header"
 
 
 def bag_kind(path: Path | str) -> str | None:
@@ -294,6 +278,14 @@ def _fields(bag: _Bag, topic: str, label: str, what: str
 
 
 def read_bag_imu(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> ImuSamples:
+    """The checked IMU samples of a ``sensor_msgs/Imu`` topic (:func:`bag_imu_table`)."""
+    table = bag_imu_table(bag, opts, notes)
+    imu = table.validate()
+    notes.extend(table.notes(imu))
+    return imu
+
+
+def bag_imu_table(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> ImuTable:
     """The IMU samples of a ``sensor_msgs/Imu`` topic. Dropped messages (gaps) are kept as
     gaps, with a note: the calibration handles them."""
     _check_stamp(opts.stamp)
@@ -303,14 +295,16 @@ def read_bag_imu(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> ImuSamp
     if opts.stamp == "receive":
         stamps = t_rec
     order = _sorted(stamps, notes, label)
-    imu = validate_imu(stamps[order], f["gyro"][order], f["accel"][order], Lines(label))
-    gaps = imu_gap_note(imu.t, label)
-    if gaps is not None:
-        notes.append(gaps)
-    return imu
+    return ImuTable(stamps[order], f["gyro"][order], f["accel"][order], Lines(label),
+                    note_gaps=True)
 
 
 def read_bag_mocap(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> MocapPoses:
+    """The checked marker poses of a pose topic (:func:`bag_pose_table`)."""
+    return bag_pose_table(bag, opts, notes).validate()
+
+
+def bag_pose_table(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> PoseTable:
     """The marker poses ``T_WM`` of a pose topic, or composed along a TF chain."""
     _check_stamp(opts.stamp)
     topic = pick_topic(bag, opts.mocap_topic, POSE_TYPES, "mocap", "--mocap-topic")
@@ -325,8 +319,8 @@ def read_bag_mocap(bag: _Bag, opts: RecordingOptions, notes: list[str]) -> Mocap
             stamps = t_rec
         p, q = f["position"], f["orientation"][:, [3, 0, 1, 2]]
     order = _sorted(stamps, notes, label)
-    return validate_mocap(stamps[order], np.ascontiguousarray(q[order]),
-                          np.ascontiguousarray(p[order]), Lines(label))
+    return PoseTable(stamps[order], np.ascontiguousarray(q[order]),
+                     np.ascontiguousarray(p[order]), Lines(label))
 
 
 def _tf(bag: _Bag, topic: str) -> tuple[np.ndarray, Transforms]:
@@ -378,3 +372,31 @@ def _check_stamp(stamp: str) -> None:
     if stamp not in STAMP_SOURCES:
         raise InputError(f"unknown --stamp '{stamp}'; use header (message stamps) or receive "
                          "(the bag's record time)")
+
+
+# --- the registry's records ------------------------------------------------------------------
+
+def _imu(path: Path, opts: ReadOptions, notes: list[str]) -> ImuTable:
+    with open_bag(path) as bag:
+        return bag_imu_table(bag, opts.recording, notes)
+
+
+def _poses(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    with open_bag(path) as bag:
+        return bag_pose_table(bag, opts.recording, notes)
+
+
+def _both(path: Path, opts: ReadOptions, notes: list[str]) -> tuple[ImuTable, PoseTable]:
+    with open_bag(path) as bag:
+        return (bag_imu_table(bag, opts.recording, notes),
+                bag_pose_table(bag, opts.recording, notes))
+
+
+def _format(key: str, name: str) -> Format:
+    return Format(key, name, lambda p: bag_kind(p) == key, _imu, _poses, _both,
+                  frozenset({"imu_topic", "mocap_topic", "mocap_frame", "stamp"}))
+
+
+ROSBAG1 = _format("rosbag1", "ROS 1 bag")
+ROSBAG2 = _format("rosbag2", "ROS 2 bag")
+MCAP = _format("mcap", "MCAP file")

@@ -1,4 +1,5 @@
-"""Column maps of generic CSVs: which columns hold time, gyro, accel, quaternion, position.
+"""Columns: the maps of generic CSVs (which columns hold time, gyro, accel, quaternion,
+position), header names, and the fixed columns of EuRoC's layouts.
 
 The ``--columns`` grammar is in :mod:`mocap_calib.io.formats.generic`; :func:`parse_columns`
 reads it.
@@ -9,9 +10,26 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from mocap_calib.errors import input_error
+from mocap_calib.errors import InputError, input_error
 
 Col = int | str
+
+IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+              "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
+POSE_HEADER = ("#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], "
+               "q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []")
+
+
+def name_key(name: str) -> str:
+    """Header name without ``#``, bracketed unit and case: ``'#timestamp [ns]' -> 'timestamp'``."""
+    n = name.strip().lstrip("#").strip()
+    return re.sub(r"\s*\[[^\]]*\]$", "", n).strip().lower()
+
+
+IMU_NAMES = tuple(n.strip().lstrip("#") for n in IMU_HEADER.split(","))
+POSE_NAMES = tuple(n.strip().lstrip("#") for n in POSE_HEADER.split(","))
+IMU_KEYS = tuple(name_key(n) for n in IMU_NAMES)
+POSE_KEYS = tuple(name_key(n) for n in POSE_NAMES)
 
 
 @dataclass(frozen=True)
@@ -72,11 +90,12 @@ _KEYS = {"t": "time", "time": "time", "gyro": "gyro", "gyr": "gyro", "w": "gyro"
          "pos": "position", "position": "position", "p": "position"}
 
 
-def parse_columns(spec: str) -> ColumnMap:
+def parse_columns(spec: str, flag: str = "--columns") -> ColumnMap:
     """Build a :class:`ColumnMap` from a ``--columns`` string (grammar in the module doc).
 
     Args:
         spec: E.g. ``"t=0,gyro=1:4,accel=4:7"`` or ``"broad"``.
+        flag: The option it was given with (``--imu-columns``...), for messages.
 
     Returns:
         The column map.
@@ -84,6 +103,15 @@ def parse_columns(spec: str) -> ColumnMap:
     Raises:
         InputError: on a malformed string.
     """
+    try:
+        return _parse(spec)
+    except InputError as err:
+        if flag == "--columns":
+            raise
+        raise InputError(str(err).replace("--columns", flag)) from None
+
+
+def _parse(spec: str) -> ColumnMap:
     text = spec.strip()
     if text.lower() in PRESETS:
         return PRESETS[text.lower()]

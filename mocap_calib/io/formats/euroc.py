@@ -10,27 +10,30 @@ exist for files that follow the layout but not its units; by default they are th
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.errors import input_error
-from mocap_calib.io.formats.generic import read_indexed
-from mocap_calib.io.formats.layout import Layout, name_key, sniff_layout
+from mocap_calib.errors import InputError, input_error
+from mocap_calib.io.formats.columns import (
+    IMU_HEADER,
+    IMU_KEYS,
+    IMU_NAMES,
+    POSE_HEADER,
+    POSE_KEYS,
+    POSE_NAMES,
+    name_key,
+)
+from mocap_calib.io.formats.generic import generic_tables, indexed_tables
+from mocap_calib.io.formats.layout import Layout, sniff_layout
+from mocap_calib.io.reading import UNIT_OPTIONS, Format, ReadOptions, Stream
+from mocap_calib.io.streams import ImuTable, PoseTable
 from mocap_calib.io.tables import write_table
-
-IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
-              "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
-POSE_HEADER = ("#timestamp [ns], p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], "
-               "q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []")
-IMU_NAMES = tuple(n.strip().lstrip("#") for n in IMU_HEADER.split(","))
-POSE_NAMES = tuple(n.strip().lstrip("#") for n in POSE_HEADER.split(","))
-IMU_KEYS = tuple(name_key(n) for n in IMU_NAMES)
-POSE_KEYS = tuple(name_key(n) for n in POSE_NAMES)
 
 #: ``pose_source`` value -> folder under ``mav0``; "auto" tries them in this order.
 POSE_FOLDERS: dict[str, str] = {"vicon0": "vicon0", "groundtruth": "state_groundtruth_estimate0"}
@@ -96,10 +99,16 @@ def read_euroc_imu(path: Path | str, *, time_unit: str = "ns", gyro_unit: str = 
     Raises:
         InputError: on a wrong header or bad rows (one line naming the file, line and fix).
     """
+    return euroc_imu_table(path, time_unit=time_unit, gyro_unit=gyro_unit,
+                           accel_unit=accel_unit, raw=raw).validate()
+
+
+def euroc_imu_table(path: Path | str, **kw: Any) -> ImuTable:
+    """The IMU table of an EuRoC ``imu0/data.csv`` (arguments of :func:`read_euroc_imu`)."""
     layout = sniff_layout(path)
     _check_header(layout, "imu")
-    imu, _ = read_indexed(layout, time=0, gyro=(1, 2, 3), accel=(4, 5, 6), time_unit=time_unit,
-                          gyro_unit=gyro_unit, accel_unit=accel_unit, raw=raw)
+    imu, _ = indexed_tables(layout, time=0, gyro=(1, 2, 3), accel=(4, 5, 6),
+                            **{"time_unit": "ns", **kw})
     assert imu is not None
     return imu
 
@@ -123,11 +132,16 @@ def read_euroc_poses(path: Path | str, *, time_unit: str = "ns", position_unit: 
     Raises:
         InputError: on a wrong header or bad rows.
     """
+    return euroc_pose_table(path, time_unit=time_unit, position_unit=position_unit,
+                            quat_order=quat_order).validate()
+
+
+def euroc_pose_table(path: Path | str, **kw: Any) -> PoseTable:
+    """The pose table of an EuRoC pose CSV (arguments of :func:`read_euroc_poses`)."""
     layout = sniff_layout(path)
     _check_header(layout, "poses")
-    _, mocap = read_indexed(layout, time=0, quat=(4, 5, 6, 7), position=(1, 2, 3),
-                            time_unit=time_unit, position_unit=position_unit,
-                            quat_order=quat_order)
+    _, mocap = indexed_tables(layout, time=0, quat=(4, 5, 6, 7), position=(1, 2, 3),
+                              **{"time_unit": "ns", **kw})
     assert mocap is not None
     return mocap
 
@@ -304,3 +318,64 @@ def write_mav0(folder: Path | str, imu: ImuSamples, mocap: MocapPoses) -> Path:
     write_euroc_imu(root / "imu0" / "data.csv", imu)
     write_euroc_poses(root / "vicon0" / "data.csv", mocap)
     return root
+
+
+# --- the registry's records ------------------------------------------------------------------
+
+def _imu_file(path: Path, opts: ReadOptions, notes: list[str]) -> ImuTable:
+    """An EuRoC IMU CSV, read as the column map says when it names the IMU's columns
+    (EuRoC's units stay the defaults)."""
+    kw: dict[str, Any] = {"time_unit": "ns", "raw": opts.raw,
+                          **opts.units("time_unit", "gyro_unit", "accel_unit")}
+    cmap = opts.imu_columns
+    if cmap is None or not cmap.has_imu:
+        return euroc_imu_table(path, **kw)
+    flag = opts.columns_flag(Stream.IMU)
+    imu, _ = generic_tables(path, cmap, streams=["imu"], flag=flag, **kw)
+    assert imu is not None
+    notes.append(f"read {path} with the {flag} map")
+    return imu
+
+
+def _pose_file(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    """An EuRoC pose CSV, read as the column map says when it names the poses' columns."""
+    kw: dict[str, Any] = {"time_unit": "ns",
+                          **opts.units("time_unit", "quat_order", "position_unit")}
+    cmap = opts.mocap_columns
+    if cmap is None or not cmap.has_mocap:
+        return euroc_pose_table(path, **kw)
+    flag = opts.columns_flag(Stream.POSES)
+    _, poses = generic_tables(path, cmap, streams=["mocap"], flag=flag, **kw)
+    assert poses is not None
+    notes.append(f"read {path} with the {flag} map")
+    return poses
+
+
+def _mav0_imu(path: Path, opts: ReadOptions, notes: list[str]) -> ImuTable:
+    file = find_mav0(path) / "imu0" / "data.csv"
+    return replace(_imu_file(file, opts, notes), file=str(file))
+
+
+def _mav0_poses(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    name, folder = pose_folder(find_mav0(path), opts.pose_source)
+    read_t_bs(folder / "sensor.yaml")  # a malformed T_BS is refused here, as by read_mav0
+    notes.append(f"poses from {folder}")
+    if name == "groundtruth":
+        notes.append("ground-truth poses are of the IMU (body) frame, not of the marker body")
+    return replace(_pose_file(folder / "data.csv", opts, notes), file=str(folder / "data.csv"))
+
+
+def _header_is(path: Path, kind: str) -> bool:
+    try:
+        return header_kind(sniff_layout(path).names) == kind
+    except InputError:
+        return False
+
+
+_TEXT = frozenset({"columns", *UNIT_OPTIONS, "raw"})
+MAV0 = Format("mav0", "EuRoC mav0 folder", Path.is_dir, _mav0_imu, _mav0_poses,
+              options=_TEXT | {"pose_source"})
+EUROC_IMU = Format("euroc_imu", "EuRoC IMU CSV", lambda p: _header_is(p, "imu"), _imu_file,
+                   options=_TEXT)
+EUROC_POSES = Format("euroc_poses", "EuRoC pose CSV", lambda p: _header_is(p, "poses"),
+                     read_poses=_pose_file, options=_TEXT)

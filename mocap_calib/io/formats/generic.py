@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,7 +44,7 @@ from numpy.typing import NDArray
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS, POSITION_UNITS
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import QUAT_ORDERS, TIME_UNITS, check_unit, validate_imu, validate_mocap
+from mocap_calib.io.checks import QUAT_ORDERS, TIME_UNITS, check_unit
 from mocap_calib.io.formats.columns import (
     BROAD,
     COLUMNS_FIX,
@@ -52,6 +53,7 @@ from mocap_calib.io.formats.columns import (
     ColumnMap,
     parse_columns,
 )
+from mocap_calib.io.formats.hints import COLUMNS_EXAMPLE, IMU_ONLY_EXAMPLE, unrecognised
 from mocap_calib.io.formats.layout import (
     WHITESPACE,
     Layout,
@@ -61,6 +63,8 @@ from mocap_calib.io.formats.layout import (
     sniff_layout,
 )
 from mocap_calib.io.formats.stamps import parse_stamps
+from mocap_calib.io.reading import UNIT_OPTIONS, Format, ReadOptions, Stream
+from mocap_calib.io.streams import ImuTable, PoseTable
 from mocap_calib.io.tables import format_floats, write_table
 
 # Re-exported: the reader's building blocks used to live here.
@@ -72,15 +76,22 @@ Array = NDArray[np.float64]
 
 
 
-def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None,
-                 accel: Sequence[int] | None = None, quat: Sequence[int] | None = None,
-                 position: Sequence[int] | None = None, time_unit: str = "s",
-                 gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", quat_order: str = "wxyz",
-                 position_unit: str = "m", raw: bool = False
-                 ) -> tuple[ImuSamples | None, MocapPoses | None]:
-    """Read the streams whose (resolved, 0-based) columns are given, convert and check them.
+def read_indexed(layout: Layout, **kw: Any) -> tuple[ImuSamples | None, MocapPoses | None]:
+    """The checked streams of :func:`indexed_tables` (same arguments)."""
+    imu, poses = indexed_tables(layout, **kw)
+    return (None if imu is None else imu.validate(),
+            None if poses is None else poses.validate())
 
-    The building block of every reader: EuRoC and TUM call it with their fixed columns.
+
+def indexed_tables(layout: Layout, *, time: int, gyro: Sequence[int] | None = None,
+                   accel: Sequence[int] | None = None, quat: Sequence[int] | None = None,
+                   position: Sequence[int] | None = None, time_unit: str = "s",
+                   gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", quat_order: str = "wxyz",
+                   position_unit: str = "m", raw: bool = False
+                   ) -> tuple[ImuTable | None, PoseTable | None]:
+    """Read the streams whose (resolved, 0-based) columns are given and convert them.
+
+    The building block of every text reader: EuRoC and TUM call it with their fixed columns.
 
     Args:
         layout: The file's layout (:func:`sniff_layout`).
@@ -97,7 +108,7 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
         raw: the IMU readings are raw counts: no unit conversion or check.
 
     Returns:
-        (IMU samples or None, mocap poses or None).
+        (IMU table or None, pose table or None), not yet checked.
     """
     check_unit(time_unit, TIME_UNITS, "--time-unit")
     check_unit(gyro_unit, GYRO_UNITS, "--gyro-unit")
@@ -118,19 +129,19 @@ def read_indexed(layout: Layout, *, time: int, gyro: Sequence[int] | None = None
     if gyro is not None and accel is not None:
         g = block(gyro) * GYRO_UNITS[gyro_unit]
         a = block(accel) * ACCEL_UNITS[accel_unit]
-        imu = validate_imu(ns, g, a, lines, time_unit=time_unit, gyro_unit=gyro_unit,
-                           accel_unit=accel_unit, raw=raw)
+        imu = ImuTable(ns, g, a, lines, time_unit=time_unit, gyro_unit=gyro_unit,
+                       accel_unit=accel_unit, raw=raw)
     if quat is not None and position is not None:
         q = block(quat)
         if quat_order == "xyzw":
             q = q[:, [3, 0, 1, 2]]
         p = block(position) * POSITION_UNITS[position_unit]
-        mocap = validate_mocap(ns, np.ascontiguousarray(q), p, lines, time_unit=time_unit,
-                               position_unit=position_unit)
+        mocap = PoseTable(ns, np.ascontiguousarray(q), p, lines, time_unit=time_unit,
+                          position_unit=position_unit)
     return imu, mocap
 
 
-def resolve_column(col: Col, layout: Layout) -> int:
+def resolve_column(col: Col, layout: Layout, flag: str = "--columns") -> int:
     """0-based index of a column given by index or header name.
 
     Raises:
@@ -139,12 +150,13 @@ def resolve_column(col: Col, layout: Layout) -> int:
     if isinstance(col, int):
         if not 0 <= col < layout.n_fields:
             raise input_error(f"column {col} does not exist (the first data row has "
-                              f"{layout.n_fields} columns)", COLUMNS_FIX, layout.source,
+                              f"{layout.n_fields} columns)", COLUMNS_FIX.replace("--columns", flag),
+                              layout.source,
                               layout.skip + 1)
         return col
     if layout.names is None:
-        raise input_error(f"--columns names column {col!r} but the file has no header line",
-                          "use 0-based column numbers in --columns", layout.source)
+        raise input_error(f"{flag} names column {col!r} but the file has no header line",
+                          f"use 0-based column numbers in {flag}", layout.source)
     names = layout.names[: layout.n_fields]
     if col in names:
         return names.index(col)
@@ -153,14 +165,23 @@ def resolve_column(col: Col, layout: Layout) -> int:
         return hits[0]
     shown = ", ".join(names)
     raise input_error(f"no {'unique ' if hits else ''}column named {col!r} in the header "
-                      f"({shown})", "use a header name or a 0-based index in --columns",
+                      f"({shown})", f"use a header name or a 0-based index in {flag}",
                       layout.source, layout.header_line)
 
 
-def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str = "s",
-                 gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", quat_order: str = "wxyz",
-                 position_unit: str = "m", streams: Collection[str] | None = None,
-                 raw: bool = False) -> tuple[ImuSamples | None, MocapPoses | None]:
+def read_generic(path: Path | str, columns: ColumnMap | str, **kw: Any
+                 ) -> tuple[ImuSamples | None, MocapPoses | None]:
+    """The checked streams of :func:`generic_tables` (same arguments)."""
+    imu, poses = generic_tables(path, columns, **kw)
+    return (None if imu is None else imu.validate(),
+            None if poses is None else poses.validate())
+
+
+def generic_tables(path: Path | str, columns: ColumnMap | str, *, time_unit: str = "s",
+                   gyro_unit: str = "rad/s", accel_unit: str = "m/s^2",
+                   quat_order: str = "wxyz", position_unit: str = "m",
+                   streams: Collection[str] | None = None, raw: bool = False,
+                   flag: str = "--columns") -> tuple[ImuTable | None, PoseTable | None]:
     """Read an IMU and/or a mocap stream from a delimited text file with a column map.
 
     Args:
@@ -174,9 +195,10 @@ def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str =
         streams: Streams to read (``"imu"``, ``"mocap"``); each must be in the column map.
             None reads whatever the column map describes.
         raw: the IMU readings are raw counts (no unit conversion or check).
+        flag: The option the map came from, for messages.
 
     Returns:
-        (IMU samples or None, mocap poses or None), in SI units with ``[w, x, y, z]``.
+        (IMU table or None, pose table or None), in SI units with ``[w, x, y, z]``.
 
     Raises:
         InputError: on any problem with the options or the file (one line, with the fix).
@@ -186,32 +208,34 @@ def read_generic(path: Path | str, columns: ColumnMap | str, *, time_unit: str =
         streams = [s for s, ok in (("imu", colmap.has_imu), ("mocap", colmap.has_mocap)) if ok]
     if "imu" in streams and not colmap.has_imu:
         raise input_error("no IMU columns (gyro= and accel=) for the IMU file", COLUMNS_FIX,
-                          "--columns")
+                          flag)
     if "mocap" in streams and not colmap.has_mocap:
         raise input_error("no mocap columns (quat= and pos=) for the mocap file", COLUMNS_FIX,
-                          "--columns")
+                          flag)
     if not streams:
         raise input_error("names neither IMU (gyro=, accel=) nor mocap (quat=, pos=) columns",
-                          COLUMNS_FIX, "--columns")
+                          COLUMNS_FIX, flag)
     layout = sniff_layout(path)
 
     def res(cols: tuple[Col, ...] | None, want: bool) -> list[int] | None:
-        return [resolve_column(c, layout) for c in cols] if want and cols is not None else None
+        return ([resolve_column(c, layout, flag) for c in cols] if want and cols is not None
+                else None)
 
-    groups = {"t": [resolve_column(colmap.time, layout)],
+    groups = {"t": [resolve_column(colmap.time, layout, flag)],
               "gyro": res(colmap.gyro, "imu" in streams),
               "accel": res(colmap.accel, "imu" in streams),
               "quat": res(colmap.quat, "mocap" in streams),
               "pos": res(colmap.position, "mocap" in streams)}
-    _check_distinct(groups, layout)
-    return read_indexed(
+    _check_distinct(groups, layout, flag)
+    return indexed_tables(
         layout, time=groups["t"][0], gyro=groups["gyro"], accel=groups["accel"],
         quat=groups["quat"], position=groups["pos"],
         time_unit=time_unit, gyro_unit=gyro_unit, accel_unit=accel_unit, quat_order=quat_order,
         position_unit=position_unit, raw=raw)
 
 
-def _check_distinct(groups: dict[str, list[int] | None], layout: Layout) -> None:
+def _check_distinct(groups: dict[str, list[int] | None], layout: Layout,
+                    flag: str = "--columns") -> None:
     """Raise when the column map reads one column twice (``gyro=1:4,accel=1:4``): the
     calibration would then fit one signal against itself."""
     seen: dict[int, str] = {}
@@ -220,5 +244,44 @@ def _check_distinct(groups: dict[str, list[int] | None], layout: Layout) -> None
             if c in seen:
                 where = f"{seen[c]}= and {key}=" if seen[c] != key else f"{key}= twice"
                 raise input_error(f"column {layout.label(c)} is used twice ({where})",
-                                  COLUMNS_FIX, "--columns")
+                                  COLUMNS_FIX, flag)
             seen[c] = key
+
+
+# --- the registry's record: any delimited table, with a column map -----------------------------
+
+def _imu(path: Path, opts: ReadOptions, notes: list[str]) -> ImuTable:
+    cmap = opts.imu_columns
+    if cmap is None:
+        raise unrecognised(path, "imu", IMU_ONLY_EXAMPLE if opts.imu_only else COLUMNS_EXAMPLE)
+    imu, _ = generic_tables(path, cmap, streams=["imu"], raw=opts.raw,
+                            flag=opts.columns_flag(Stream.IMU),
+                            **opts.units("time_unit", "gyro_unit", "accel_unit"))
+    assert imu is not None
+    return imu
+
+
+def _poses(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    cmap = opts.mocap_columns
+    if cmap is None:
+        raise unrecognised(path, "mocap")
+    _, poses = generic_tables(path, cmap, streams=["mocap"], flag=opts.columns_flag(Stream.POSES),
+                              **opts.units("time_unit", "quat_order", "position_unit"))
+    assert poses is not None
+    return poses
+
+
+def _both(path: Path, opts: ReadOptions, notes: list[str]) -> tuple[ImuTable, PoseTable]:
+    if opts.imu_columns is None and opts.mocap_columns is None:
+        raise unrecognised(path, "both")
+    if opts.imu_columns is not opts.mocap_columns:  # one map per stream: read each
+        return _imu(path, opts, notes), _poses(path, opts, notes)
+    imu, poses = generic_tables(path, opts.imu_columns, streams=["imu", "mocap"],
+                                raw=opts.raw, flag=opts.columns_flag(Stream.IMU),
+                                **opts.units(*UNIT_OPTIONS))
+    assert imu is not None and poses is not None
+    return imu, poses
+
+
+FORMAT = Format("generic", "generic CSV", lambda p: True, _imu, _poses, _both,
+                frozenset({"columns", *UNIT_OPTIONS, "raw"}))

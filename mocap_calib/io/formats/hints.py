@@ -10,11 +10,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from mocap_calib.errors import InputError, input_error
-from mocap_calib.io.formats.euroc import IMU_KEYS, IMU_NAMES, POSE_KEYS, POSE_NAMES
-from mocap_calib.io.formats.layout import WHITESPACE, Layout, name_key, sniff_layout
+from mocap_calib.io.formats.columns import IMU_KEYS, IMU_NAMES, POSE_KEYS, POSE_NAMES, name_key
+from mocap_calib.io.formats.layout import WHITESPACE, Layout, sniff_layout
 
 #: The generic fix's example column map.
 COLUMNS_EXAMPLE = "--columns 't=0,gyro=1:4,accel=4:7,quat=7:11,pos=11:14' or --columns broad"
+#: The example of the IMU-only commands.
+IMU_ONLY_EXAMPLE = ("--columns 't=0,gyro=1:4,accel=4:7' (imu_tk's two files: --accel FILE "
+                    "--gyro FILE)")
 _LAYOUTS = {"imu": (IMU_KEYS, IMU_NAMES, "EuRoC IMU", "time, gyro x y z, accel x y z"),
             "mocap": (POSE_KEYS, POSE_NAMES, "EuRoC mocap", "time, position x y z, "
                       "quaternion w x y z")}
@@ -71,14 +74,15 @@ def _first_stamp(layout: Layout) -> float | None:
 
 
 def headerless_euroc_poses(path: Path | str) -> InputError | None:
-    """A headerless file of 8 columns whose stamps are nanoseconds (any delimiter): EuRoC
-    pose rows without EuRoC's header, which TUM's reading (seconds, ``xyzw``) would get
+    """A headerless file of 8 or more columns whose stamps are nanoseconds (any delimiter):
+    EuRoC pose rows without EuRoC's header, which TUM's reading (seconds, ``xyzw``) would get
     wrong twice. None for anything else."""
     layout = sniff_layout(path)
-    stamp = _first_stamp(layout) if layout.names is None and layout.n_fields == 8 else None
+    stamp = _first_stamp(layout) if layout.names is None and layout.n_fields >= 8 else None
     if stamp is None or stamp < 1e15:
         return None
-    return input_error("8 columns of nanosecond stamps without a header: EuRoC pose rows "
+    return input_error(f"{layout.n_fields} columns of nanosecond stamps without a header: "
+                       "EuRoC pose rows "
                        "(time, position x y z, quaternion w x y z) without EuRoC's header line?",
                        "add the header of docs/conventions.md, or pass --columns "
                        "'t=0,pos=1:4,quat=4:8' --time-unit ns", str(path))

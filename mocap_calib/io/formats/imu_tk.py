@@ -2,9 +2,9 @@
 for the gyroscope, each ``t x y z`` per line (imu_tk's ``importAsciiData``; its example reads the
 stamps in seconds).
 
-The two streams may share their stamps or not. If not, the accelerometer is interpolated
-linearly onto the gyro's stamps (the gyro is integrated sample by sample, the accelerometer is
-only averaged over static intervals), over the span both cover.
+The two streams may share their stamps or not. If not, the accelerometer is merged onto the
+gyro's stamps by the shared step (:mod:`mocap_calib.io.merge`: linear interpolation between
+neighbours, never across an accelerometer gap, never extrapolated).
 """
 
 from __future__ import annotations
@@ -17,9 +17,11 @@ from numpy.typing import NDArray
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import TIME_UNITS, Lines, check_increasing, check_unit, validate_imu
+from mocap_calib.io.checks import TIME_UNITS, Lines, check_increasing, check_unit
 from mocap_calib.io.formats.layout import numeric_column, read_table, sniff_layout
 from mocap_calib.io.formats.stamps import parse_stamps
+from mocap_calib.io.merge import merge_on_gyro
+from mocap_calib.io.streams import ImuTable
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -51,18 +53,30 @@ def read_triad(path: Path | str, time_unit: str = "s") -> tuple[IntArray, Array,
 def read_imu_tk_pair(accel_path: Path | str, gyro_path: Path | str, *, time_unit: str = "s",
                      gyro_unit: str = "rad/s", accel_unit: str = "m/s^2", raw: bool = False
                      ) -> tuple[ImuSamples, list[str]]:
-    """Read imu_tk's two files as one IMU stream on the gyro's stamps.
+    """The checked samples of :func:`imu_tk_pair_table` and its notes."""
+    notes: list[str] = []
+    table = imu_tk_pair_table(accel_path, gyro_path, notes, time_unit=time_unit,
+                              gyro_unit=gyro_unit, accel_unit=accel_unit, raw=raw)
+    return table.validate(), notes
+
+
+def imu_tk_pair_table(accel_path: Path | str, gyro_path: Path | str, notes: list[str], *,
+                      time_unit: str = "s", gyro_unit: str = "rad/s",
+                      accel_unit: str = "m/s^2", raw: bool = False) -> ImuTable:
+    """Read imu_tk's two files as one IMU stream on the gyro's stamps (the shared merge step,
+    :func:`~mocap_calib.io.merge.merge_on_gyro`).
 
     Args:
         accel_path: accelerometer file (``t ax ay az``).
         gyro_path: gyroscope file (``t gx gy gz``).
+        notes: Where the notes go.
         time_unit: unit of the stamps (imu_tk's example: s).
         gyro_unit: rad/s or deg/s (ignored with ``raw``).
         accel_unit: m/s^2 or g (ignored with ``raw``).
         raw: the values are raw counts (no conversion or unit check).
 
     Returns:
-        The samples and one-line notes.
+        The IMU table (``file`` names both files).
 
     Raises:
         InputError: a bad file, or files that do not overlap in time.
@@ -72,25 +86,19 @@ def read_imu_tk_pair(accel_path: Path | str, gyro_path: Path | str, *, time_unit
     check_unit(accel_unit, ACCEL_UNITS, "--accel-unit")
     ns_a, acc, _ = read_triad(accel_path, time_unit)
     ns_g, gyr, lines = read_triad(gyro_path, time_unit)
-    notes = []
     if len(ns_a) == len(ns_g) and np.array_equal(ns_a, ns_g):
         notes.append("accelerometer and gyro files share their stamps")
+    elif ((ns_g >= ns_a[0]) & (ns_g <= ns_a[-1])).sum() < 2:
+        raise input_error("the accelerometer and gyro files do not overlap in time",
+                          "pass the two files of one recording (check --time-unit)",
+                          f"{accel_path}, {gyro_path}")
     else:
-        keep = (ns_g >= ns_a[0]) & (ns_g <= ns_a[-1])
-        if keep.sum() < 2:
-            raise input_error("the accelerometer and gyro files do not overlap in time",
-                              "pass the two files of one recording (check --time-unit)",
-                              f"{accel_path}, {gyro_path}")
-        ns_g, gyr = ns_g[keep], gyr[keep]
-        # Interpolate on stamps relative to the first one: int64 ns keep their precision.
-        t_a = (ns_a - ns_g[0]) * 1e-9
-        t_g = (ns_g - ns_g[0]) * 1e-9
-        acc = np.stack([np.interp(t_g, t_a, acc[:, c]) for c in range(3)], axis=1)
-        notes.append(f"accelerometer ({len(ns_a)} samples) interpolated onto the gyro's "
-                     f"{len(ns_g)} stamps")
+        kept, gyr, acc = merge_on_gyro(ns_g, gyr, ns_a, acc, label=f"{accel_path}, {gyro_path}",
+                                       notes=notes, lines=lines)
+        rows = np.searchsorted(ns_g, kept)
+        ns_g, lines = kept, lines.subset(rows)
     if not raw:
         gyr = gyr * GYRO_UNITS[gyro_unit]
         acc = acc * ACCEL_UNITS[accel_unit]
-    imu = validate_imu(ns_g, gyr, acc, lines, time_unit=time_unit, gyro_unit=gyro_unit,
-                       accel_unit=accel_unit, raw=raw)
-    return imu, notes
+    return ImuTable(ns_g, gyr, acc, lines, time_unit=time_unit, gyro_unit=gyro_unit,
+                    accel_unit=accel_unit, raw=raw, file=f"{accel_path}, {gyro_path}")

@@ -11,7 +11,6 @@ with more fields than the first data row is an error, missing trailing fields an
 
 from __future__ import annotations
 
-import re
 import warnings
 from collections.abc import Collection
 from dataclasses import dataclass
@@ -22,7 +21,9 @@ from numpy.typing import NDArray
 
 from mocap_calib.errors import input_error
 from mocap_calib.io.checks import Lines
-from mocap_calib.io.formats.columns import COLUMNS_FIX
+from mocap_calib.io.formats.columns import COLUMNS_FIX, name_key
+
+__all__ = ["name_key"]  # re-exported: header names are matched by it
 
 Array = NDArray[np.float64]
 
@@ -66,12 +67,6 @@ class Layout:
         if self.names is not None and index < len(self.names):
             return f"'{self.names[index]}'"
         return f"{index} (0-based)"
-
-
-def name_key(name: str) -> str:
-    """Header name without ``#``, bracketed unit and case: ``'#timestamp [ns]' -> 'timestamp'``."""
-    n = name.strip().lstrip("#").strip()
-    return re.sub(r"\s*\[[^\]]*\]$", "", n).strip().lower()
 
 
 def _detect_sep(line: str) -> str:

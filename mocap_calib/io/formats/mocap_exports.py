@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import csv
 import re
-from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -35,31 +34,18 @@ import numpy as np
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import MocapPoses
 from mocap_calib.errors import InputError, input_error
-from mocap_calib.io.checks import Lines, validate_mocap
+from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.layout import data_lines, parse_rows
+from mocap_calib.io.reading import ExportOptions, Format, ReadOptions
+from mocap_calib.io.streams import PoseTable
+
+__all__ = ["ExportOptions", "read_export", "sniff_export"]  # ExportOptions re-exported
 
 EXPORT_FORMATS = ("motive", "vicon-nexus", "vicon-tracker")
 ROTATIONS = ("helical", "euler-xyz")
 _NEXUS_SECTIONS = ("segments", "model outputs", "joints", "trajectories")
 _LENGTH = {"meters": 1.0, "centimeters": 1e-2, "millimeters": 1e-3, "m": 1.0, "cm": 1e-2,
            "mm": 1e-3}
-
-
-@dataclass(frozen=True)
-class ExportOptions:
-    """How to read a mocap export.
-
-    Attributes:
-        mocap_format: motive, vicon-nexus, vicon-tracker, or None to detect it.
-        rigid_body: the rigid body / subject to read when the file holds several.
-        rotation: Vicon rotation form, ``helical`` or ``euler-xyz`` (optionally ``:deg``/``:rad``).
-        mocap_rate: frame rate (Hz) for files without one.
-    """
-
-    mocap_format: str | None = None
-    rigid_body: str | None = None
-    rotation: str | None = None
-    mocap_rate: float | None = None
 
 
 def sniff_export(path: Path | str) -> str | None:
@@ -80,6 +66,11 @@ def sniff_export(path: Path | str) -> str | None:
 
 
 def read_export(path: Path | str, opts: ExportOptions, notes: list[str]) -> MocapPoses:
+    """The checked poses of a Motive or Vicon export (:func:`export_table`)."""
+    return export_table(path, opts, notes).validate()
+
+
+def export_table(path: Path | str, opts: ExportOptions, notes: list[str]) -> PoseTable:
     """Read a Motive or Vicon export (the format from ``opts`` or the file's first line)."""
     path = Path(path)
     if not path.is_file():
@@ -147,7 +138,7 @@ def _capture_start_ns(meta: dict[str, str], notes: list[str], label: str) -> int
 
 
 def _read_motive(path: Path, head: list[list[str]], opts: ExportOptions,
-                 notes: list[str]) -> MocapPoses:
+                 notes: list[str]) -> PoseTable:
     meta = _motive_meta(head[0])
     rot = meta.get("rotation type", "Quaternion")
     if rot.lower() != "quaternion":
@@ -197,9 +188,8 @@ def _read_motive(path: Path, head: list[list[str]], opts: ExportOptions,
     p = np.stack([data[cols[k]] for k in need[4:]], axis=1) * _LENGTH[unit.lower()]
     origin = _capture_start_ns(meta, notes, label)
     notes.append(f"{label}: Motive export, {unit.lower()}, y-up world kept as the mocap world")
-    poses = validate_mocap(ns + origin, np.ascontiguousarray(q_xyzw[:, [3, 0, 1, 2]]), p,
-                           Lines(label, path, skip=axis_i + 1, comment=None))
-    return poses
+    return PoseTable(ns + origin, np.ascontiguousarray(q_xyzw[:, [3, 0, 1, 2]]), p,
+                     Lines(label, path, skip=axis_i + 1, comment=None))
 
 
 # --- Vicon -----------------------------------------------------------------------------------
@@ -234,7 +224,7 @@ def _vicon_rotation(r: np.ndarray, form: str) -> np.ndarray:
 
 
 def _read_vicon(path: Path, head: list[list[str]], fmt: str, opts: ExportOptions,
-                notes: list[str]) -> MocapPoses:
+                notes: list[str]) -> PoseTable:
     if len(head) < 5:
         raise input_error("fewer than 5 header lines (section, rate, names, columns, units)",
                           "export the whole take from Vicon as CSV", str(path))
@@ -281,5 +271,21 @@ def _read_vicon(path: Path, head: list[list[str]], fmt: str, opts: ExportOptions
     label = f"{path} [{name}]"
     notes.append(f"{label}: Vicon {fmt.split('-')[1].title()} export at {rate:g} Hz, {form} "
                  f"rotations, {pos_unit}; stamps are frame / rate (no absolute time)")
-    return validate_mocap(_stamps_from_frames(frames, rate), q, p,
-                          Lines(label, path, skip=5, comment=None))
+    return PoseTable(_stamps_from_frames(frames, rate), q, p,
+                     Lines(label, path, skip=5, comment=None))
+
+
+# --- the registry's records ------------------------------------------------------------------
+
+def _poses(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    return export_table(path, opts.export, notes)
+
+
+def _format(key: str, name: str) -> Format:
+    return Format(key, name, lambda p: p.is_file() and sniff_export(p) == key,
+                  read_poses=_poses, options=frozenset({"rigid_body", "rotation", "mocap_rate"}))
+
+
+MOTIVE = _format("motive", "Motive CSV export")
+VICON_NEXUS = _format("vicon-nexus", "Vicon Nexus CSV export")
+VICON_TRACKER = _format("vicon-tracker", "Vicon Tracker CSV export")

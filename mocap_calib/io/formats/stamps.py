@@ -6,8 +6,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.errors import InputError
-from mocap_calib.io.checks import TIME_NAMES, TIME_UNITS, Lines, time_unit_hint
+from mocap_calib.io.checks import TIME_UNITS, Lines
 from mocap_calib.io.formats.layout import NA_CELLS
+from mocap_calib.io.units import TIME_NAMES, time_unit_hint
 
 IntArray = NDArray[np.int64]
 Text = NDArray[np.str_]

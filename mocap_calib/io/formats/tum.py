@@ -1,5 +1,9 @@
 """TUM trajectories: whitespace-separated ``t x y z qx qy qz qw`` lines, ``#`` comments.
 
+A file of more than 8 columns whose fields 5-8 hold a unit quaternion on every row is a TUM
+trajectory with extra columns (velocities, covariances...): its first 8 columns are read and a
+note names the others. With a column map for the poses the file is read as a generic CSV.
+
 ``t`` is in float seconds. It is parsed digit by digit into integer nanoseconds, and written
 from them with 9 decimals, so stamps survive a round trip exactly; positions and quaternions
 are written with the shortest exact float representation.
@@ -12,9 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from mocap_calib.core.model.types import MocapPoses
-from mocap_calib.errors import input_error
-from mocap_calib.io.formats.generic import read_indexed
-from mocap_calib.io.formats.layout import sniff_layout
+from mocap_calib.errors import InputError, input_error
+from mocap_calib.io.checks import QUAT_NORM_TOL
+from mocap_calib.io.formats.generic import indexed_tables
+from mocap_calib.io.formats.hints import headerless_euroc_poses
+from mocap_calib.io.formats.layout import WHITESPACE, Layout, read_table, sniff_layout
+from mocap_calib.io.reading import Format, ReadOptions
+from mocap_calib.io.streams import PoseTable
 from mocap_calib.io.tables import write_table
 
 TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
@@ -36,16 +44,45 @@ def read_tum(path: Path | str, *, time_unit: str = "s", position_unit: str = "m"
     Raises:
         InputError: if rows do not have 8 columns or hold bad values.
     """
+    return tum_table(path, time_unit=time_unit, position_unit=position_unit,
+                     quat_order=quat_order).validate()
+
+
+def tum_table(path: Path | str, notes: list[str] | None = None, **kw: str) -> PoseTable:
+    """The pose table of a TUM trajectory (arguments of :func:`read_tum`); extra columns are
+    named in ``notes``."""
     layout = sniff_layout(path)
-    if layout.n_fields != 8:
+    if layout.n_fields < 8 or (layout.n_fields > 8 and not unit_quaternions(layout)):
         raise input_error(f"the first data row has {layout.n_fields} columns; TUM rows have 8 "
-                          "(t x y z qx qy qz qw)", "pass a TUM trajectory, or read the file as a "
-                          "generic CSV with --columns", layout.source, layout.skip + 1)
-    _, mocap = read_indexed(layout, time=0, position=(1, 2, 3), quat=(4, 5, 6, 7),
-                            time_unit=time_unit, position_unit=position_unit,
-                            quat_order=quat_order)
+                          "(t x y z qx qy qz qw)" + ("" if layout.n_fields < 8 else
+                                                     ", or more after a unit quaternion"),
+                          "pass a TUM trajectory, or read the file as a generic CSV with "
+                          "--columns", layout.source, layout.skip + 1)
+    if layout.n_fields > 8 and notes is not None:
+        extra = [layout.label(i) for i in range(8, layout.n_fields)]
+        notes.append(f"{path}: read as a TUM trajectory (t x y z qx qy qz qw: a unit quaternion "
+                     f"in fields 5-8 of every row); ignored its other column"
+                     f"{'s' if len(extra) > 1 else ''} {', '.join(extra)} (--mocap-columns reads "
+                     "others)")
+    _, mocap = indexed_tables(layout, time=0, position=(1, 2, 3), quat=(4, 5, 6, 7),
+                              **{"time_unit": "s", "position_unit": "m", "quat_order": "xyzw",
+                                 **kw})
     assert mocap is not None
     return mocap
+
+
+def unit_quaternions(layout: Layout) -> bool:
+    """True when fields 5-8 (0-based 4-7) of every data row are a unit quaternion (NaN rows,
+    occlusions, aside): what tells a TUM trajectory with extra columns from another table."""
+    try:
+        table = read_table(layout, [4, 5, 6, 7], 0)
+    except InputError:
+        return False
+    if table.bad:
+        return False
+    q = np.stack([table.numbers[i] for i in (4, 5, 6, 7)], axis=1)
+    q = q[~np.isnan(q).any(axis=1)]
+    return len(q) > 0 and bool(np.all(np.abs(np.linalg.norm(q, axis=1) - 1.0) <= QUAT_NORM_TOL))
 
 
 def format_seconds(ns: np.ndarray) -> list[str]:
@@ -72,3 +109,25 @@ def write_tum(path: Path | str, mocap: MocapPoses) -> Path:
     return write_table(path, TUM_HEADER,
                        [format_seconds(mocap.stamps_ns()), *mocap.position.T,
                         q[:, 1], q[:, 2], q[:, 3], q[:, 0]], sep=" ")
+
+
+# --- the registry's record -------------------------------------------------------------------
+
+def _is_tum(path: Path) -> bool:
+    try:
+        layout = sniff_layout(path)
+    except InputError:
+        return False
+    return layout.sep == WHITESPACE and (layout.n_fields == 8 or (
+        layout.n_fields > 8 and unit_quaternions(layout)))
+
+
+def _poses(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    if opts.time_unit is None and (euroc := headerless_euroc_poses(path)) is not None:
+        raise euroc
+    return tum_table(path, notes, **opts.units("time_unit", "quat_order", "position_unit"))
+
+
+FORMAT = Format("tum", "TUM trajectory", _is_tum, read_poses=_poses,
+                options=frozenset({"time_unit", "quat_order", "position_unit"}),
+                yields_to_columns=True)

@@ -44,19 +44,13 @@ import numpy as np
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import (
-    Lines,
-    check_increasing,
-    imu_gap_note,
-    validate_imu,
-    validate_mocap,
-)
+from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.ulog_file import (
     Instance,
     dropout_note,
     instances,
+    is_ulog,
     logged_topics,
     open_ulog,
     parse_spec,
@@ -64,6 +58,9 @@ from mocap_calib.io.formats.ulog_file import (
     stamps_us,
     vector,
 )
+from mocap_calib.io.merge import merge_on_gyro
+from mocap_calib.io.reading import Format, ReadOptions
+from mocap_calib.io.streams import Crop, ImuTable, PoseTable
 
 IMU_TOPICS = ("sensor_combined", "sensor_gyro", "sensor_accel")
 MOCAP_TOPICS = ("vehicle_mocap_odometry", "vehicle_visual_odometry")
@@ -76,22 +73,30 @@ _XYZ = ("x", "y", "z")
 
 
 def read_ulog_imu(path: Path | str, topic: str | None, notes: list[str]) -> ImuSamples:
-    """IMU samples of ``sensor_combined`` or of one ``sensor_gyro``/``sensor_accel`` pair."""
-    path = Path(path)
-    ulog = open_ulog(path, [*IMU_TOPICS, "sensor_selection"])
+    """The checked IMU samples of a ULog (:func:`ulog_imu_table`)."""
+    table = ulog_imu_table(Path(path), topic, notes)
+    imu = table.validate()
+    notes.extend(table.notes(imu))
+    return imu
+
+
+def ulog_imu_table(path: Path, topic: str | None, notes: list[str], crop: Crop | None = None
+                   ) -> ImuTable:
+    """IMU samples of ``sensor_combined`` or of one ``sensor_gyro``/``sensor_accel`` pair
+    (an IMU switch of ``sensor_combined`` is refused only inside ``crop``)."""
+    ulog = open_ulog(path, [*IMU_TOPICS, "sensor_selection"], notes)
     chosen = _choose_imu(ulog, path, topic, notes)
     if chosen[0].name == "sensor_combined":
         label = f"{path} [sensor_combined]"
         us, gyro, accel = _combined(chosen[0].data, label, notes)
-        _refuse_switch(ulog, int(us[0]), label)
+        _refuse_switch(ulog, int(us[0]), label, crop)
     else:
         g, a = chosen
         label = f"{path} [{g.spec}, {a.spec}]"
         us, gyro, accel = _raw_pair(g, a, label, notes)
-    imu = validate_imu(us * 1000, gyro, accel, Lines(label))
-    notes.extend(n for n in (imu_gap_note(imu.t, label), dropout_note(ulog, int(us[0]), str(path)))
-                 if n is not None)
-    return imu
+    drop = dropout_note(ulog, int(us[0]), str(path))
+    return ImuTable(us * 1000, gyro, accel, Lines(label), note_gaps=True,
+                    last_notes=() if drop is None else (drop,))
 
 
 def _choose_imu(ulog: Any, path: Path, topic: str | None, notes: list[str]) -> list[Instance]:
@@ -187,39 +192,30 @@ def _raw_pair(g: Instance, a: Instance, label: str, notes: list[str]
 
 def _pair(tg: np.ndarray, gyro: np.ndarray, ta: np.ndarray, accel: np.ndarray, label: str,
           notes: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gyro and accelerometer samples on the gyro's stamps (integer us)."""
-    if len(tg) == len(ta) and np.array_equal(tg, ta):
-        return tg, gyro, accel
-    check_increasing(ta * 1000, "accelerometer", Lines(label))
-    check_increasing(tg * 1000, "gyro", Lines(label))
-    j = np.searchsorted(ta, tg, side="right")  # ta[j-1] <= tg < ta[j]
-    inside = (j > 0) & ((j < len(ta)) | (tg == ta[-1]))
-    jc = np.clip(j, 1, len(ta) - 1)
-    # Relative to the first stamp: float64 cannot hold epoch microseconds' sums exactly.
-    span = (ta[jc] - ta[jc - 1]).astype(float)
-    keep = inside & ((span <= gap_threshold(ta.astype(float))) | (tg == ta[jc - 1]))
-    x, xp = (tg[keep] - ta[0]).astype(float), (ta - ta[0]).astype(float)
-    acc = np.stack([np.interp(x, xp, accel[:, k]) for k in range(3)], axis=1)
-    left = int(len(tg) - keep.sum())
-    apart = float(np.median(np.minimum(np.abs(tg - ta[jc - 1]), np.abs(ta[jc] - tg))))
-    notes.append(f"{label}: accelerometer stamps differ from the gyro's ({len(ta)} and "
-                 f"{len(tg)} samples, median {apart:.0f} us apart); interpolated linearly onto "
-                 "the gyro stamps"
-                 + (f", {left} gyro samples without accelerometer samples around them left out"
-                    if left else ""))
-    return tg[keep], gyro[keep], acc
+    """Gyro and accelerometer samples on the gyro's stamps (integer us): the shared merge
+    step, :func:`~mocap_calib.io.merge.merge_on_gyro`."""
+    return merge_on_gyro(tg, gyro, ta, accel, label=label, notes=notes, ns_per_unit=1000)
 
 
-def _refuse_switch(ulog: Any, origin_us: int, label: str) -> None:
-    """Refuse a ``sensor_combined`` in which PX4 switched to another IMU during the log."""
+def _refuse_switch(ulog: Any, origin_us: int, label: str, crop: Crop | None) -> None:
+    """Refuse a ``sensor_combined`` in which PX4 switched to another IMU during the log (or
+    the part of it ``crop`` keeps)."""
+    lo, hi = crop.bounds() if crop is not None and crop.given else (-np.inf, np.inf)
     for sel in instances(ulog, "sensor_selection"):
         for kind in ("gyro", "accel"):
             ids = sel.data.get(f"{kind}_device_id")
             if ids is None or len(ids) < 2 or np.all(ids == ids[0]):
                 continue
-            k = int(np.flatnonzero(ids != ids[0])[0])
-            at = (int(sel.data["timestamp"][k]) - origin_us) * 1e-6
-            raise input_error(f"PX4 switched its {kind} from device 0x{int(ids[0]):06X} to "
+            t = (sel.data["timestamp"].astype(np.int64) - origin_us) * 1e-6
+            before = np.flatnonzero(t <= lo)  # the selection in force at the crop's start on
+            inside = np.arange(before[-1] if len(before) else 0, len(t))
+            inside = inside[t[inside] <= hi]
+            if len(inside) < 2 or np.all(ids[inside] == ids[inside[0]]):
+                continue
+            first = ids[inside[0]]
+            k = int(inside[np.flatnonzero(ids[inside] != first)[0]])
+            at = float(t[k])
+            raise input_error(f"PX4 switched its {kind} from device 0x{int(first):06X} to "
                               f"0x{int(ids[k]):06X} at {at:.3f} s from the IMU start "
                               "(sensor_selection): sensor_combined mixes two IMUs",
                               f"pass {_OPT} sensor_gyro:N to read one IMU, or --end "
@@ -253,9 +249,13 @@ def _mocap_instance(ulog: Any, path: Path, topic: str | None, notes: list[str]) 
 
 
 def read_ulog_mocap(path: Path | str, topic: str | None, notes: list[str]) -> MocapPoses:
+    """The checked marker poses of a ULog (:func:`ulog_pose_table`)."""
+    return ulog_pose_table(Path(path), topic, notes).validate()
+
+
+def ulog_pose_table(path: Path, topic: str | None, notes: list[str]) -> PoseTable:
     """Marker poses of the mocap (or visual) odometry topic, turned into a z-up world."""
-    path = Path(path)
-    ulog = open_ulog(path, list(MOCAP_TOPICS))
+    ulog = open_ulog(path, list(MOCAP_TOPICS), notes)
     inst = _mocap_instance(ulog, path, topic, notes)
     name, data = inst.name, inst.data
     label = f"{path} [{name if inst.multi_id == 0 else inst.spec}]"
@@ -277,4 +277,16 @@ def read_ulog_mocap(path: Path | str, topic: str | None, notes: list[str]) -> Mo
     p_enu = p @ R_ENU_NED.T
     notes.append(f"{label}: PX4 z-down world turned into a z-up world (x<->y, z negated); "
                  "the body frames stay FRD")
-    return validate_mocap(us * 1000, q_enu, p_enu, Lines(label))
+    return PoseTable(us * 1000, q_enu, p_enu, Lines(label))
+
+
+def _imu(path: Path, opts: ReadOptions, notes: list[str]) -> ImuTable:
+    return ulog_imu_table(path, opts.recording.imu_topic, notes, opts.crop)
+
+
+def _poses(path: Path, opts: ReadOptions, notes: list[str]) -> PoseTable:
+    return ulog_pose_table(path, opts.recording.mocap_topic, notes)
+
+
+FORMAT = Format("ulog", "PX4 ULog", lambda p: not p.is_dir() and is_ulog(p), _imu, _poses,
+                options=frozenset({"imu_topic", "mocap_topic"}))

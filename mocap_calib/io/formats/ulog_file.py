@@ -8,6 +8,7 @@ Flight Review show; ``TOPIC`` alone names the topic's only instance.
 
 from __future__ import annotations
 
+import io
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,8 +29,18 @@ def is_ulog(path: Path | str) -> bool:
         return f.read(7) == ULOG_MAGIC or path.suffix == ".ulg"
 
 
-def check_complete(path: Path) -> None:
-    """Raise if the file is not a ULog or ends inside a message (a truncated copy)."""
+#: Message types of the ULog format (its header's ``msg_type``).
+_TYPES = frozenset(b"FIMPQARDLCSOB")
+
+
+def check_complete(path: Path) -> int:
+    """The length of the file's complete messages: the file's length, or the byte where bytes
+    that are no ULog message begin (junk appended to a log: a message type the format does not
+    have, or data of a topic never subscribed).
+
+    Raises:
+        InputError: not a ULog, or a file that ends inside a message (a truncated copy).
+    """
     data = path.read_bytes()
     if len(data) < 16 or data[:7] != ULOG_MAGIC:
         raise input_error("not a PX4 ULog file (no ULog header)",
@@ -37,25 +48,40 @@ def check_complete(path: Path) -> None:
     view = memoryview(data)
     pos, n = 16, len(data)
     unpack = struct.Struct("<HB").unpack_from
+    subscribed: set[int] = set()
     while pos + 3 <= n:
-        size, _ = unpack(view, pos)
+        size, kind = unpack(view, pos)
+        msg_id = struct.unpack_from("<H", view, pos + 3)[0] if pos + 5 <= n else -1
+        if kind not in _TYPES or (kind == ord("D") and msg_id not in subscribed):
+            return pos
+        if kind == ord("A") and pos + 6 <= n:
+            subscribed.add(struct.unpack_from("<H", view, pos + 4)[0])
         pos += 3 + size
     if pos != n:
         raise input_error(f"the file ends inside a message (byte {n} of a message that needs "
                           f"{pos}): it is truncated", "copy the complete log from the vehicle "
                           "again", str(path))
+    return n
 
 
-def open_ulog(path: Path, names: list[str]) -> Any:
-    """The parsed log, holding the topics ``names`` only (pyulog's ``ULog``)."""
+def open_ulog(path: Path, names: list[str], notes: list[str] | None = None) -> Any:
+    """The parsed log, holding the topics ``names`` only (pyulog's ``ULog``); bytes after the
+    last complete message are left out, with a note."""
     from pyulog import ULog
     from pyulog.core import ULogException
 
     if not path.is_file():
         raise input_error("file not found", "check the path", str(path))
-    check_complete(path)
+    end = check_complete(path)
+    size = path.stat().st_size
+    source: Any = str(path)
+    if end < size:
+        source = io.BytesIO(path.read_bytes()[:end])
+        if notes is not None:
+            notes.append(f"{path}: {size - end} trailing bytes after the last complete message "
+                         f"(byte {end}) are no ULog messages; read up to them")
     try:
-        return ULog(str(path), message_name_filter_list=names)
+        return ULog(source, message_name_filter_list=names)
     except (ULogException, ValueError, struct.error, IndexError, KeyError) as err:
         raise input_error(f"cannot parse the ULog ({' '.join(str(err).split())[:120]})",
                           "copy the complete log from the vehicle again", str(path)) from None

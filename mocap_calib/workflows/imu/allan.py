@@ -14,11 +14,12 @@ from mocap_calib.core.intrinsics.noise_result import AllanResult
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.params import group, param
 from mocap_calib.io.atomic import write_with
-from mocap_calib.io.yaml_io import check_writable, save_yaml
+from mocap_calib.io.yaml_io import save_yaml
 from mocap_calib.report.intrinsics_text import allan_summary
 from mocap_calib.workflows.calibrate import HTML_HELP
 from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.imu.imu_input import CropSpec, ImuSpec, ProgressFn, say
+from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
 
 _HEADER = ("mocap-calib allan noise model (Kalibr imu.yaml keys, SI units). See "
            "docs/conventions.md.")
@@ -32,7 +33,7 @@ class AllanRun:
         result: the noise model per axis and the Allan curves.
         imu: the static log.
         notes: one-line notes (inputs).
-        written: files written (the HTML report, the YAML, then the recording).
+        written: files written (the YAML, then the HTML report and the recording).
     """
 
     result: AllanResult
@@ -57,10 +58,10 @@ class AllanRequest:
 
     imu: ImuSpec = group(ImuSpec, "Input")
     crop: CropSpec = group(CropSpec, "Input")
-    out: Path = param(Path("noise.yaml"), "noise YAML to write", metavar="PATH")
-    rrd: Path | None = param(None, "also write a rerun recording of the Allan deviation curves "
-                             "and fitted lines (log-log; x: 1000 log10(tau/s))", metavar="PATH",
-                             show_default=False)
+    out: Path = output(Path("noise.yaml"), "noise YAML to write", metavar="PATH")
+    rrd: Path | None = output(None, "also write a rerun recording of the Allan deviation "
+                              "curves and fitted lines (log-log; x: 1000 log10(tau/s))",
+                              metavar="PATH", show_default=False)
     aggregate: str = param("mean", "how the Kalibr keys combine the three axes: mean or max "
                            "(conservative)", choices=("mean", "max"))
     tau_min: float | None = param(
@@ -70,8 +71,11 @@ class AllanRequest:
         False, "write the result even if the log is too short to resolve the random walks "
         "(written as null; calibrate then keeps its defaults for them)",
         decls=("--allow-unresolved",))
-    html: Path | None = param(None, HTML_HELP, metavar="PATH", show_default=False)
+    html: Path | None = output(None, HTML_HELP, metavar="PATH", show_default=False)
     quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
+
+    def plan(self) -> OutputPlan:
+        return OutputPlan.of(self)
 
 
 def run_allan(request: AllanRequest, progress: ProgressFn | None = None) -> AllanRun:
@@ -84,7 +88,7 @@ def run_allan(request: AllanRequest, progress: ProgressFn | None = None) -> Alla
     """
     spec, out, rrd, html = request.imu, request.out, request.rrd, request.html
     clock = RunClock()
-    check_writable(out, rrd, html)
+    request.plan().check()
     say(progress, f"reading {spec.name}")
     imu, notes = spec.load(request.crop)
     for n in notes:
@@ -105,16 +109,22 @@ def run_allan(request: AllanRequest, progress: ProgressFn | None = None) -> Alla
                                 require_random_walk=not request.allow_unresolved,
                                 unresolved_fix="pass --allow-unresolved")
     run = AllanRun(result, imu, notes)
-    if html is not None:
+
+    def page() -> None:
         from mocap_calib.workflows.html.intrinsics import write_allan_html
 
-        say(progress, "writing HTML report")
-        run.written.append(write_allan_html(html, result, [spec.imu], clock))
-    if out is not None:
-        run.written.append(save_yaml(out, run.to_dict(), _HEADER))
-    if rrd is not None:
+        write_allan_html(html, result, [spec.imu], clock)
+
+    def recording() -> None:
         from mocap_calib.viz.allan_plot import write_allan_recording
 
-        say(progress, "writing rerun recording")
-        run.written.append(write_with(rrd, lambda tmp: write_allan_recording(tmp, result)))
+        write_with(rrd, lambda tmp: write_allan_recording(tmp, result))
+
+    written = write_products([
+        None if out is None else Product("--out", out,
+                                         lambda: save_yaml(out, run.to_dict(), _HEADER)),
+        None if html is None else Product("--html", html, page, step="writing HTML report"),
+        None if rrd is None else Product("--rrd", rrd, recording, step="writing rerun recording"),
+    ], progress)
+    run.written = [p.path for p in written]
     return run

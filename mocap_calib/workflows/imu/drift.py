@@ -31,9 +31,10 @@ from mocap_calib.io.formats.bags import RecordingOptions
 from mocap_calib.io.formats.mocap_exports import ExportOptions
 from mocap_calib.io.loader import load_inputs
 from mocap_calib.io.result_files import describe_kind, file_kind
-from mocap_calib.io.yaml_io import check_writable, load_result, load_yaml, save_yaml
+from mocap_calib.io.yaml_io import load_result, load_yaml, save_yaml
 from mocap_calib.report.intrinsics_text import drift_summary
 from mocap_calib.workflows.imu.imu_input import ImuSpec, ProgressFn, say
+from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
 from mocap_calib.workflows.session import MocapFormat
 
 Array = NDArray[np.float64]
@@ -289,9 +290,12 @@ class DriftRequest:
     static_window: float = param(
         1.0, "without --mocap: window around --start/--end over which the accelerometer is "
         "averaged", unit="s", lo=0.0, lo_open=True, hi=600.0)
-    out: Path | None = param(None, "also write the figures as YAML", metavar="PATH",
-                             show_default=False)
+    out: Path | None = output(None, "also write the figures as YAML", metavar="PATH",
+                              show_default=False)
     quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
+
+    def plan(self) -> OutputPlan:
+        return OutputPlan.of(self)
 
 
 def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> DriftRun:
@@ -312,8 +316,8 @@ def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> Drif
     """
     spec, calibration, start, end = request.imu, request.calibration, request.start, request.end
     mocap, out, static_window_s = request.mocap, request.out, request.static_window
+    request.plan().check()
     _check_segment_options(start, end, static_window_s)
-    check_writable(out)
     cal = read_calibration(calibration)
     notes: list[str] = []
     if mocap is not None and cal.R_MI is None:
@@ -350,7 +354,8 @@ def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> Drif
     result = replace(result, t0=result.t0 - float(imu.t[0]), t1=result.t1 - float(imu.t[0]),
                      series_t=result.series_t - float(imu.t[0]))
     run = DriftRun(result, cal, Path(calibration), notes)
-    if out is not None:
-        run.written.append(save_yaml(out, run.to_dict(), "mocap-calib attitude-drift check "
-                                     "(deg, s)."))
+    written = write_products([None if out is None else Product(
+        "--out", out, lambda: save_yaml(out, run.to_dict(), "mocap-calib attitude-drift check "
+                                        "(deg, s)."))])
+    run.written = [p.path for p in written]
     return run

@@ -13,9 +13,9 @@ from mocap_calib.core.model.faults import dead_channels, describe_dead, frozen
 from mocap_calib.core.model.rest import runs
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.params import param
-from mocap_calib.core.prepare.crop import crop_imu
 from mocap_calib.errors import InputError
 from mocap_calib.io.loader import load_imu_file
+from mocap_calib.io.streams import Crop
 from mocap_calib.workflows.session import (
     accel_unit_option,
     columns_option,
@@ -59,8 +59,8 @@ class ImuSpec:
 
 
     def load(self, crop: CropSpec | None = None) -> tuple[ImuSamples, list[str]]:
-        """Read the log (:func:`mocap_calib.io.loader.load_imu_file`), cut to ``crop``:
-        samples and notes.
+        """Read the log (:func:`mocap_calib.io.loader.load_imu_file`), cut to ``crop`` before
+        any check: samples and notes.
 
         Raises:
             InputError: also for a dead sensor or a frozen stretch (the same sample repeated),
@@ -69,9 +69,8 @@ class ImuSpec:
         imu, notes = load_imu_file(self.imu, columns=self.columns, time_unit=self.time_unit,
                                    gyro_unit=self.gyro_unit, accel_unit=self.accel_unit,
                                    raw=self.raw, accel_file=self.accel, gyro_file=self.gyro,
-                                   topic=self.imu_topic, stamp=self.stamp)
-        if crop is not None:
-            imu = crop_imu(imu, crop.start, crop.end)
+                                   topic=self.imu_topic, stamp=self.stamp,
+                                   crop=None if crop is None else Crop(crop.start, crop.end))
         refuse_faulty_log(imu)
         return imu, notes
 
@@ -88,11 +87,11 @@ class CropSpec:
     """``--start``/``--end`` of the IMU-only commands that read a whole log."""
 
     start: float | None = param(
-        None, "use the log from this many seconds after its first sample", unit="s", lo=0.0,
-        show_default=False)
+        None, "crop: keep the log from this many seconds after its first sample (before any "
+        "check of the data)", unit="s", lo=0.0, show_default=False)
     end: float | None = param(
-        None, "use the log up to this many seconds after its first sample", unit="s",
-        lo=0.0, lo_open=True, show_default=False)
+        None, "crop: keep the log up to this many seconds after its first sample (before any "
+        "check of the data)", unit="s", lo=0.0, lo_open=True, show_default=False)
 
 
 #: The options of ``multipos`` alone.

@@ -48,7 +48,7 @@ def export_intrinsics(path: Path, to: str, out: Path) -> ExportRun:
                          f"{', '.join(INTRINSICS_FORMATS)}")
     check_writable(*(Path(f"{out}{s}") for s in SUFFIXES.values()))
     result = read_intrinsics(path)
-    run = ExportRun(write_imu_tk(out, result))
+    run = ExportRun(write_imu_tk(out, result, str(path)))
     units = "raw counts" if result.raw_input is not None else "the SI readings"
     run.notes.append(f"calibrated = T K (raw - b) in m/s^2 and rad/s, raw = {units}")
     if result.g_sensitivity is not None:

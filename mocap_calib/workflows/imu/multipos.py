@@ -21,13 +21,14 @@ from mocap_calib.core.model.effects import of_term
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.params import group, param
 from mocap_calib.core.policy import GRAVITY
-from mocap_calib.errors import InputError
+from mocap_calib.errors import ConvergenceError, InputError
 from mocap_calib.io.result_files import INTRINSICS_FIX, read_intrinsics
-from mocap_calib.io.yaml_io import check_writable, save_yaml
+from mocap_calib.io.yaml_io import INTRINSICS_NUMBERS, non_finite, save_yaml
 from mocap_calib.report.intrinsics_text import multipos_summary
 from mocap_calib.workflows.calibrate import HTML_HELP
 from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.imu.imu_input import CropSpec, ImuSpec, ProgressFn, say
+from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
 
 #: Parameters a multipos prior constrains by default: the matrices. Turn-on biases change from
 #: one power-up to the next by more than a session's sigma, so they are opt-in.
@@ -201,9 +202,12 @@ class MultiposRequest:
     imu: ImuSpec = group(ImuSpec, "Input")
     crop: CropSpec = group(CropSpec, "Input")
     options: MultiposOptions = group(MultiposOptions, "Calibration")
-    out: Path = param(Path("intrinsics.yaml"), "intrinsics YAML to write", metavar="PATH")
-    html: Path | None = param(None, HTML_HELP, metavar="PATH", show_default=False)
+    out: Path = output(Path("intrinsics.yaml"), "intrinsics YAML to write", metavar="PATH")
+    html: Path | None = output(None, HTML_HELP, metavar="PATH", show_default=False)
     quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
+
+    def plan(self) -> OutputPlan:
+        return OutputPlan.of(self)
 
 
 def run_multipos(request: MultiposRequest, progress: ProgressFn | None = None) -> MultiposRun:
@@ -216,8 +220,8 @@ def run_multipos(request: MultiposRequest, progress: ProgressFn | None = None) -
     """
     spec, out, html, o = request.imu, request.out, request.html, request.options
     clock = RunClock()
+    request.plan().check()
     nominal = o.nominal(spec.raw)
-    check_writable(out, html)
     prior_files = list(o.prior)
     # Check the priors before the (longer) IMU read so a wrong file fails fast.
     for p in prior_files:
@@ -241,15 +245,23 @@ def run_multipos(request: MultiposRequest, progress: ProgressFn | None = None) -
         nominal=nominal, g_sensitivity=o.g_sensitivity,
         threshold_multiples=tuple(o.threshold) or tuple(range(2, 11)))
     run = MultiposRun(result, imu, notes)
-    if html is not None:
+    bad = non_finite(run.to_dict(), INTRINSICS_NUMBERS)
+    if bad:
+        raise ConvergenceError(f"{bad}, not a number intrinsics can have (no trustworthy "
+                               "solution); nothing written: check the session")
+
+    def page() -> None:
         from mocap_calib.workflows.html.intrinsics import write_multipos_html
 
-        say(progress, "writing HTML report")
-        run.written.append(write_multipos_html(html, result, imu, [spec.imu, spec.accel,
-                                                                   spec.gyro, *prior_files],
-                                               clock))
-    if out is not None:
-        run.written.append(save_yaml(out, run.to_dict(), _HEADER))
+        write_multipos_html(html, result, imu, [spec.imu, spec.accel, spec.gyro, *prior_files],
+                            clock)
+
+    written = write_products([
+        None if out is None else Product("--out", out,
+                                         lambda: save_yaml(out, run.to_dict(), _HEADER)),
+        None if html is None else Product("--html", html, page, step="writing HTML report"),
+    ], progress)
+    run.written = [p.path for p in written]
     return run
 
 
