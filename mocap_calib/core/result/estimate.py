@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.model.parameters import PARAMETERS, Parameter, by_symbol
+from mocap_calib.core.model.parameters import Parameter, by_symbol
 
 Array = NDArray[np.float64]
 
@@ -111,8 +111,3 @@ def by_symbol_map(d: Mapping[str, Any] | None) -> dict[Parameter, Any]:
 def symbol_map(d: Mapping[Parameter, Any]) -> dict[str, Any]:
     """Inverse of :func:`by_symbol_map`."""
     return {p.symbol: v for p, v in d.items()}
-
-
-def by_name_map(d: Mapping[str, Any] | None) -> dict[Parameter, Any]:
-    """A mapping keyed by parameter names (``sigma:``) keyed by the parameters."""
-    return {PARAMETERS[k]: v for k, v in (d or {}).items()}
