@@ -53,11 +53,11 @@ def test_default_run_says_when_the_data_prefer_another_accel_level() -> None:
                                     effects={"time_offset": None}))
     r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, effect_tests=False))
     assert r.noise.accelerometer_noise_density == pytest.approx(2e-3)
-    found = r.sensitivity["accel_noise_density_from_data"]
+    found = r.sensitivity.accel_noise_density
     assert 5 * 2e-3 < found < 2 * 0.05, found
     assert any("--accel-noise-from-data" in n for n in r.notes), r.notes
     # Where the data sheet is right, nothing is said.
     sim = simulate_flight(SimConfig(seed=5, duration=60.0, effects={"time_offset": None}))
     r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, effect_tests=False))
-    assert r.sensitivity["accel_noise_density_from_data"] == pytest.approx(2e-3, rel=0.5)
+    assert r.sensitivity.accel_noise_density == pytest.approx(2e-3, rel=0.5)
     assert not any("--accel-noise-from-data" in n for n in r.notes), r.notes
