@@ -50,16 +50,16 @@ def run_one(minutes: float, seed: int = 1) -> dict:
     return {
         "minutes": minutes, "wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
         "peak_rss_mb": round(rss, 1),
-        "position_batch_s": res.solver.get("position_batch_seconds"),
-        "window_steps": res.solver.get("window_steps"),
+        "position_batch_s": res.solver.stage.get("position_batch_seconds"),
+        "window_steps": res.solver.stage.get("window_steps"),
         "rss_after_simulation_mb": round(rss_before, 1),
         "stages_s": {s.name: round(s.seconds, 2) for s in res.stages},
         "errors": {r.name: [r.unit, float(f"{r.error:.3g}"), None if r.z is None
                             else float(f"{r.z:.2f}")] for r in rows},
-        "windows": res.solver.get("windows"),
-        "position_evaluations": res.solver.get("position_evaluations"),
+        "windows": res.solver.windows,
+        "position_evaluations": res.solver.stage.get("position_evaluations"),
         "imu_samples": int(len(sim.imu)), "chi2_per_dof": float(np.round(
-            res.solver["position_chi2_per_dof"], 4)),
+            res.solver.position_chi2_per_dof, 4)),
     }
 
 

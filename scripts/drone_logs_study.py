@@ -78,7 +78,7 @@ def two_takes() -> dict:
                 "translation_mm": float(1e3 * np.max(r.sigma_translation))}
 
     out = {"joint": {**sig(joint), "time_offset_error_ms": [
-        float(1e3 * abs(t["time_offset"] - s.truth["time_offset"]))
+        float(1e3 * abs(t.to_dict()["time_offset"] - s.truth["time_offset"]))
         for t, s in zip(joint.takes, sims, strict=True)]},
         "alone": [{**sig(r), "time_offset_error_ms": float(
             1e3 * abs(r.time_offset - s.truth["time_offset"]))}

@@ -161,7 +161,7 @@ def main() -> None:
         return "[" + ", ".join(f"{a * s:8.3f}" for a in np.asarray(x, float)) + "]"
 
     print(f"session: {root}")
-    print(f"model {res.model}; chi2/dof {res.solver['position_chi2_per_dof']}; notes: "
+    print(f"model {res.model}; chi2/dof {res.solver.position_chi2_per_dof}; notes: "
           + " | ".join(res.notes))
     print()
     def q(R):

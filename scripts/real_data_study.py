@@ -217,14 +217,14 @@ def study(key: str, thirds: bool, sensitivity: bool, fulls: dict | None = None) 
     ref = reference(key)
     rep: dict = {"recording": label, "full": describe(key, full, ref)}
     if full["exit"] == 0:  # the result's own checks: thirds, noise models, effects shown
-        r = full["result"]
-        rep["own"] = {"thirds_max_z": r.consistency.get("max_pairwise_z"),
-                      "moved_sigmas": r.sensitivity.get("moved_sigmas"),
-                      "mocap_model": r.sensitivity.get("mocap_noise_model"),
-                      "effects_shown": r.effect_tests.get("shown"),
-                      "sigma_factor": r.consistency.get("sigma_factor", {}),
+        r = full["result"].to_dict()  # the result file's form
+        rep["own"] = {"thirds_max_z": r["consistency"].get("max_pairwise_z"),
+                      "moved_sigmas": r["sensitivity"].get("moved_sigmas"),
+                      "mocap_model": r["sensitivity"].get("mocap_noise_model"),
+                      "effects_shown": r["effect_tests"].get("shown"),
+                      "sigma_factor": r["consistency"].get("sigma_factor", {}),
                       "consistency_factor": {k: v["consistency_factor"]
-                                             for k, v in r.uncertainty.items()}}
+                                             for k, v in r["uncertainty"].items()}}
     dur = session.imu.duration
     if thirds:
         parts = [run(session, opts, k * dur / 3, (k + 1) * dur / 3)

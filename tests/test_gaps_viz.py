@@ -63,7 +63,7 @@ def test_the_recording_holds_one_span_per_gap_at_its_time(gappy) -> None:
     sim, result, rrd, _ = gappy
     rec = Recording(rrd)
     names = sorted(e for e in rec.batches if e.startswith("imu_gaps/"))
-    assert len(names) == result.imu_gaps["count"] >= 8
+    assert len(names) == result.imu_gaps.count >= 8
     shown = []
     for e in names:
         t, v = rec.scalars(e)
@@ -73,8 +73,8 @@ def test_the_recording_holds_one_span_per_gap_at_its_time(gappy) -> None:
     _match(np.array(sorted(shown, key=lambda x: x[0])), _truth_spans(sim), dt)
     # The legend says which gap split the session (the 0.8 s stall) and which were bridged.
     labels = [str(rec.column(e, "SeriesLines:names")) for e in names]
-    assert sum("split" in x for x in labels) == result.imu_gaps["split"] == 1
-    assert sum("bridged" in x for x in labels) == result.imu_gaps["bridged"]
+    assert sum("split" in x for x in labels) == result.imu_gaps.split == 1
+    assert sum("bridged" in x for x in labels) == result.imu_gaps.bridged
 
 
 def test_the_html_shades_the_gaps_at_their_times(gappy) -> None:
@@ -85,7 +85,7 @@ def test_the_html_shades_the_gaps_at_their_times(gappy) -> None:
     truth = _truth_spans(sim)
     for fig in ("fig-gaps", "fig-residuals-position", "fig-residuals-attitude"):
         data = page.ids[fig]
-        assert int(data["data-imu-gaps"]) == result.imu_gaps["count"]
+        assert int(data["data-imu-gaps"]) == result.imu_gaps.count
         shown = np.stack([[float(x) for x in data["data-imu-gap-starts-s"].split(",")],
                           [float(x) for x in data["data-imu-gap-ends-s"].split(",")]], axis=1)
         _match(shown, truth, dt)
@@ -93,4 +93,4 @@ def test_the_html_shades_the_gaps_at_their_times(gappy) -> None:
     assert table is not None
     assert table.group(0).count(">split<") == int(np.sum(np.diff(truth, axis=1)
                                                          > IMU_BRIDGE_MAX_S)) == 1
-    assert table.group(0).count(">bridged<") == result.imu_gaps["bridged"]
+    assert table.group(0).count(">bridged<") == result.imu_gaps.bridged

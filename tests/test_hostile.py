@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,14 @@ import pytest
 import yaml
 
 from mocap_calib.cli.main import main
+from mocap_calib.core.model.parameters import (
+    ACCEL_BIAS,
+    GRAVITY_DIRECTION,
+    GYRO_BIAS,
+    ROTATION,
+    TIME_OFFSET,
+    TRANSLATION,
+)
 from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.result.priors import prior_problems
 from mocap_calib.errors import ConvergenceError, InputError
@@ -53,9 +62,10 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def result(session: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """A result with sigmas (the simulator's truth plus plausible sigmas), as plain data."""
     r = load_result(session / "truth.yaml")
-    r.sigma_rotation, r.sigma_translation = np.full(3, 1e-3), np.full(3, 1e-3)
-    r.sigma_gravity, r.sigma_gyro_bias = np.full(2, 1e-3), np.full(3, 1e-4)
-    r.sigma_accel_bias, r.sigma_time_offset = np.full(3, 1e-3), 1e-4
+    sigmas = {ROTATION: np.full(3, 1e-3), TRANSLATION: np.full(3, 1e-3),
+              GRAVITY_DIRECTION: np.full(2, 1e-3), GYRO_BIAS: np.full(3, 1e-4),
+              ACCEL_BIAS: np.full(3, 1e-3), TIME_OFFSET: np.full(1, 1e-4)}
+    r = r.with_estimates({p: replace(r.estimate(p), sigma=s) for p, s in sigmas.items()})
     r.session["imu_rate_hz"] = 200.0
     path = tmp_path_factory.mktemp("result") / "calib.yaml"
     save_result(path, r)
@@ -233,11 +243,14 @@ def test_a_result_that_is_not_finite_is_not_written(result: dict, tmp_path: Path
     from mocap_calib.core.result.calibration import CalibrationResult
 
     r = CalibrationResult.from_dict(result)
-    r.translation = np.array([np.nan, 0.0, 0.0])
+
+    def moved(value: np.ndarray) -> CalibrationResult:
+        return r.with_estimates({TRANSLATION: replace(r.estimate(TRANSLATION), value=value)})
+
     with pytest.raises(ConvergenceError, match=r"T_marker_imu.translation\[0\] is nan"):
-        save_result(tmp_path / "r.yaml", r)
-    r.translation = np.zeros(3)
-    r.effects = {"clock_drift": {"clock_drift": float("inf"), "sigma": 1e-6}}
+        save_result(tmp_path / "r.yaml", moved(np.array([np.nan, 0.0, 0.0])))
+    r = replace(moved(np.zeros(3)),
+                effects={"clock_drift": {"clock_drift": float("inf"), "sigma": 1e-6}})
     with pytest.raises(ConvergenceError, match="effects.clock_drift.clock_drift is inf"):
         save_result(tmp_path / "r.yaml", r)
     assert not (tmp_path / "r.yaml").exists()

@@ -102,9 +102,9 @@ def test_px4_like_gaps_calibrate_nearly_as_well_as_none() -> None:
                                                    "time_offset_s": 1.5e-5}[k]), (k, err, err0)
     assert max(z.values()) < 3.5, z
     g = gappy.imu_gaps
-    assert g["trimmed_samples"] >= 1 and g["split"] == 2 and g["segments"] == 3
-    assert g["count"] >= 30 and abs(g["longest_s"] - 3.0) < 0.02
-    assert g["bridged"] == g["count"] - 2
+    assert g.trimmed_samples >= 1 and g.split == 2 and g.segments == 3
+    assert g.count >= 30 and abs(g.longest_s - 3.0) < 0.02
+    assert g.bridged == g.count - 2
 
 
 @pytest.mark.slow
@@ -137,7 +137,7 @@ def test_an_imu_gap_inside_a_mocap_gap_is_bridged() -> None:
     res = calibrate(imu.select(~hole_i), mocap.select(~hole_m),
                     CalibrationOptions(segments=0, sensitivity=False))
     err, z = errors_vs_truth(res, sim.truth)
-    assert res.imu_gaps["count"] == 1 and max(z.values()) < 4.0, (err, z)
+    assert res.imu_gaps.count == 1 and max(z.values()) < 4.0, (err, z)
 
 
 def test_cropping_comes_before_the_gap_rule(tmp_path: Path,

@@ -26,8 +26,8 @@ def test_the_default_model_names_a_hidden_accel_delay(seed: int, lag: float) -> 
     sim = simulate_flight(SimConfig(seed=seed, duration=90.0, effects={
         "time_offset": [T_D], "accel_delay": [lag]}))
     r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, sensitivity=False))
-    assert r.effect_tests["shown"] == ["accel_delay"]
-    first = r.effect_tests["candidates"][0]
+    assert r.effect_tests.shown == ("accel_delay",)
+    first = r.effect_tests.candidates[0].to_dict()
     assert first["effect"] == "accel_delay" and abs(first["one_step_estimate"] - lag) < 0.5e-3
     assert any("effects the data show" in n and "accel_delay" in n for n in r.notes)
 
@@ -37,8 +37,8 @@ def test_nothing_is_shown_when_nothing_is_missing(seed: int) -> None:
     sim = simulate_flight(SimConfig(seed=seed, duration=90.0, effects={"time_offset": [T_D]},
                                     mocap_noise_corr=0.2 if seed == 6 else 0.0))
     r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, sensitivity=False))
-    assert r.effect_tests["shown"] == [], r.effect_tests["candidates"][:3]
-    assert len(r.effect_tests["candidates"]) == 9  # every canonical effect but time_offset
+    assert r.effect_tests.shown == (), r.effect_tests.candidates[:3]
+    assert len(r.effect_tests.candidates) == 9  # every canonical effect but time_offset
 
 
 @pytest.mark.parametrize("seed,lag", [(4, 0.005), (9, 0.002)])
@@ -81,10 +81,10 @@ def test_effect_tests_on_spread_windows_of_a_long_session(monkeypatch: pytest.Mo
     said: list[str] = []
     r = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, sensitivity=False),
                   progress=said.append)
-    assert r.solver["windows"] > 12
-    assert any(f"(12 of {r.solver['windows']} windows, spread over the session)" in m
+    assert r.solver.windows > 12
+    assert any(f"(12 of {r.solver.windows} windows, spread over the session)" in m
                for m in said)
-    assert r.effect_tests["windows"] == r.solver["windows"]
-    assert r.effect_tests["windows_tested"] == 12
-    assert r.effect_tests["shown"] == ["accel_delay"]
-    assert abs(r.effect_tests["candidates"][0]["one_step_estimate"] - 0.004) < 0.5e-3
+    assert r.effect_tests.windows == r.solver.windows
+    assert r.effect_tests.windows_tested == 12
+    assert r.effect_tests.shown == ("accel_delay",)
+    assert abs(r.effect_tests.candidates[0].one_step_estimate - 0.004) < 0.5e-3

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.parameters import TRANSLATION
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.core.result.priors import priors_from_results
@@ -60,7 +63,8 @@ def test_trend_from_two_results_extrapolates_to_the_new_session() -> None:
     day = 86400 * 10**9
     r1.session["imu_start_ns"] = 0
     r2.session["imu_start_ns"] = day
-    r1.translation = r1.translation + np.array([0.0, 0.0, -0.002])
+    moved = replace(r1.estimate(TRANSLATION), value=r1.translation + np.array([0.0, 0.0, -0.002]))
+    r1 = r1.with_estimates({TRANSLATION: moved})
     priors = {p.block: p for p in priors_from_results([r1, r2], at_ns=2 * day)}
     p = priors["translation"]
     expected = r2.translation + (r2.translation - r1.translation)

@@ -11,6 +11,7 @@ import yaml
 
 from mocap_calib.cli.main import main
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.parameters import ACCEL_BIAS, GYRO_BIAS, TIME_OFFSET
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import Recording, calibrate, calibrate_takes
 from mocap_calib.sim.flight import SimConfig, simulate_flight
@@ -38,18 +39,18 @@ def joint_and_alone():
 
 def test_each_take_has_its_own_clock_and_biases(joint_and_alone) -> None:
     sims, joint, _ = joint_and_alone
-    assert [t["imu"] for t in joint.takes] == ["imu0", "imu1"]
+    assert [t.imu for t in joint.takes] == ["imu0", "imu1"]
     assert joint.time_offset is None and joint.gyro_bias is None  # not shared
     for take, sim in zip(joint.takes, sims, strict=True):
         tr = sim.truth
-        assert abs(take["time_offset"] - tr["time_offset"]) < 0.3e-3
-        for key in ("gyro_bias", "accel_bias"):
-            z = (np.array(take[key]) - tr[key]) / np.array(take["sigma"][key])
-            assert np.all(np.abs(z) < 3.0), (key, z)
-        assert set(take["sigma"]) == {"time_offset", "gyro_bias", "accel_bias"}
+        assert abs(take.value(TIME_OFFSET)[0] - tr["time_offset"]) < 0.3e-3
+        for p in (GYRO_BIAS, ACCEL_BIAS):
+            z = (take.value(p) - tr[p.name]) / take.sigma(p)
+            assert np.all(np.abs(z) < 3.0), (p.name, z)
+        assert set(take.to_dict()["sigma"]) == {"time_offset", "gyro_bias", "accel_bias"}
     # The two takes' biases really differ (a test that could not tell them apart would pass).
-    b0, b1 = (np.array(t["gyro_bias"]) for t in joint.takes)
-    assert np.max(np.abs(b0 - b1)) > 5 * np.max(joint.takes[0]["sigma"]["gyro_bias"])
+    b0, b1 = (t.value(GYRO_BIAS) for t in joint.takes)
+    assert np.max(np.abs(b0 - b1)) > 5 * np.max(joint.takes[0].sigma(GYRO_BIAS))
 
 
 def test_the_shared_pose_is_better_determined_than_any_take_alone(joint_and_alone) -> None:
@@ -147,7 +148,7 @@ def test_every_take_is_drawn_with_its_own_clock_and_biases(joint_and_alone,
     rrd = write_calibration_recording(tmp_path / "c.rrd", joint, sims[0].imu, sims[0].mocap)
     first, second = _scalar_means(rrd, "imu/gyro/difference/"), _scalar_means(
         rrd, "takes/2/imu/gyro/difference/")
-    gap = np.abs(np.array(joint.takes[1]["gyro_bias"]) - joint.takes[0]["gyro_bias"])
+    gap = np.abs(joint.takes[1].value(GYRO_BIAS) - joint.takes[0].value(GYRO_BIAS))
     for i, axis in enumerate("xyz"):
         for means, prefix in ((first, ""), (second, "takes/2/")):
             assert abs(means[f"{prefix}imu/gyro/difference/{axis}"]) < max(gap[i] / 4, 2e-5)

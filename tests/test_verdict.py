@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.parameters import ROTATION, TIME_OFFSET, TRANSLATION
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
@@ -37,12 +38,12 @@ def test_one_step_refits_match_full_refits(calibrated) -> None:
     full = segment_consistency(pos, model, 3, one_step=False)
     for a, b in zip(one.segments, full.segments, strict=True):
         a, b = a.est, b.est
-        assert np.all(np.abs(so3.log(a.R_MI.T @ b.R_MI)) < 0.05 * b.sigma["R_MI"])
-        assert np.all(np.abs(a.p_MI - b.p_MI) < 0.05 * b.sigma["p_MI"])
-        assert abs(a.t_d - b.t_d) < 0.05 * b.sigma["t_d"][0]
+        assert np.all(np.abs(so3.log(a.R_MI.T @ b.R_MI)) < 0.05 * b.sigma[ROTATION])
+        assert np.all(np.abs(a.p_MI - b.p_MI) < 0.05 * b.sigma[TRANSLATION])
+        assert abs(a.t_d - b.t_d) < 0.05 * b.sigma[TIME_OFFSET][0]
         # The sigmas include the sandwich over the segment's few windows (20 s: four blocks),
         # which moves with the linearisation point more than the estimate does.
-        np.testing.assert_allclose(a.sigma["p_MI"], b.sigma["p_MI"], rtol=0.25)
+        np.testing.assert_allclose(a.sigma[TRANSLATION], b.sigma[TRANSLATION], rtol=0.25)
 
 
 def test_noise_sensitivity_lands_where_a_rerun_does(calibrated) -> None:
@@ -53,18 +54,16 @@ def test_noise_sensitivity_lands_where_a_rerun_does(calibrated) -> None:
     tr = res.diagnostics.trace
     s, model, pos = tr.session, tr.model_state.model, tr.position
     sens = noise_sensitivity(pos, model, mocap_model=False)
-    sig = {"R_MI": np.sqrt(np.diag(pos.cov["rotation"])),
-           "p_MI": np.sqrt(np.diag(pos.cov["translation"])),
-           "t_d": np.sqrt(np.diag(pos.cov["time_offset"]))}
+    sig = {p: np.sqrt(np.diag(pos.cov[p.name])) for p in (ROTATION, TRANSLATION, TIME_OFFSET)}
     for f, key in ((3.0, "x3"), (1.0 / 3.0, "x0.333")):
         alt = calibrate(sim.imu, sim.mocap, CalibrationOptions(
             noise=NoiseModel().imu_scaled(f), segments=0,
             sensitivity=False)).diagnostics.trace
         a = alt.position
-        rerun = {"R_MI": np.max(np.abs(so3.log(pos.R_MI.T @ a.R_MI)) / sig["R_MI"]),
-                 "p_MI": np.max(np.abs(a.p_MI - pos.p_MI) / sig["p_MI"]),
-                 "t_d": abs((a.delta - alt.session.clock_shift)
-                            - (pos.delta - s.clock_shift)) / sig["t_d"][0]}
+        rerun = {ROTATION: np.max(np.abs(so3.log(pos.R_MI.T @ a.R_MI)) / sig[ROTATION]),
+                 TRANSLATION: np.max(np.abs(a.p_MI - pos.p_MI) / sig[TRANSLATION]),
+                 TIME_OFFSET: abs((a.delta - alt.session.clock_shift)
+                                  - (pos.delta - s.clock_shift)) / sig[TIME_OFFSET][0]}
         for k, v in rerun.items():
             assert sens.moved[key][k] == pytest.approx(v, abs=0.25 + 0.1 * v), (key, k)
 
@@ -83,10 +82,10 @@ def test_implausible_answer_exits_4_or_is_marked() -> None:
     res = calibrate(biased, sim.mocap, CalibrationOptions(segments=0,
                                                           sensitivity=False,
                                                           accept_implausible=True))
-    assert res.plausibility["verdict"] == "implausible"
+    assert res.plausibility.verdict == "implausible"
     assert any("IMPLAUSIBLE" in n for n in res.notes)
     clean = calibrate(sim.imu, sim.mocap, opts)
-    assert clean.plausibility == {**clean.plausibility, "verdict": "plausible", "failed": []}
+    assert clean.plausibility.verdict == "plausible" and clean.plausibility.failed == ()
 
 
 def test_periodic_motion_clock_is_refused_unless_the_range_is_limited() -> None:

@@ -258,5 +258,5 @@ def test_view_spawns_viewer_with_display(rrd: Path, monkeypatch: pytest.MonkeyPa
 def test_a_session_without_imu_gaps_shows_none(rec: Recording,
                                                calibrated: tuple[Any, CalibrationResult]) -> None:
     _, result = calibrated
-    assert result.imu_gaps["count"] == 0
+    assert result.imu_gaps.count == 0
     assert not [e for e in rec.batches if e.startswith("imu_gaps")]

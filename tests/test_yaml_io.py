@@ -9,8 +9,18 @@ import numpy as np
 import pytest
 import yaml
 
+from mocap_calib.core.model.parameters import (
+    ACCEL_BIAS,
+    GRAVITY_DIRECTION,
+    GYRO_BIAS,
+    ROTATION,
+    TIME_OFFSET,
+    TRANSLATION,
+)
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.result.calibration import RESULT_VERSION, CalibrationResult
+from mocap_calib.core.result.estimate import Estimate
+from mocap_calib.core.result.sections import SolverFigures
 from mocap_calib.core.stages.figures import StageStats
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import load_noise, load_result, save_result
@@ -23,19 +33,14 @@ ARRAY_FIELDS = ("gyro_bias", "accel_bias", "rotation_wxyz", "translation", "grav
 def make_result() -> CalibrationResult:
     q = np.array([0.7, -0.1, 0.6, 0.2])
     g = np.array([0.03, -0.02, -1.0])
+    values = {GYRO_BIAS: ([1.234e-3, -2.5e-4, 7.0e-5], [1e-5, 2e-5, 3e-5]),
+              ACCEL_BIAS: ([0.0512, -0.113, 0.0271], [1e-3, 2e-3, 3e-3]),
+              ROTATION: (q / np.linalg.norm(q), [1e-3, 2e-3, 3e-3]),
+              TRANSLATION: ([0.0123, -0.0456, 0.0789], [1e-4, 2e-4, 3e-4]),
+              GRAVITY_DIRECTION: (g / np.linalg.norm(g), [4e-4, 5e-4]),
+              TIME_OFFSET: (None, None)}  # unobservable in this session
     return CalibrationResult(
-        gyro_bias=np.array([1.234e-3, -2.5e-4, 7.0e-5]),
-        accel_bias=np.array([0.0512, -0.113, 0.0271]),
-        rotation_wxyz=q / np.linalg.norm(q),
-        translation=np.array([0.0123, -0.0456, 0.0789]),
-        gravity_in_mocap=g / np.linalg.norm(g),
-        time_offset=None,  # unobservable in this session
-        sigma_gyro_bias=np.array([1e-5, 2e-5, 3e-5]),
-        sigma_accel_bias=np.array([1e-3, 2e-3, 3e-3]),
-        sigma_rotation=np.array([1e-3, 2e-3, 3e-3]),
-        sigma_translation=np.array([1e-4, 2e-4, 3e-4]),
-        sigma_gravity=np.array([4e-4, 5e-4]),
-        sigma_time_offset=None,
+        estimates={p: Estimate.of(p, v, s) for p, (v, s) in values.items()},
         gravity_magnitude=9.80665,
         model="base+time_offset+gyro_scale_misalignment+gyro_g_sensitivity+gyro_bias_drift",
         effects={
@@ -49,11 +54,11 @@ def make_result() -> CalibrationResult:
         },
         unobservable={"time_offset": "the session has no motion to align the clocks",
                       "g_sensitivity": "too little specific-force variation"},
-        stages=[StageStats("attitude", "rad/s", [1e-3, 2e-3, 3e-3], [1e-4, 2e-4, 3e-4], 120,
-                           121, 2, 7, 0.5, 1.01, rms_after_inliers=[9e-5, 1e-4, 2e-4])],
-        solver={"iterations": 12, "converged": True, "robust": "huber"},
+        stages=(StageStats("attitude", "rad/s", [1e-3, 2e-3, 3e-3], [1e-4, 2e-4, 3e-4], 120,
+                           121, 2, 7, 0.5, 1.01, rms_after_inliers=[9e-5, 1e-4, 2e-4]),),
+        solver=SolverFigures(stage={"iterations": 12, "converged": True, "robust": "huber"}),
         noise=NoiseModel(1e-4, 2e-5, 3e-3, 4e-4, 5e-4, 6e-4),
-        notes=["first note", "second: with a colon"],
+        notes=("first note", "second: with a colon"),
         session={"imu_samples": 1000, "imu_file": "mav0/imu0/data.csv"},
     )
 
@@ -102,7 +107,7 @@ def test_result_file_has_conventions_keys(tmp_path: Path) -> None:
 
 
 def test_result_with_all_parameters_unobservable_round_trips(tmp_path: Path) -> None:
-    res = CalibrationResult(None, None, None, None, None, None)
+    res = CalibrationResult()
     back = load_result(save_result(tmp_path / "r.yaml", res))
     assert_same(res, back)
 
@@ -314,6 +319,6 @@ def test_text_report_keeps_the_precision_of_a_huge_clock_offset() -> None:
     from mocap_calib.report.text import summary_table
 
     res = make_result()
-    res.time_offset, res.sigma_time_offset = -1_035_123.456789, 5e-5
+    res = res.with_estimates({TIME_OFFSET: Estimate.of(TIME_OFFSET, -1_035_123.456789, 5e-5)})
     row = next(x for x in summary_table(res).splitlines() if x.startswith("time_offset"))
     assert "-1035123456.789" in row and "e+" not in row

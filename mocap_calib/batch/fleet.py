@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from mocap_calib.batch.manifest import SessionEntry
-from mocap_calib.core.model import so3
+from mocap_calib.core.model.parameters import PARAMETERS
 from mocap_calib.core.model.versioned import header
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.priors import priors_from_results, to_chart
@@ -33,8 +33,7 @@ FLEET_KIND, FLEET_VERSION = "fleet", 1
 OUTLIER_SIGMAS = 4.0
 DAY_NS = 86_400 * 1_000_000_000
 #: Units of each block's tangent components (rates are these per day).
-UNITS = {"rotation": "rad", "translation": "m", "gravity": "rad", "gyro_bias": "rad/s",
-         "accel_bias": "m/s^2", "time_offset": "s"}
+UNITS = {p.name: p.unit for p in PARAMETERS.values()}
 
 
 def _dated(r: CalibrationResult, time_ns: int) -> CalibrationResult:
@@ -53,9 +52,9 @@ def _line(rs: list[CalibrationResult], at_ns: int) -> dict[str, Any]:
 
 
 def _natural(block: str, value: Any) -> list[float]:
-    if block == "rotation":  # as the result files write it
-        return [float(v) for v in so3.rotmat_to_quat(np.asarray(value))]
-    return [float(v) for v in np.atleast_1d(np.asarray(value, dtype=float))]
+    p = PARAMETERS.get(block)  # as the result files write it (a rotation as a quaternion)
+    return [float(v) for v in (np.atleast_1d(np.asarray(value, dtype=float)) if p is None
+                               else p.value_of(value))]
 
 
 def trends(rs: list[CalibrationResult]) -> dict[str, dict[str, Any]]:
@@ -112,19 +111,13 @@ def outlier_z(rs: list[CalibrationResult], k: int) -> dict[str, float]:
 
 def _row(entry: SessionEntry, r: CalibrationResult, z: dict[str, float]) -> dict[str, Any]:
     row: dict[str, Any] = {"imu_id": entry.imu_id, "id": entry.id, "date": entry.date}
-    for name, vals in (("gyro_bias", r.gyro_bias), ("sigma_gyro_bias", r.sigma_gyro_bias),
-                       ("accel_bias", r.accel_bias), ("sigma_accel_bias", r.sigma_accel_bias),
-                       ("rotation_wxyz", r.rotation_wxyz), ("sigma_rotation", r.sigma_rotation),
-                       ("translation", r.translation),
-                       ("sigma_translation", r.sigma_translation),
-                       ("gravity_in_mocap", r.gravity_in_mocap),
-                       ("sigma_gravity", r.sigma_gravity),
-                       ("time_offset", r.time_offset), ("sigma_time_offset", r.sigma_time_offset)):
-        flat = [] if vals is None else np.atleast_1d(np.asarray(vals, dtype=float)).ravel()
-        if len(flat) == 1:
-            row[name] = float(flat[0])
-        for i, v in enumerate(flat if len(flat) > 1 else []):
-            row[f"{name}_{'wxyz'[i] if name == 'rotation_wxyz' else i}"] = float(v)
+    for p in PARAMETERS.values():
+        for name, vals in ((p.value_key[-1], r.value(p)), (f"sigma_{p.name}", r.sigma(p))):
+            flat = [] if vals is None else np.atleast_1d(np.asarray(vals, dtype=float)).ravel()
+            if len(flat) == 1:
+                row[name] = float(flat[0])
+            for i, v in enumerate(flat if len(flat) > 1 else []):
+                row[f"{name}_{'wxyz'[i] if len(flat) == 4 else i}"] = float(v)
     for eff, rec in sorted(r.effects.items()):
         for key, val in rec.items():
             flat = np.atleast_1d(np.asarray(val, dtype=float)).ravel()

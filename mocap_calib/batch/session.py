@@ -3,7 +3,7 @@ runs on it (the same workflow call as ``mocap-calib calibrate``, without writing
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from mocap_calib.core.result.calibration import CalibrationResult
@@ -49,7 +49,7 @@ def run_session(job: SessionJob) -> CalibrationResult:
     """The worker's function: calibrate, drop what is only for inspection, return the result."""
     result, _ = run_calibration(job.request,
                                 extra_priors=history_priors(job.history, job.at_ns))
-    result.diagnostics = None  # residual series: large, and not part of the result file
+    result = replace(result, diagnostics=None)  # residual series: not in the result file
     bad = non_finite(result.to_dict())
     if bad:  # refused here, so the session fails with the reason (save_result refuses too)
         raise ConvergenceError(f"{bad}, not a number a calibration can have (no trustworthy "

@@ -32,6 +32,13 @@ import numpy as np
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS
+from mocap_calib.core.model.parameters import (
+    GRAVITY_DIRECTION,
+    ROTATION,
+    TIME_OFFSET,
+    TRANSLATION,
+    Parameter,
+)
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
@@ -80,28 +87,26 @@ def _matrix(name: str, m: np.ndarray, indent: str) -> list[str]:
     return [f"{indent}{name}:"] + [f"{indent}  - {_row(r)}" for r in np.asarray(m)]
 
 
-def _need(inp: ExportInputs, *names: str) -> None:
+def _need(inp: ExportInputs, *params: Parameter) -> None:
     r = inp.result
-    values = {"rotation": r.rotation_wxyz, "translation": r.translation,
-              "time_offset": r.time_offset, "gravity": r.gravity_in_mocap}
-    for n in names:
-        if values[n] is None:
-            why = r.unobservable.get(n, "not determined")
-            raise InputError(f"{inp.source}: {n} is null ({why}); calibrate a session that "
-                             f"determines it before exporting")
+    for p in params:
+        if r.value(p) is None:
+            why = r.unobservable.get(p.name, "not determined")
+            raise InputError(f"{inp.source}: {p.name} is null ({why}); calibrate a session "
+                             f"that determines it before exporting")
 
 
 def _t_d(inp: ExportInputs) -> float:
-    _need(inp, "time_offset")
+    _need(inp, TIME_OFFSET)
     assert inp.result.time_offset is not None
     return float(inp.result.time_offset)
 
 
 def _T_IM(inp: ExportInputs) -> tuple[np.ndarray, np.ndarray]:
     """``R_IM``, ``p_IM``: the marker frame's pose in the IMU frame (``T_MI^-1``)."""
-    _need(inp, "rotation", "translation")
-    R_MI = so3.quat_to_rotmat(np.asarray(inp.result.rotation_wxyz))
-    return R_MI.T, -R_MI.T @ np.asarray(inp.result.translation)
+    _need(inp, ROTATION, TRANSLATION)
+    R_MI = ROTATION.state(inp.result.value(ROTATION))
+    return R_MI.T, -R_MI.T @ np.asarray(inp.result.value(TRANSLATION))
 
 
 def _noise_lines(n: NoiseModel, indent: str = "") -> list[str]:
@@ -199,8 +204,9 @@ def _se3(R: np.ndarray, p: np.ndarray) -> dict[str, float]:
 
 def _basalt(inp: ExportInputs, notes: list[str]) -> str:
     R_IM, p_IM = _T_IM(inp)
-    _need(inp, "gravity")
-    R_GW = so3.rotation_between(np.asarray(inp.result.gravity_in_mocap), [0.0, 0.0, -1.0])
+    _need(inp, GRAVITY_DIRECTION)
+    R_GW = so3.rotation_between(np.asarray(inp.result.value(GRAVITY_DIRECTION)),
+                               [0.0, 0.0, -1.0])
     value = {"T_mocap_world": _se3(R_GW.T, np.zeros(3)), "T_imu_marker": _se3(R_IM, p_IM),
              "mocap_time_offset_ns": int(round(-_t_d(inp) * 1e9)), "mocap_to_imu_offset_ns": 0}
     notes.append("Basalt's world is the gravity-aligned frame of 'mocap-calib groundtruth' "

@@ -5,9 +5,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.parameters import (
+    COMPARED,
+    PARAMETERS,
+    PER_TAKE,
+    TIME_OFFSET,
+    Parameter,
+)
 from mocap_calib.core.result.calibration import CalibrationResult
+
+Array = NDArray[np.float64]
 
 
 def _fmt(v: object, scale: float = 1.0, digits: int = 4) -> str:
@@ -48,42 +58,46 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]],
     return "\n".join([line(header), "-" * (sum(w) + 2 * (len(w) - 1)), *map(line, rows)])
 
 
+def _num(a: object) -> float | None:
+    return None if a is None else float(np.asarray(a).ravel()[0])
+
+
+def _time_row(label: str, t: float | None, sigma: float | None,
+              fixed: bool) -> tuple[str, str, str, str]:
+    """A clock offset in ms; ``fixed``: a value without a sigma was not estimated."""
+    s_txt = ("fixed" if fixed and sigma is None and t is not None
+             else _fmt(None if sigma is None else 1e3 * sigma, digits=2))
+    return (label, _fmt_time_ms(t, sigma), s_txt, "ms")
+
+
+def _parameter_rows(p: Parameter, value: Array | None, sigma: Array | None,
+                    prefix: str = "", fixed: bool = True) -> list[tuple[str, str, str, str]]:
+    """Table rows of one base parameter, as the registry says it prints."""
+    pr = p.printed
+    if p is TIME_OFFSET:
+        return [_time_row(prefix + pr.label, _num(value), _num(sigma), fixed)]
+    sig = _fmt(sigma, pr.sigma_scale, 2)
+    if p.form == "so3":
+        rv = None if value is None else so3.log(p.state(value))
+        return [(f"{prefix}{pr.label} (rotation vector)", _fmt(rv, pr.value_scale), sig,
+                 pr.unit),
+                (f"{prefix}{pr.label} (quaternion wxyz)", _fmt(value, digits=6), "", "")]
+    rows = [(prefix + pr.label, _fmt(value, pr.value_scale, pr.digits), sig, pr.unit)]
+    if p.form == "s2" and value is not None:
+        tilt = np.degrees(np.arccos(np.clip(-value[2], -1, 1)))
+        rows.append(("mocap z tilt from vertical", f"{tilt:.4g}", "", "deg"))
+    return rows
+
+
 def summary_table(r: CalibrationResult) -> str:
     """Parameter | estimate | 1-sigma | unit, then the per-stage figures."""
     rows: list[tuple[str, str, str, str]] = []
-    rpy = None
-    if r.rotation_wxyz is not None:
-        rpy = np.degrees(so3.log(so3.quat_to_rotmat(r.rotation_wxyz)))
-    if r.takes:  # several takes: their own clock offsets and biases, not shared
-        for t in r.takes:
-            sg = t["sigma"]
-            rows.append((f"take {t['take']} gyro_bias", _fmt(t["gyro_bias"]),
-                         _fmt(sg["gyro_bias"], digits=2), "rad/s"))
-            rows.append((f"take {t['take']} accel_bias", _fmt(t["accel_bias"]),
-                         _fmt(sg["accel_bias"], digits=2), "m/s^2"))
-            rows.append((f"take {t['take']} time_offset",
-                         _fmt_time_ms(t["time_offset"], sg["time_offset"]),
-                         _fmt(None if sg["time_offset"] is None else 1e3 * sg["time_offset"],
-                              digits=2), "ms"))
-    else:
-        rows.append(("gyro_bias", _fmt(r.gyro_bias), _fmt(r.sigma_gyro_bias, digits=2),
-                     "rad/s"))
-        rows.append(("accel_bias", _fmt(r.accel_bias), _fmt(r.sigma_accel_bias, digits=2),
-                     "m/s^2"))
-    rows.append(("R_MI (rotation vector)", _fmt(rpy), _fmt(r.sigma_rotation, np.degrees(1.0), 2),
-                 "deg"))
-    rows.append(("R_MI (quaternion wxyz)", _fmt(r.rotation_wxyz, digits=6), "", ""))
-    rows.append(("p_MI", _fmt(r.translation, 1e3), _fmt(r.sigma_translation, 1e3, 2), "mm"))
-    rows.append(("gravity_in_mocap", _fmt(r.gravity_in_mocap, digits=6),
-                 _fmt(r.sigma_gravity, np.degrees(1.0), 2), "- (sigma deg)"))
-    if r.gravity_in_mocap is not None:
-        tilt = np.degrees(np.arccos(np.clip(-r.gravity_in_mocap[2], -1, 1)))
-        rows.append(("mocap z tilt from vertical", f"{tilt:.4g}", "", "deg"))
-    sto = None if r.sigma_time_offset is None else r.sigma_time_offset * 1e3
-    if not r.takes:
-        rows.append(("time_offset", _fmt_time_ms(r.time_offset, r.sigma_time_offset),
-                     "fixed" if sto is None and r.time_offset is not None
-                     else _fmt(sto, digits=2), "ms"))
+    for t in r.takes:  # several takes: their own clock offsets and biases, not shared
+        for p in PER_TAKE:
+            rows += _parameter_rows(p, t.value(p), t.sigma(p), f"take {t.take} ", fixed=False)
+    for p in PARAMETERS.values():
+        if not (r.takes and p.per_take):
+            rows += _parameter_rows(p, r.value(p), r.sigma(p))
     for name, rec in r.effects.items():
         for key, val in rec.items():
             if key != "sigma":
@@ -109,6 +123,7 @@ def summary_table(r: CalibrationResult) -> str:
         lines.append("")
         for k, why in r.unobservable.items():
             lines.append(f"UNOBSERVABLE {k}: {why}")
+    lines += [x.line() for x in r.degraded]
     for n in r.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)
@@ -134,61 +149,60 @@ def checks_lines(r: CalibrationResult) -> list[str]:
     and the sensitivity to the noise densities."""
     out = []
     c = r.clock
-    if c:
-        out.append(f"clock: coarse t_d {1e3 * c['coarse_time_offset']:.3f} ms from "
-                   f"{' + '.join(c['signals'])} (peak {c['peak_z']:.1f}, margin "
-                   f"{c['margin_z']:.1f} null sigmas"
+    if c is not None:
+        out.append(f"clock: coarse t_d {1e3 * c.time_offset:.3f} ms from "
+                   f"{' + '.join(c.signals)} (peak {c.peak_z:.1f}, margin "
+                   f"{c.margin_z:.1f} null sigmas"
                    + ("; chosen among equal peaks by the stage fits" if
-                      c.get("chosen_by_fit_among_peaks") else "") + ")"
-                   + (f", fine {1e3 * c['fine_time_offset']:.3f} ms"
-                      if c.get("fine_time_offset") is not None else ""))
+                      c.verified_by_fit else "") + ")"
+                   + (f", fine {1e3 * c.fine_time_offset:.3f} ms"
+                      if c.fine_time_offset is not None else ""))
     pl = r.plausibility
-    if pl:
-        fig = pl.get("figures", {})
-        where = (f" (up axis {fig['up_axis']}, tilt {fig['tilt_deg']:.2f} deg)"
-                 if "up_axis" in fig else "")
-        out.append(f"plausibility: {pl['verdict']}{where}"
-                   + "".join(f"; FAILED: {x}" for x in pl.get("failed", [])))
+    if pl is not None:
+        fig = pl.figures
+        where = (f" (up axis {fig.up_axis}, tilt {fig.tilt_deg:.2f} deg)"
+                 if fig.up_axis is not None else "")
+        out.append(f"plausibility: {pl.verdict}{where}"
+                   + "".join(f"; FAILED: {x}" for x in pl.failed))
     cons = r.consistency
-    if cons.get("max_pairwise_z"):
-        z = ", ".join(f"{k} {v:.2f}" for k, v in cons["max_pairwise_z"].items())
-        out.append(f"consistency ({len(cons.get('segments', []))} segments): largest pairwise "
+    if cons is not None and cons.max_pairwise_z:
+        z = ", ".join(f"{p.symbol} {v:.2f}" for p, v in cons.max_pairwise_z.items())
+        out.append(f"consistency ({len(cons.segments)} segments): largest pairwise "
                    f"|difference| / combined sigma: {z}")
-    elif cons.get("note"):
-        out.append(f"consistency: {cons['note']}")
-    moved = r.sensitivity.get("moved_sigmas") or {}
+    elif cons is not None and cons.note:
+        out.append(f"consistency: {cons.note}")
+    moved = (r.sensitivity.moved if r.sensitivity is not None else None) or {}
     if moved:
-        keys = ("R_MI", "p_MI", "t_d")
-        parts = [f"{k} " + " / ".join(f"{moved[f].get(k, 0.0):.2f}" for f in moved)
-                 for k in keys if any(k in moved[f] for f in moved)]
+        parts = [f"{p.symbol} " + " / ".join(f"{moved[f].get(p, 0.0):.2f}" for f in moved)
+                 for p in COMPARED if any(p in moved[f] for f in moved)]
         out.append(f"sensitivity (noise densities {' / '.join(moved)}): moves "
                    f"{', '.join(parts)} sigma")
-    out += uncertainty_lines(r.uncertainty)
+    out += uncertainty_lines(r)
     return out
 
 
-#: The sigma rule's terms (docs/conventions.md, ``uncertainty:``) and how they are shown.
+#: The sigma rule's terms (docs/conventions.md, ``uncertainty:``; fields of
+#: :class:`SigmaTerms`) and how they are shown.
 UNCERTAINTY_TERMS = (("statistical", "statistical"), ("imu_noise_shift", "IMU noise"),
                      ("mocap_model_shift", "mocap model"),
                      ("effects_shown_shift", "effects shown"), ("largest_move", "largest move"),
                      ("total", "total"))
-#: Parameter group -> (shown unit, factor from the result's unit).
-UNCERTAINTY_UNITS = {"R_MI": ("deg", 180.0 / 3.141592653589793), "p_MI": ("mm", 1e3),
-                     "t_d": ("ms", 1e3)}
 
 
-def uncertainty_lines(unc: dict) -> list[str]:
-    """Per parameter group, the largest axis of each term of its sigma (which one dominates)."""
+def uncertainty_lines(r: CalibrationResult) -> list[str]:
+    """Per compared parameter, the largest axis of each term of its sigma (which one
+    dominates), in the unit its sigma prints in."""
     out = []
-    for key, (unit, k) in UNCERTAINTY_UNITS.items():
-        u = unc.get(key)
-        if not u:
+    for p in COMPARED:
+        u = r.estimate(p).terms
+        if u is None:
             continue
-        parts = [f"{label} {k * max(u[t]):.3g}" for t, label in UNCERTAINTY_TERMS
-                 if u.get(t) is not None]
-        factor = u.get("consistency_factor", 1.0)
-        grown = f" (statistical x{factor:.2f} for consistency)" if factor > 1.0 else ""
-        out.append(f"sigma of {key} ({unit}, largest axis): {', '.join(parts)}{grown}")
+        unit, k = p.printed.sigma_unit, p.printed.sigma_scale
+        parts = [f"{label} {k * max(getattr(u, t)):.3g}" for t, label in UNCERTAINTY_TERMS
+                 if getattr(u, t) is not None]
+        grown = (f" (statistical x{u.consistency_factor:.2f} for consistency)"
+                 if u.consistency_factor > 1.0 else "")
+        out.append(f"sigma of {p.symbol} ({unit}, largest axis): {', '.join(parts)}{grown}")
     return out
 
 

@@ -101,12 +101,11 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
     else:
         result = calibrate_takes(recordings, opts, progress=progress, on_iteration=on_iteration)
     result.session["inputs"] = [n for s in sessions for n in s.notes]
-    steps = result.solver.setdefault("step_seconds", {})
-    result.solver["step_seconds"] = {"startup": round(startup, 3), "read": round(t_read, 3),
-                                     **steps}
+    result = replace(result, solver=result.solver.with_steps(
+        first={"startup": round(startup, 3), "read": round(t_read, 3)}))
     if progress is not None:
         progress("time per step: " + ", ".join(
-            f"{k.replace('_', ' ')} {v:.1f} s" for k, v in result.solver["step_seconds"].items()))
+            f"{k.replace('_', ' ')} {v:.1f} s" for k, v in result.solver.step_seconds.items()))
     return result, first
 
 

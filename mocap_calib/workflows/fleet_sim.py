@@ -16,7 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from mocap_calib.core.model.effects import CLOCK_OFFSET
+from mocap_calib.core.model.parameters import ACCEL_BIAS, GYRO_BIAS
 from mocap_calib.core.model.types import ImuSamples
+from mocap_calib.core.result.calibration import CalibrationResult
 
 DAY_NS = 86_400 * 1_000_000_000
 
@@ -75,20 +78,21 @@ def simulate_fleet(out_dir: Path, cfg: FleetSimConfig = FleetSimConfig()
                                      tzinfo=dt.UTC).timestamp()) * 1_000_000_000
             sim = simulate_flight(SimConfig(
                 seed=cfg.seed * 1000 + 10 * a + k, duration=cfg.duration, rig_seed=1000 + a,
-                effects={"time_offset": [cfg.time_offset]}, imu_time_origin_ns=origin,
+                effects={CLOCK_OFFSET.name: [cfg.time_offset]}, imu_time_origin_ns=origin,
                 mocap_time_origin_ns=origin))
             bg, ba = bg0 + days * rate_g, ba0 + days * rate_a
-            shift_g = bg - np.asarray(sim.truth["gyro_bias"])
-            shift_a = ba - np.asarray(sim.truth["accel_bias"])
+            drawn = CalibrationResult.from_dict(sim.truth)
+            shift_g = bg - drawn.value(GYRO_BIAS)
+            shift_a = ba - drawn.value(ACCEL_BIAS)
             imu = ImuSamples(sim.imu.t, sim.imu.gyro + shift_g, sim.imu.accel + shift_a,
                              sim.imu.time_origin_ns, sim.imu.source)
-            t = dict(sim.truth, gyro_bias=bg.tolist(), accel_bias=ba.tolist())
+            biases = {GYRO_BIAS.value_key[-1]: bg.tolist(), ACCEL_BIAS.value_key[-1]: ba.tolist()}
+            t = dict(sim.truth, **biases)
             t["simulation"] = dict(t["simulation"], bias_shift_gyro=shift_g.tolist(),
                                    bias_shift_accel=shift_a.tolist())
             write_mav0(out_dir / sid, imu, sim.mocap)
             save_yaml(out_dir / sid / "truth.yaml", t, "mocap-calib simulation truth (fleet)")
-            truth["sessions"][sid] = {"imu_id": imu_id, "days": days, "gyro_bias": bg.tolist(),
-                                      "accel_bias": ba.tolist()}
+            truth["sessions"][sid] = {"imu_id": imu_id, "days": days, **biases}
             sessions.append({"id": sid, "imu_id": imu_id, "date": date.isoformat(),
                              "mav0": sid})
     manifest = save_yaml(out_dir / "manifest.yaml", {"sessions": sessions},

@@ -12,18 +12,29 @@ itself is looked at too:
   an independent closed-form fit (the angle about the axis scanned against the specific force)
   finds one clear angle and agrees with the calibration's;
 - **too little excitation** (slow motion): a parameter whose reported sigma exceeds what would
-  be of any use (:data:`USEFUL_SIGMA`) is reported unobservable.
+  be of any use (``Parameter.useful_sigma``) is reported unobservable.
 
 A session that leaves ``R_MI``, ``p_MI`` and the clock offset all undetermined is refused.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CLOCK_OFFSET
+from mocap_calib.core.model.parameters import (
+    ACCEL_BIAS,
+    COMPARED,
+    GRAVITY_DIRECTION,
+    GYRO_BIAS,
+    ROTATION,
+    TIME_OFFSET,
+    TRANSLATION,
+    Parameter,
+)
 from mocap_calib.core.prepare.kinematics import (
     SmoothedImu,
     mocap_grid,
@@ -43,27 +54,16 @@ CLEAR_AWAY_DEG = 30.0
 CLEAR_RATIO = 1.5
 #: Closed-form and calibrated R_MI may differ by this much (deg) beyond 5 sigma.
 AGREE_DEG = 2.0
-#: Sigmas beyond which a number is of no use: rotation and gravity tilt (rad), lever arm (m),
-#: clock offset (s), biases (rad/s, m/s^2).
-USEFUL_SIGMA = {"rotation": np.radians(2.0), "translation": 0.05, "time_offset": 0.005,
-                "gravity": np.radians(2.0), "gyro_bias": 0.01, "accel_bias": 0.2}
-_FIELDS = {"rotation": ("rotation_wxyz", "sigma_rotation"),
-           "translation": ("translation", "sigma_translation"),
-           "time_offset": ("time_offset", "sigma_time_offset"),
-           "gravity": ("gravity_in_mocap", "sigma_gravity"),
-           "gyro_bias": ("gyro_bias", "sigma_gyro_bias"),
-           "accel_bias": ("accel_bias", "sigma_accel_bias")}
-_UNITS = {"rotation": (np.degrees(1.0), "deg"), "gravity": (np.degrees(1.0), "deg"),
-          "translation": (1e3, "mm"), "time_offset": (1e3, "ms"), "gyro_bias": (1.0, "rad/s"),
-          "accel_bias": (1.0, "m/s^2")}
-
-
-def _unobservable(r: CalibrationResult, name: str, reason: str) -> None:
-    value, _ = _FIELDS[name]
-    if getattr(r, value) is None:
-        return
-    setattr(r, value, None)
-    r.unobservable[name] = reason
+#: The order in which parameters are judged of use (the order their reasons are listed in).
+USEFUL_ORDER: tuple[Parameter, ...] = (ROTATION, TRANSLATION, TIME_OFFSET, GRAVITY_DIRECTION,
+                                       GYRO_BIAS, ACCEL_BIAS)
+def _unobservable(r: CalibrationResult, p: Parameter, reason: str) -> CalibrationResult:
+    """``r`` with ``p``'s value removed and the reason listed (unchanged when already so)."""
+    e = r.estimate(p)
+    if e.value is None:
+        return r
+    return replace(r.with_estimates({p: replace(e, value=None)}),
+                   unobservable={**r.unobservable, p.name: reason})
 
 
 def single_axis(s: PreparedSession, delta: float) -> Array | None:
@@ -120,32 +120,32 @@ def single_axis_rotation(s: PreparedSession, delta: float, axis: Array
 
 
 def mark_single_axis(r: CalibrationResult, s: PreparedSession, delta: float
-                     ) -> Array | None:
+                     ) -> tuple[CalibrationResult, Array | None]:
     """One rotation axis: the lever arm along it is unobservable, and ``R_MI`` too unless the
-    accelerometer pins the angle about it (see the module doc). In place; returns the axis
-    (marker frame) or None."""
+    accelerometer pins the angle about it (see the module doc). Returns the result so marked
+    and the axis (marker frame) or None."""
     axis = single_axis(s, delta)
     if axis is None:
-        return None
+        return r, None
     shown = np.round(axis, 3).tolist()
-    _unobservable(r, "translation", f"the body rotated about one axis only ({shown} in the "
-                  "marker frame): the lever arm along it is not determined")
-    R = r.R_marker_imu
-    if R is None:
-        return axis
+    r = _unobservable(r, TRANSLATION, f"the body rotated about one axis only ({shown} in the "
+                      "marker frame): the lever arm along it is not determined")
+    q = r.value(ROTATION)
+    if q is None:
+        return r, axis
     cf = single_axis_rotation(s, delta, axis)
     if cf is None:
-        _unobservable(r, "rotation", "the body rotated about one axis only: R_MI about it is "
-                      "not determined")
-        return axis
+        return _unobservable(r, ROTATION, "the body rotated about one axis only: R_MI about it "
+                             "is not determined"), axis
     R_cf, contrast = cf
-    diff = float(np.degrees(np.linalg.norm(so3.log(R.T @ R_cf))))
-    sig = 0.0 if r.sigma_rotation is None else float(np.degrees(np.max(r.sigma_rotation)))
+    diff = float(np.degrees(np.linalg.norm(ROTATION.difference(ROTATION.state(q), R_cf))))
+    sg = r.sigma(ROTATION)
+    sig = 0.0 if sg is None else float(np.degrees(np.max(sg)))
     if contrast < CLEAR_RATIO or diff > 5 * sig + AGREE_DEG:
-        _unobservable(r, "rotation", f"the body rotated about one axis only ({shown} in the "
-                      "marker frame): R_MI about it rests on the accelerometer alone, which "
-                      f"does not pin it down (an independent fit differs by {diff:.1f} deg)")
-    return axis
+        r = _unobservable(r, ROTATION, f"the body rotated about one axis only ({shown} in the "
+                          "marker frame): R_MI about it rests on the accelerometer alone, which "
+                          f"does not pin it down (an independent fit differs by {diff:.1f} deg)")
+    return r, axis
 
 
 def single_axis_refusal(axis: Array, reasons: str) -> ObservabilityError:
@@ -160,27 +160,28 @@ def single_axis_refusal(axis: Array, reasons: str) -> ObservabilityError:
         "body about all axes, or pass an earlier calibration of this IMU with --prior")
 
 
-def mark_undetermined(r: CalibrationResult) -> None:
-    """Parameters whose reported sigma is beyond any use become unobservable; a session that
-    leaves ``R_MI``, ``p_MI`` and the clock offset all undetermined is refused. In place.
+def mark_undetermined(r: CalibrationResult) -> CalibrationResult:
+    """Parameters whose reported sigma is beyond any use (``Parameter.useful_sigma``) become
+    unobservable; a session that leaves ``R_MI``, ``p_MI`` and the clock offset all
+    undetermined is refused.
 
     Raises:
         ObservabilityError: nothing useful is determined.
     """
-    for name, limit in USEFUL_SIGMA.items():
-        value, sigma = _FIELDS[name]
-        sg = getattr(r, sigma)
-        if getattr(r, value) is None or sg is None:
+    for p in USEFUL_ORDER:
+        e = r.estimate(p)
+        if e.value is None or e.sigma is None:
             continue
-        worst = float(np.max(np.atleast_1d(sg)))
-        if worst > limit:
-            scale, unit = _UNITS[name]
-            _unobservable(r, name, f"not determined to any use by this motion (sigma "
-                          f"{scale * worst:.3g} {unit}, useful below {scale * limit:.3g} "
-                          f"{unit}); record faster motion about all axes")
-    if r.rotation_wxyz is None and r.translation is None and r.time_offset is None:
+        worst = float(np.max(np.atleast_1d(e.sigma)))
+        if worst > p.useful_sigma:
+            k, unit = p.printed.sigma_scale, p.printed.sigma_unit
+            r = _unobservable(r, p, f"not determined to any use by this motion (sigma "
+                              f"{k * worst:.3g} {unit}, useful below {k * p.useful_sigma:.3g} "
+                              f"{unit}); record faster motion about all axes")
+    if all(r.value(p) is None for p in COMPARED):
         raise ObservabilityError(
             "the motion determines none of R_MI, p_MI and the clock offset ("
             + "; ".join(f"{k}: {v}" for k, v in r.unobservable.items()
-                        if k in ("rotation", "translation", CLOCK_OFFSET.name))
+                        if k in {p.name for p in COMPARED})
             + "); record motion that rotates the body about all axes")
+    return r

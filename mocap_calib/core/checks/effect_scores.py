@@ -34,6 +34,7 @@ from mocap_calib.core.position.graph import (
     key_knot,
 )
 from mocap_calib.core.position.stage import PositionResult
+from mocap_calib.core.result.verdicts import EffectTest
 from mocap_calib.core.uncertainty.sensitivity import correlated_mocap_model
 
 Array = NDArray[np.float64]
@@ -48,9 +49,10 @@ ALPHA = 0.01
 MAX_TEST_WINDOWS = 240
 
 
-@dataclass
+@dataclass(frozen=True)
 class EffectScore:
-    """One candidate's test."""
+    """One candidate's test; ``failures``: the statistics that could not be computed (the
+    test then rests on the other one, or finds no evidence)."""
 
     effect: str
     statistic: float
@@ -59,16 +61,17 @@ class EffectScore:
     estimate: object  # the one-step estimate in the result file's form
     problem: str | None  # why it is implausible (None: plausible)
     significant: bool
+    failures: tuple[str, ...] = ()
 
     @property
     def shown(self) -> bool:
         return self.significant and self.problem is None
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"effect": self.effect, "statistic": round(self.statistic, 2), "dof": self.dof,
-                "log10_p": round(self.log10_p, 2), "one_step_estimate": self.estimate,
-                "significant": self.significant, "plausible": self.problem is None,
-                **({"implausible": self.problem} if self.problem else {})}
+    def record(self) -> EffectTest:
+        """The test as the result keeps it (figures rounded as the file shows them)."""
+        return EffectTest(self.effect, round(self.statistic, 2), self.dof,
+                          round(self.log10_p, 2), self.estimate, self.significant,
+                          self.problem)
 
 
 def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | None = None,
@@ -216,18 +219,19 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     s = rows[:, e] - rows[:, n_idx] @ A.T
     n_w, k = len(s), len(e)
     log10_ps = []
+    failures = []
     try:  # model-based: chi-square
         log10_ps.append(float(chi2_logsf(float(g @ np.linalg.solve(V_model, g)), k)))
-    except np.linalg.LinAlgError:
-        pass
+    except np.linalg.LinAlgError as err:
+        failures.append(f"the model-based statistic could not be computed ({err})")
     if n_w > k + 1:  # the windows' own spread: Hotelling's T^2 (few windows, F tails)
         S = np.cov(s, rowvar=False).reshape(k, k)
         try:
             t2 = float(g @ np.linalg.solve(n_w * S, g))  # n mean' S^-1 mean, g = n mean
             f = t2 * (n_w - k) / ((n_w - 1) * k)
             log10_ps.append(float(f_logsf(f, k, n_w - k)))
-        except np.linalg.LinAlgError:
-            pass
+        except np.linalg.LinAlgError as err:
+            failures.append(f"the windows' own statistic could not be computed ({err})")
     # The weaker evidence of the two counts.
     log10_p = max(log10_ps) / np.log(10.0) if log10_ps else 0.0
     T = float(chi2_isf(10.0**log10_p, k)) if log10_p > -300 else float("inf")
@@ -235,7 +239,7 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     value = eff.report_value(step[:eff.dim] if eff.acts_on == "clock" else step)
     problem = effect_problem(name, value, limits or PlausibleLimits())
     return EffectScore(name, float(T), k, float(log10_p), _plain(value), problem,
-                       bool(log10_p < np.log10(alpha)))
+                       bool(log10_p < np.log10(alpha)), tuple(failures))
 
 
 def _plain(value: object) -> object:

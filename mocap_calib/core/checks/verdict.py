@@ -29,17 +29,27 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.checks.degenerate import single_axis_refusal
 from mocap_calib.core.checks.plausibility import check_plausibility
+from mocap_calib.core.checks.reports import (
+    consistency_degraded,
+    consistency_report,
+    sensitivity_degraded,
+    sensitivity_report,
+)
 from mocap_calib.core.clock.search import ClockSearch
+from mocap_calib.core.model.parameters import Parameter
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.prepare.session import PreparedSession
-from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.calibration import UNCERTAINTY_ORDER, CalibrationResult
+from mocap_calib.core.result.estimate import Estimate, SigmaTerms
+from mocap_calib.core.result.sections import ClockSummary
 from mocap_calib.core.uncertainty.segments import (
     Consistency,
     segment_consistency,
@@ -55,20 +65,17 @@ from mocap_calib.errors import PlausibilityError
 
 Array = NDArray[np.float64]
 
-#: Result field of each sigma and the sensitivity's name for it.
-_SIGMAS = {"R_MI": "sigma_rotation", "p_MI": "sigma_translation", "t_d": "sigma_time_offset",
-           "gyro_bias": "sigma_gyro_bias", "accel_bias": "sigma_accel_bias",
-           "gravity": "sigma_gravity"}
 #: A move of the answer under the correlated mocap model beyond this many sigmas is named.
 MOCAP_MODEL_NOTE_SIGMA = 2.0
 
 
 def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionResult,
           opts: CalibrationOptions, clocks: list[ClockSearch | None],
-          say: Callable[[str], None], single_axis: Array | None = None) -> dict[str, float]:
-    """Fill ``r``'s clock, plausibility, consistency, sensitivity and uncertainty sections and
-    set its sigmas by the rule (in place). Returns the seconds the consistency and the
-    sensitivity steps took.
+          say: Callable[[str], None], single_axis: Array | None = None
+          ) -> tuple[CalibrationResult, dict[str, float]]:
+    """``r`` with its clock, plausibility, consistency, sensitivity and uncertainty sections
+    and its sigmas set by the rule; and the seconds the consistency and the sensitivity steps
+    took.
 
     Args:
         single_axis: the one rotation axis of degenerate motion (marker frame), if any: an
@@ -80,20 +87,18 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
     """
     clock = clocks[0] if len(clocks) == 1 else None
     if clock is not None:
-        r.clock = clock.to_dict()
-        if r.time_offset is not None:
-            r.clock["fine_time_offset"] = r.time_offset
-    r.plausibility = check_plausibility(r, opts.plausible,
-                                        None if clock is None else clock.time_offset)
-    if r.plausibility["failed"]:
-        reasons = "; ".join(r.plausibility["failed"])
+        r = replace(r, clock=ClockSummary.of(clock, r.time_offset))
+    plaus = check_plausibility(r, opts.plausible, None if clock is None else clock.time_offset)
+    r = replace(r, plausibility=plaus)
+    if plaus.failed:
+        reasons = "; ".join(plaus.failed)
         if not opts.accept_implausible and single_axis is not None:
             raise single_axis_refusal(single_axis, f"the fit: {reasons}")
         if not opts.accept_implausible:
             raise PlausibilityError(
                 f"implausible calibration: {reasons}; check the inputs' units, conventions and "
                 "clock, or pass --accept-implausible to write it marked as such")
-        r.notes.append(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
+        r = r.with_notes(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
     cons, takes, sens = Consistency(), Consistency(), Sensitivity()
     t0 = time.perf_counter()
     if opts.segments >= 2:
@@ -105,36 +110,36 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
     t1 = time.perf_counter()
     if opts.sensitivity:
         say("sensitivity: IMU noise densities x3 and x1/3, correlated mocap noise")
-        shown = tuple((r.effect_tests or {}).get("shown", ()))
+        shown = () if r.effect_tests is None else r.effect_tests.shown
         sens = noise_sensitivity(pos, opts.model, max_iterations=opts.max_iterations,
                                  priors=opts.priors, effects_shown=shown)
     t2 = time.perf_counter()
-    total = _apply_rule(r, cons, takes, sens)
-    r.consistency = cons.to_dict()
-    if takes.segments or takes.note:
-        r.consistency["takes"] = takes.to_dict()
-    r.sensitivity = sens.to_dict(total)
-    _notes(r, cons, takes, sens, total)
-    return {"consistency": round(t1 - t0, 3), "sensitivity": round(t2 - t1, 3)}
+    r = _apply_rule(r, cons, takes, sens)
+    total = {p: e.terms.total for p, e in r.estimates.items() if e.terms is not None}
+    r = replace(r, consistency=consistency_report(cons, takes),
+                sensitivity=sensitivity_report(sens, total))
+    r = r.with_notes(*_notes(r, cons, takes, sens))
+    r = r.with_degraded(*consistency_degraded(cons, "segment", opts.segments >= 2),
+                        *consistency_degraded(takes, "take", len(pos.takes) > 1),
+                        *sensitivity_degraded(sens))
+    return r, {"consistency": round(t1 - t0, 3), "sensitivity": round(t2 - t1, 3)}
 
 
 def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,
-                sens: Sensitivity) -> dict[str, Array]:
-    """The reported sigmas by the module's rule (in place); returns them, and lists every
-    term under ``r.uncertainty``."""
-    total: dict[str, Array] = {}
-    r.uncertainty = {}
+                sens: Sensitivity) -> CalibrationResult:
+    """``r`` with the reported sigmas by the module's rule, each with its terms."""
+    judged: dict[Parameter, Estimate] = {}
     imu = tuple(k for k in sens.shift if k not in (MOCAP_AR1, EFFECTS_SHOWN))
-    for param, attr in _SIGMAS.items():
-        v = getattr(r, attr)
-        if v is None:
+    for p in UNCERTAINTY_ORDER:
+        e = r.estimate(p)
+        if e.sigma is None:
             continue
-        stat = np.atleast_1d(np.asarray(v, dtype=float))
-        c = max(cons.factor(param), takes.factor(param))
-        d_imu = sens.systematic(param, imu)
-        d_moc = sens.systematic(param, (MOCAP_AR1,))
-        d_eff = sens.systematic(param, (EFFECTS_SHOWN,))
-        move = sens.largest_move(param)
+        stat = np.atleast_1d(np.asarray(e.sigma, dtype=float))
+        c = max(cons.factor(p), takes.factor(p))
+        d_imu = sens.systematic(p, imu)
+        d_moc = sens.systematic(p, (MOCAP_AR1,))
+        d_eff = sens.systematic(p, (EFFECTS_SHOWN,))
+        move = sens.largest_move(p)
         var = (c * stat) ** 2
         for d in (d_imu, d_moc, d_eff):
             if d is not None and d.shape == stat.shape:
@@ -142,50 +147,47 @@ def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,
         sig = np.sqrt(var)
         if move is not None and move.shape == sig.shape:
             sig = np.maximum(sig, move)
-        total[param] = sig
-        setattr(r, attr, float(sig[0]) if param == "t_d" else sig)
-        r.uncertainty[param] = {
-            "statistical": stat.tolist(), "consistency_factor": round(float(c), 3),
-            "imu_noise_shift": None if d_imu is None else d_imu.tolist(),
-            "mocap_model_shift": None if d_moc is None else d_moc.tolist(),
-            "effects_shown_shift": None if d_eff is None else d_eff.tolist(),
-            "largest_move": None if move is None else move.tolist(),
-            "total": sig.tolist()}
-    return total
+        terms = SigmaTerms(stat, round(float(c), 3), d_imu, d_moc, d_eff, move, sig)
+        judged[p] = replace(e, sigma=sig, terms=terms)
+    return r.with_estimates(judged)
 
 
-def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency, sens: Sensitivity,
-           total: dict[str, Array]) -> None:
+def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency,
+           sens: Sensitivity) -> list[str]:
+    """What the checks found that a reader should know, one line each."""
+    out = []
     for name, c in (("segments", cons), ("takes", takes)):
-        grown = {k: c.factor(k) for k in c.max_z if c.factor(k) > 1.0}
+        grown = {p: c.factor(p) for p in c.max_z if c.factor(p) > 1.0}
         if grown:
-            scaled = ", ".join(f"{k} x{v:.2f}" for k, v in grown.items())
-            r.notes.append(f"the {len(c.segments)} {name} disagree beyond their own sigmas "
-                           f"(largest pairwise z {max(c.max_z[k] for k in grown):.1f}): "
-                           f"statistical sigmas grown to cover them ({scaled})")
-    moved = {k: float(np.max(v / np.asarray(r.uncertainty[k]["statistical"])))
-             for k, v in sens.raw.get(MOCAP_AR1, {}).items() if k in r.uncertainty}
-    big = {k: v for k, v in moved.items() if v > MOCAP_MODEL_NOTE_SIGMA}
+            scaled = ", ".join(f"{p.symbol} x{v:.2f}" for p, v in grown.items())
+            out.append(f"the {len(c.segments)} {name} disagree beyond their own sigmas "
+                       f"(largest pairwise z {max(c.max_z[p] for p in grown):.1f}): "
+                       f"statistical sigmas grown to cover them ({scaled})")
+    stat = {p: e.terms.statistical for p, e in r.estimates.items() if e.terms is not None}
+    moved = {p: float(np.max(v / stat[p])) for p, v in sens.raw.get(MOCAP_AR1, {}).items()
+             if p in stat}
+    big = {p: v for p, v in moved.items() if v > MOCAP_MODEL_NOTE_SIGMA}
     if big:
         m = sens.mocap_model
-        r.notes.append(
+        out.append(
             f"a correlated mocap noise model (AR(1), {m.get('time_constant_s', 0):g} s, "
             f"fraction {m.get('fraction', 0):g}) moves "
-            + ", ".join(f"{k} by {v:.1f}" for k, v in big.items())
+            + ", ".join(f"{p.symbol} by {v:.1f}" for p, v in big.items())
             + " of its statistical sigma: the sigmas carry that move as model uncertainty")
     used = r.noise.accelerometer_noise_density
     if sens.accel_density and used and abs(np.log(sens.accel_density / used)) > np.log(2.0):
-        r.notes.append(
+        out.append(
             f"the accelerometer's noise is not the {used:.3g} m/s^2/sqrt(Hz) used: at this "
             f"solution the windows' likelihood is best at {sens.accel_density:.3g} "
             f"({sens.accel_density / used:.3g} x; in flight the rotors' vibration adds to the "
             "data sheet's); --accel-noise-from-data estimates it with the mocap's levels and "
             "uses it")
-    if EFFECTS_SHOWN in sens.raw:
-        r.notes.append("the sigmas carry how far the answer moves when the effects the data "
-                       "show are added to the model (" + ", ".join(r.effect_tests["shown"])
-                       + "): fit them with --model auto")
+    if EFFECTS_SHOWN in sens.raw and r.effect_tests is not None:
+        out.append("the sigmas carry how far the answer moves when the effects the data "
+                   "show are added to the model (" + ", ".join(r.effect_tests.shown)
+                   + "): fit them with --model auto")
     if sens.shift:
-        r.notes.append("sigmas include the shifts under other noise models (IMU densities x3 "
-                       "and x1/3, correlated mocap noise) beyond chance and cover their moves "
-                       "(the uncertainty section lists every term)")
+        out.append("sigmas include the shifts under other noise models (IMU densities x3 "
+                   "and x1/3, correlated mocap noise) beyond chance and cover their moves "
+                   "(the uncertainty section lists every term)")
+    return out

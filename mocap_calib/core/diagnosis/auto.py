@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import Any
 
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose
 from mocap_calib.core.diagnosis.report import DiagnoseReport
@@ -20,6 +19,7 @@ from mocap_calib.core.pipeline.calibrate import (
     calibrate_takes,
 )
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.verdicts import ModelSelection, SelectionStep
 from mocap_calib.errors import PlausibilityError
 
 
@@ -46,36 +46,37 @@ def calibrate_auto(recordings: list[Recording], options: CalibrationOptions,
         # The diagnosis' final calibration is this model's (it accepts implausible answers
         # to report them; the user's choice applies here).
         result = reports[0].final
-        if result.plausibility.get("failed") and not options.accept_implausible:
-            reasons = "; ".join(result.plausibility["failed"])
+        failed = () if result.plausibility is None else result.plausibility.failed
+        if failed and not options.accept_implausible:
+            reasons = "; ".join(failed)
             raise PlausibilityError(
                 f"implausible calibration: {reasons}; check the inputs' units, conventions and "
                 "clock, or pass --accept-implausible to write it marked as such")
-        result.notes = [n for n in result.notes if not n.startswith("IMPLAUSIBLE")]
+        result = replace(result, notes=tuple(n for n in result.notes
+                                             if not n.startswith("IMPLAUSIBLE")))
     else:
         result = calibrate_takes(recordings, replace(options, model=model), progress,
                                  on_iteration)
-    result.model_selection = _selection(reports, found)
     # The diagnosis' time, its final calibration's steps included once.
-    result.solver.setdefault("step_seconds", {})["model_selection"] = round(
-        time.perf_counter() - t0 - float(result.solver.get("total_seconds", 0.0)), 3)
-    return result
+    seconds = round(time.perf_counter() - t0 - float(result.solver.total_seconds or 0.0), 3)
+    return replace(result, model_selection=_selection(reports, found),
+                   solver=result.solver.with_steps(last={"model_selection": seconds}),
+                   degraded=(*result.degraded, *(x for r in reports for x in r.degraded)))
 
 
-def _selection(reports: list[DiagnoseReport], found: list[str]) -> dict[str, Any]:
-    """What the result file says of the choice: the tests of every step (the first take's,
-    and each take's found effects when several)."""
+def _selection(reports: list[DiagnoseReport], found: list[str]) -> ModelSelection:
+    """What the result says of the choice: the tests of every step (the first take's, and
+    each take's found effects when several)."""
     r = reports[0]
-    out: dict[str, Any] = {
-        "requested": "auto", "chosen": str(Model(tuple(found))),
-        "method": "model diagnosis (docs/diagnosis.md): at each step the candidate with the "
-                  "strongest evidence is added when significant (Bonferroni over the "
-                  "candidates) and plausible",
-        "threshold_log10_p": round(r.threshold_log10_p, 3),
-        "steps": [{"model": s.model, "added": s.added,
-                   "candidates": [{"effect": c.effect, "log10_p": round(c.log10_p, 2)}
-                                  for c in s.candidates[:4]]} for s in r.steps],
-        "implausible": list(r.implausible)}
-    if len(reports) > 1:
-        out["found_per_take"] = [list(x.found) for x in reports]
-    return out
+    return ModelSelection(
+        chosen=str(Model(tuple(found))),
+        method="model diagnosis (docs/diagnosis.md): at each step the candidate with the "
+               "strongest evidence is added when significant (Bonferroni over the "
+               "candidates) and plausible",
+        threshold_log10_p=round(r.threshold_log10_p, 3),
+        steps=tuple(SelectionStep(s.model, s.added, tuple((c.effect, round(c.log10_p, 2))
+                                                          for c in s.candidates[:4]))
+                    for s in r.steps),
+        implausible=tuple(r.implausible),
+        found_per_take=(tuple(tuple(x.found) for x in reports) if len(reports) > 1
+                        else None))

@@ -69,6 +69,7 @@ from mocap_calib.core.position.stage import (
     run_position_stage,
 )
 from mocap_calib.core.prepare.session import PreparedSession
+from mocap_calib.core.result.sections import Degradation
 from mocap_calib.core.result.state import ModelState
 from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
 from mocap_calib.errors import CalibrationError, InputError, Interrupted
@@ -167,6 +168,7 @@ class _Session:
     opts: DiagnoseOptions
     notes: list[str] = field(default_factory=list)
     coarse_deltas: list[float] | None = None
+    degraded: list[Degradation] = field(default_factory=list)
 
     @property
     def s(self) -> PreparedSession:
@@ -397,9 +399,10 @@ def _score_candidates(ds: _Session, model: Model, current: PositionResult, noise
         except Interrupted:
             raise
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
-            # A candidate that cannot be fitted (GTSAM raises RuntimeError on an
-            # indeterminate system) is not the answer.
+            # A candidate that cannot be fitted (GTSAM: RuntimeError) is not the answer.
             ds.notes.append(f"step {step}: {cand} could not be fitted ({err})")
+            ds.degraded.append(Degradation(f"diagnosis step {step}", f"{cand} could not be "
+                                           f"fitted ({err})", "it is no candidate of the step"))
             continue
         score = _test(ds, cand, f, current, threshold)
         f = f.with_covariance() if score.log10_p < threshold else f
@@ -494,4 +497,4 @@ def _finish(recordings: list[Recording], ds: _Session, model: Model,
         unexplained = {"why": why, **unexplained_signature(
             s_final, st, final_res.analysis, pos, opts.unexplained_ratio)}
     return DiagnoseReport([], str(opts.start_model), str(model), steps, final, final_res, 0.0,
-                          ds.notes, 0.0, [], unexplained)
+                          ds.notes, 0.0, [], unexplained, list(ds.degraded))

@@ -13,6 +13,7 @@ from mocap_calib.core.diagnosis.predict import ResidualAnalysis
 from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.sections import Degradation
 from mocap_calib.core.stages.figures import ResidualSeries
 
 Array = NDArray[np.float64]
@@ -166,6 +167,7 @@ class DiagnoseReport:
     seconds: float = 0.0
     implausible: list[dict[str, Any]] = field(default_factory=list)
     unexplained: dict[str, Any] | None = None
+    degraded: list[Degradation] = field(default_factory=list)
 
     @property
     def verdict(self) -> str:
@@ -187,6 +189,7 @@ class DiagnoseReport:
             "steps": [s.to_dict() for s in self.steps],
             "final_residuals": self.final_residuals.to_dict(),
             "final_calibration": self.final.to_dict(),
+            **({"degraded": [x.to_dict() for x in self.degraded]} if self.degraded else {}),
             "notes": list(self.notes),
             "seconds": round(self.seconds, 2),
         }
@@ -206,6 +209,7 @@ class DiagnoseReport:
                    Residuals.from_dict(d["final_residuals"]),
                    float(d["test"]["threshold_log10_p"]), list(d.get("notes") or []),
                    float(d.get("seconds", 0.0)), list(d.get("implausible") or []),
-                   d.get("unexplained"))
+                   d.get("unexplained"),
+                   [Degradation.from_dict(x) for x in d.get("degraded") or []])
 
 

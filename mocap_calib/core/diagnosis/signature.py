@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis, lowpass, predict_imu
 from mocap_calib.core.diagnosis.report import Residuals
-from mocap_calib.core.model.effects import CLOCK_OFFSET
+from mocap_calib.core.model.parameters import TIME_OFFSET
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.stage import PositionResult
 from mocap_calib.core.prepare.session import PreparedSession
@@ -99,14 +99,14 @@ def _clock_profile(s: PreparedSession, st: ModelState, pos: PositionResult,
                    k: int) -> dict[str, Any]:
     """The clock offset fitted per time segment (needs the offset in the model), with the
     slope of a straight line through them (ppm) and the largest jump between neighbours."""
-    if CLOCK_OFFSET.name not in pos.cov:
+    if TIME_OFFSET.name not in pos.cov:
         return {"note": "time_offset is not in the model"}
     cons = segment_consistency(pos, st.model, k)
     if not cons.segments:
         return {"note": cons.note}
     t = np.array([0.5 * (g.start_s + g.end_s) for g in cons.segments])
     td = np.array([g.est.t_d for g in cons.segments])
-    sig = np.array([g.est.sigma["t_d"][0] for g in cons.segments])
+    sig = np.array([g.est.sigma[TIME_OFFSET][0] for g in cons.segments])
     slope = float(np.polyfit(t, td, 1, w=1.0 / sig)[0]) if len(t) > 2 else 0.0
     jumps = np.abs(np.diff(td)) / np.hypot(sig[1:], sig[:-1])
     return {"t_s": [round(float(x), 2) for x in t], "t_d_ms": [round(1e3 * x, 4) for x in td],

@@ -117,7 +117,7 @@ class Effect:
             :mod:`mocap_calib.core.model.plausible`); overridable per session.
         range_sigma: the weak prior around the start value (parameter units) that keeps
             every graph well posed; a parameter whose posterior sigma is not well below it
-            was not determined by the data (:mod:`mocap_calib.core.model.ranges`).
+            was not determined by the data (:mod:`mocap_calib.core.model.parameters`).
         about_identity: a matrix term reported (and judged plausible) as ``M = I + E``, a
             scale-and-misalignment matrix near identity, rather than as ``E`` itself.
         sim: how the simulator draws its truth (every registered effect has one).
@@ -276,7 +276,8 @@ def of_term(sensor: Sensor, acts_on: ActsOn) -> Effect:
     return eff
 
 
-#: The clock offset t_d (its name is also the result file's key) and the world's |g|.
+#: The clock offset t_d (its name is also the result file's key, and its base-parameter record
+#: :data:`~mocap_calib.core.model.parameters.TIME_OFFSET` shares it) and the world's |g|.
 CLOCK_OFFSET: Effect = of_kind("clock")
 GRAVITY_MAGNITUDE: Effect = of_kind("gravity")
 

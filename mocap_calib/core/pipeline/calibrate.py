@@ -27,8 +27,16 @@ from mocap_calib.core.checks.degenerate import (
 )
 from mocap_calib.core.checks.effect_scores import ALPHA, effect_scores, windows_tested
 from mocap_calib.core.checks.verdict import judge
-from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, Model
+from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.core.model.parameters import (
+    ACCEL_BIAS,
+    GRAVITY_DIRECTION,
+    GYRO_BIAS,
+    ROTATION,
+    TIME_OFFSET,
+    TRANSLATION,
+    Parameter,
+)
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.first_fits import FirstFits, IterationFn, ProgressFn, first_fits
@@ -36,11 +44,24 @@ from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import PositionResult, effect_estimate, run_position_stage
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.calibration import CalibrationResult, Diagnostics
+from mocap_calib.core.result.estimate import Estimate
+from mocap_calib.core.result.sections import (
+    ClockSummary,
+    Degradation,
+    ImuGapsSummary,
+    SolverFigures,
+    TakeResult,
+    per_axis_figures,
+)
 from mocap_calib.core.result.state import CalibrationTrace, ModelState
+from mocap_calib.core.result.verdicts import EffectTests
 from mocap_calib.core.stages.figures import StageStats
 from mocap_calib.errors import CalibrationError, ConvergenceError, Interrupted
 
 Array = NDArray[np.float64]
+
+#: Most rounds of the position stage (settling rounds and the final solve).
+SETTLING_ROUNDS = 6
 
 __all__ = ["calibrate", "calibrate_takes", "Recording", "ProgressFn", "IterationFn"]
 
@@ -137,24 +158,23 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
     result = _package(pos, f.s, opts, [f.att.stats, f.vel.stats, pos.stats], notes,
                       f.session_info, diag, time.perf_counter() - t0)
     if f.s.imu_gaps is not None:
-        result.imu_gaps = f.s.imu_gaps.to_dict()
+        result = replace(result, imu_gaps=ImuGapsSummary.of(f.s.imu_gaps))
     if len(fits) > 1:
-        _with_takes(result, pos, fits, recordings)
+        result = _with_takes(result, pos, fits, recordings)
     t_pos = time.perf_counter()
     if opts.effect_tests:
-        _effect_tests(result, pos, opts, say)
+        result = _effect_tests(result, pos, opts, say)
     interrupt.check()
     t_eff = time.perf_counter()
-    axis = mark_single_axis(result, f.s, pos.delta)
-    steps = judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits], say,
-                  axis)
-    mark_undetermined(result)
+    result, axis = mark_single_axis(result, f.s, pos.delta)
+    result, steps = judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits],
+                          say, axis)
+    result = mark_undetermined(result)
     interrupt.check()
-    result.solver["step_seconds"] = {
+    solver = replace(result.solver, total_seconds=round(time.perf_counter() - t0, 3))
+    return replace(result, solver=solver.with_steps(last={
         "clock_and_stages_1_2": round(t_first - t0, 3), "position_stage": round(t_pos - t_first, 3),
-        "effect_tests": round(t_eff - t_pos, 3), **steps}
-    result.solver["total_seconds"] = round(time.perf_counter() - t0, 3)
-    return result
+        "effect_tests": round(t_eff - t_pos, 3), **steps}))
 
 
 def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: PositionInit,
@@ -165,6 +185,7 @@ def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: Positi
     try:
         return run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise,
                                   init, opts.priors, opts.robust, opts.max_iterations,
+                                  irls_rounds=SETTLING_ROUNDS,
                                   adapt_noise=opts.adapt_noise,
                                   identify_noise=opts.adapt_noise and opts.noise_from_data,
                                   on_iteration=on_iteration, progress=say)
@@ -176,63 +197,56 @@ def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: Positi
 
 
 def _effect_tests(r: CalibrationResult, pos: PositionResult, opts: CalibrationOptions,
-                  say: ProgressFn) -> None:
-    """Score tests of the effects the model lacks; those the data show are named (in place)."""
+                  say: ProgressFn) -> CalibrationResult:
+    """``r`` with the score tests of the effects the model lacks; those the data show are
+    named in a note."""
     total, tested = sum(t.windows.count for t in pos.takes), windows_tested(pos)
     say("effects the model lacks: score tests at the solution"
         + (f" ({tested} of {total} windows, spread over the session)" if tested < total
            else ""))
     scores = effect_scores(pos, opts.model, opts.plausible)
     if not scores:
-        return
+        return r
     shown = [s for s in scores if s.shown]
-    r.effect_tests = {"alpha": ALPHA, "candidates": [s.to_dict() for s in scores],
-                      "shown": [s.effect for s in shown],
-                      "windows": total, "windows_tested": tested}
-    if shown:
-        line = ("effects the data show (not in the model): "
-                + ", ".join(f"{s.effect} (log10 p {s.log10_p:.1f})" for s in shown)
-                + f"; --model auto adds them, or --model {opts.model}+{shown[0].effect}")
-        say(line)
-        r.notes.append(line)
+    r = replace(r, effect_tests=EffectTests(
+        ALPHA, tuple(s.record() for s in scores), tuple(s.effect for s in shown), total,
+        tested))
+    r = r.with_degraded(*(Degradation(f"effect test {s.effect}", why,
+                                      "its evidence rests on the other statistic, or on none "
+                                      "(log10 p 0)")
+                          for s in scores for why in s.failures))
+    if not shown:
+        return r
+    line = ("effects the data show (not in the model): "
+            + ", ".join(f"{s.effect} (log10 p {s.log10_p:.1f})" for s in shown)
+            + f"; --model auto adds them, or --model {opts.model}+{shown[0].effect}")
+    say(line)
+    return r.with_notes(line)
 
 
 def _with_takes(r: CalibrationResult, pos: PositionResult, fits: list[FirstFits],
-                recordings: list[Recording]) -> None:
-    """Several takes: each one's clock offset and biases under ``takes``; the top-level keys
-    of what they do not share are null (in place)."""
-    def sig(c: dict[str, Array], name: str) -> list[float] | None:
-        return None if name not in c else np.sqrt(np.maximum(np.diag(c[name]), 0)).tolist()
+                recordings: list[Recording]) -> CalibrationResult:
+    """Several takes: each one's clock offset and biases under ``takes``; the top-level
+    values of what they do not share are null."""
+    def sig(c: dict[str, Array], p: Parameter) -> Array | None:
+        return None if p.name not in c else np.sqrt(np.maximum(np.diag(c[p.name]), 0))
 
-    r.takes = []
+    takes = []
     for k, (tf, f, rec) in enumerate(zip(pos.takes, fits, recordings, strict=True)):
-        s_td = sig(tf.cov, "time_offset")
-        r.takes.append({
-            "imu": rec.imu_name or rec.imu.source, "mocap": rec.mocap_name or rec.mocap.source,
-            "time_offset": float(tf.delta - f.s.clock_shift),
-            "gyro_bias": tf.gyro_bias_mean.tolist(), "accel_bias": tf.accel_bias_mean.tolist(),
-            "sigma": {"time_offset": None if s_td is None else s_td[0],
-                      "gyro_bias": sig(tf.cov, "gyro_bias"),
-                      "accel_bias": sig(tf.cov, "accel_bias")},
-            "session": f.session_info,
-            **({"imu_gaps": f.s.imu_gaps.to_dict()} if f.s.imu_gaps is not None else {}),
-            **({"clock": f.clock.to_dict()} if f.clock is not None else {}),
-            "take": k + 1})
-    gaps = [t["imu_gaps"] for t in r.takes if "imu_gaps" in t]
-    if gaps:  # the takes' gaps together; each take's own list is under takes
-        r.imu_gaps = {key: (max if key == "longest_s" else sum)(g[key] for g in gaps)
-                      for key in ("count", "total_s", "longest_s", "bridged", "split",
-                                  "segments", "trimmed_samples", "trimmed_s")}
-        r.imu_gaps["total_s"] = round(r.imu_gaps["total_s"], 4)
-        r.imu_gaps["trimmed_s"] = round(r.imu_gaps["trimmed_s"], 4)
-        r.imu_gaps["takes"] = len(gaps)
-    r.gyro_bias = r.accel_bias = None
-    r.time_offset = None
-    r.sigma_gyro_bias = r.sigma_accel_bias = None
-    r.sigma_time_offset = None
-    r.notes.append(f"{len(fits)} takes calibrated together: T_marker_imu, gravity_in_mocap and "
-                   "the effects are shared; each take's clock offset and biases are listed "
-                   "under takes")
+        values = {TIME_OFFSET: np.array([float(tf.delta - f.s.clock_shift)]),
+                  GYRO_BIAS: tf.gyro_bias_mean, ACCEL_BIAS: tf.accel_bias_mean}
+        takes.append(TakeResult(
+            rec.imu_name or rec.imu.source, rec.mocap_name or rec.mocap.source,
+            {p: Estimate(v, sig(tf.cov, p)) for p, v in values.items()}, f.session_info,
+            None if f.s.imu_gaps is None else ImuGapsSummary.of(f.s.imu_gaps),
+            None if f.clock is None else ClockSummary.of(f.clock), k + 1))
+    gaps = [t.imu_gaps for t in takes if t.imu_gaps is not None]
+    own = {p: Estimate() for p in (TIME_OFFSET, GYRO_BIAS, ACCEL_BIAS)}
+    r = replace(r.with_estimates(own), takes=tuple(takes),
+                imu_gaps=ImuGapsSummary.total(gaps) if gaps else r.imu_gaps)
+    return r.with_notes(f"{len(fits)} takes calibrated together: T_marker_imu, gravity_in_mocap "
+                        "and the effects are shared; each take's clock offset and biases are "
+                        "listed under takes")
 
 
 def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
@@ -243,8 +257,6 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     sr, sp = pos.solver["mocap_noise_variance_scale"]
     att = np.degrees(pos.noise.mocap_rotation_sigma * np.sqrt(pos.axis_scale[0:3]))
     posn = 1e3 * pos.noise.mocap_position_sigma * np.sqrt(pos.axis_scale[3:6])
-    pos.solver["mocap_noise_per_axis"] = {"attitude_deg": [round(float(x), 4) for x in att],
-                                          "position_mm": [round(float(x), 4) for x in posn]}
     if max(abs(np.log(sr)), abs(np.log(sp)), *np.abs(np.log(pos.axis_scale))) > np.log(1.1):
         notes.append(
             "mocap noise estimated from the residuals: "
@@ -261,43 +273,39 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     if pos.chi2_per_dof > 1.2:
         notes.append(f"residuals exceed the noise model (chi2/dof = {pos.chi2_per_dof:.2f}); "
                      "the sigmas follow the residuals' own scatter (sandwich covariance)")
-
-    def sig(name: str) -> Array | None:
-        if name not in pos.cov:
-            return None
-        return np.sqrt(np.maximum(np.diag(pos.cov[name]), 0))
-
     unob = dict(pos.unobservable)
-
-    def val(name: str, v: Array) -> Array | None:
-        return None if name in unob else v
-
+    values = {GYRO_BIAS: pos.gyro_bias_mean, ACCEL_BIAS: pos.accel_bias_mean,
+              ROTATION: ROTATION.value_of(pos.R_MI), TRANSLATION: pos.p_MI,
+              GRAVITY_DIRECTION: pos.g_dir,
+              TIME_OFFSET: np.array([float(pos.delta - s.clock_shift)])}
+    estimates = {p: Estimate(None if p.name in unob else v,
+                             None if p.name not in pos.cov
+                             else np.sqrt(np.maximum(np.diag(pos.cov[p.name]), 0)))
+                 for p, v in values.items()}
     effects: dict[str, dict[str, Any]] = {}
     for name in model.effects:
         eff = EFFECTS[name]
-        if eff.acts_on == "clock":  # the clock offset has its own result key
+        if eff.acts_on == "clock":  # the clock offset is a base parameter (TIME_OFFSET)
             continue
         value, sigma = effect_estimate(pos, name, s.clock_shift)
         effects[name] = {eff.param: None if name in unob else value, "sigma": sigma}
         if eff.acts_on == "clock_rate" and name not in unob:
             effects[name]["ppm"] = 1e6 * float(value)
-    t_d = pos.delta - s.clock_shift
-    sig_td = sig("time_offset")
-    solver = {"total_seconds": round(seconds, 3),
-              "position_chi2_per_dof": round(pos.chi2_per_dof, 4), **pos.solver}
-    return CalibrationResult(
-        gyro_bias=val("gyro_bias", pos.gyro_bias_mean),
-        accel_bias=val("accel_bias", pos.accel_bias_mean),
-        rotation_wxyz=val("rotation", so3.rotmat_to_quat(pos.R_MI)),
-        translation=val("translation", pos.p_MI),
-        gravity_in_mocap=val("gravity", pos.g_dir),
-        time_offset=None if CLOCK_OFFSET.name in unob else float(t_d),
-        sigma_gyro_bias=sig("gyro_bias"), sigma_accel_bias=sig("accel_bias"),
-        sigma_rotation=sig("rotation"), sigma_translation=sig("translation"),
-        sigma_gravity=sig("gravity"),
-        sigma_time_offset=None if sig_td is None else float(sig_td[0]),
-        gravity_magnitude=float(pos.g_mag), model=str(model), effects=effects,
-        unobservable=unob, stages=stages, solver=solver,
-        noise=pos.noise, notes=notes, session=session_info, diagnostics=diag)
+    solver = SolverFigures(round(seconds, 3), round(pos.chi2_per_dof, 4), dict(pos.solver),
+                           per_axis_figures(att, posn))
+    result = CalibrationResult(
+        estimates=estimates, gravity_magnitude=float(pos.g_mag), model=str(model),
+        effects=effects, unobservable=unob, stages=tuple(stages), solver=solver,
+        noise=pos.noise, notes=tuple(notes), session=session_info, diagnostics=diag)
+    return result.with_degraded(*_settling(pos))
 
 
+def _settling(pos: PositionResult) -> list[Degradation]:
+    """The position stage's settling rounds cut off by their cap."""
+    if pos.solver.get("position_rounds", 0) < SETTLING_ROUNDS:
+        return []
+    return [Degradation(
+        "position stage", f"the rounds that settle the mocap noise levels and robust weights "
+        f"reached their cap ({SETTLING_ROUNDS}) before the levels stopped moving, or just as "
+        "they did", "the answer and its sigmas are at the last levels and weights; the "
+        "sensitivity to the noise model covers what a further round could move")]

@@ -22,15 +22,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.graph import information_matrix, marginals, spd_factor
-from mocap_calib.core.model.ranges import RANGE_SIGMA, UNOBSERVABLE_RATIO
+from mocap_calib.core.model.parameters import (
+    ACCEL_BIAS,
+    GYRO_BIAS,
+    RANGE_SIGMA,
+    TIME_OFFSET,
+    UNOBSERVABLE_RATIO,
+)
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.graph import key_knot, key_time
 from mocap_calib.core.position.windows import Windows
 
 Array = NDArray[np.float64]
 
-#: Per-take blocks: the clock offset and the session-mean biases.
-TAKE_BLOCKS = ("time_offset", "gyro_bias", "accel_bias")
 #: Fewest blocks of the sandwich: with fewer windows (a short session) the windows' one-second
 #: sub-blocks are the blocks instead, or the meat would rest on a handful of outer products.
 MIN_BLOCKS = 10
@@ -131,9 +135,9 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
         for key, Ck in combos[k].items():
             C[offsets[key]:offsets[key] + 6] = Ck.T
         bias_cov = C.T @ lu.solve(C) + np.diag(_bridge(win, noise))
-        own = {"gyro_bias": bias_cov[0:3, 0:3], "accel_bias": bias_cov[3:6, 3:6]}
+        own = {GYRO_BIAS.name: bias_cov[0:3, 0:3], ACCEL_BIAS.name: bias_cov[3:6, 3:6]}
         if inp.timed:
-            own["time_offset"] = np.asarray(marg.marginalCovariance(key_time(k)))
+            own[TIME_OFFSET.name] = np.asarray(marg.marginalCovariance(key_time(k)))
         knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(k0 + w))))
                                for w in range(win.count)])
         mean = np.kron(mean_bias_weights(win)[None, :], np.eye(6)) @ inp.knots[k].reshape(-1)
@@ -177,11 +181,11 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
     for k, tu in enumerate(unc.takes):
         r = {}
         if inp.timed:
-            r["time_offset"] = meat[o:o + 1, o:o + 1]
+            r[TIME_OFFSET.name] = meat[o:o + 1, o:o + 1]
             o += 1
         bridge = _bridge(inp.windows[k], noise)
-        r["gyro_bias"] = meat[o:o + 3, o:o + 3] + np.diag(bridge[0:3])
-        r["accel_bias"] = meat[o + 3:o + 6, o + 3:o + 6] + np.diag(bridge[3:6])
+        r[GYRO_BIAS.name] = meat[o:o + 3, o:o + 3] + np.diag(bridge[0:3])
+        r[ACCEL_BIAS.name] = meat[o + 3:o + 6, o + 3:o + 6] + np.diag(bridge[3:6])
         o += 6
         tu.cov, ratio = _larger(tu.cov, r)
         if k == 0:
@@ -217,7 +221,7 @@ def _score_rows(inp: CovarianceInputs, offsets: dict[int, int], Z: Array,
     one of its one-second parts."""
     rows = []
     for k, (sc, k0) in enumerate(zip(inp.scores or [], inp.knot0, strict=True)):
-        keys = {**inp.shared_keys, **({"time_offset": key_time(k)} if inp.timed else {})}
+        keys = {**inp.shared_keys, **({TIME_OFFSET.name: key_time(k)} if inp.timed else {})}
         glob = np.concatenate([offsets[keys[name]] + np.arange(d) for name, d in inp.blocks])
         for w in range(sc.shape[0]):
             idx = np.concatenate([glob, offsets[key_knot(k0 + w)] + np.arange(6)])

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.graph import BatchFactors, BatchOutput
 from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, GRAVITY_MAGNITUDE, Model
-from mocap_calib.core.model.ranges import RANGE_SIGMA
+from mocap_calib.core.model.parameters import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta, Windows, compress
 from mocap_calib.core.prepare.session import PreparedSession

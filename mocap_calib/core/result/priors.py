@@ -11,12 +11,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS
+from mocap_calib.core.model.parameters import PARAMETERS, PER_TAKE
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.trend import extrapolate_trend
 from mocap_calib.core.position.stage import Prior
@@ -26,19 +25,18 @@ from mocap_calib.errors import InputError
 Array = NDArray[np.float64]
 
 
+#: The rig's parameters first, then each session's own (the order of the priors).
+RIG_FIRST = (*(p for p in PARAMETERS.values() if not p.per_take), *PER_TAKE)
+
+
 def _blocks(r: CalibrationResult) -> dict[str, tuple[object, Array]]:
     """Value (natural form) and sigma (tangent) of every block the result determined."""
     out: dict[str, tuple[object, Array]] = {}
-    pairs = (("rotation", r.R_marker_imu, r.sigma_rotation),
-             ("translation", r.translation, r.sigma_translation),
-             ("gravity", r.gravity_in_mocap, r.sigma_gravity),
-             ("gyro_bias", r.gyro_bias, r.sigma_gyro_bias),
-             ("accel_bias", r.accel_bias, r.sigma_accel_bias))
-    for name, v, s in pairs:
-        if v is not None and s is not None:
-            out[name] = (np.asarray(v, dtype=float), np.asarray(s, dtype=float))
-    if r.time_offset is not None and r.sigma_time_offset is not None and r.sigma_time_offset > 0:
-        out["time_offset"] = (np.array([r.time_offset]), np.array([r.sigma_time_offset]))
+    for p in RIG_FIRST:
+        v, sg = r.value(p), r.sigma(p)
+        if v is None or sg is None or (p.scalar and not float(sg[0]) > 0):
+            continue
+        out[p.name] = (np.asarray(p.state(v), dtype=float), np.asarray(sg, dtype=float))
     for name, rec in r.effects.items():
         eff = EFFECTS.get(name)
         if eff is None or eff.acts_on in ("clock",) or rec.get("sigma") is None:
@@ -54,20 +52,15 @@ def _blocks(r: CalibrationResult) -> dict[str, tuple[object, Array]]:
 
 
 def to_chart(name: str, value: object, ref: object) -> Array:
-    if name == "rotation":
-        return so3.log(np.asarray(ref).T @ np.asarray(value))
-    if name == "gravity":
-        u = gtsam.Unit3(np.asarray(ref, dtype=float))
-        return np.asarray(u.localCoordinates(gtsam.Unit3(np.asarray(value, dtype=float))))
-    return np.asarray(value, dtype=float).ravel()
+    """A block's value in the chart around ``ref`` (:meth:`Parameter.chart`; an effect's
+    parameters are a plain vector)."""
+    p = PARAMETERS.get(name)
+    return np.asarray(value, dtype=float).ravel() if p is None else p.chart(ref, value)
 
 
 def _from_chart(name: str, x: Array, ref: object) -> object:
-    if name == "rotation":
-        return np.asarray(ref) @ so3.exp(x)
-    if name == "gravity":
-        return gtsam.Unit3(np.asarray(ref, dtype=float)).retract(x).point3()
-    return x
+    p = PARAMETERS.get(name)
+    return x if p is None else p.from_chart(ref, x)
 
 
 def _numbers(value: object) -> Array | None:
@@ -160,7 +153,7 @@ def prior_problems(r: CalibrationResult, limits: PlausibleLimits) -> list[str]:
 
 
 #: Blocks that change from one power-up or recording to the next: no prior by default.
-SESSION_SPECIFIC = ("gyro_bias", "accel_bias", "time_offset")
+SESSION_SPECIFIC = tuple(p.name for p in PER_TAKE)
 
 
 def priors_from_results(results: Sequence[CalibrationResult], at_ns: int | None = None,

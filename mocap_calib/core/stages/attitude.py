@@ -27,8 +27,8 @@ from mocap_calib.core.graph import (
     run_lm,
 )
 from mocap_calib.core.model import so3
+from mocap_calib.core.model.parameters import RANGE_SIGMA
 from mocap_calib.core.model.preint import hermite, preintegrate_spans
-from mocap_calib.core.model.ranges import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.prepare.session import PreparedSession, local_derivative
 from mocap_calib.core.stages.figures import ResidualSeries, StageStats

@@ -10,8 +10,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CLOCK_OFFSET, Model
+from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.parameters import (
+    COMPARED,
+    ROTATION,
+    TIME_OFFSET,
+    TRANSLATION,
+    Parameter,
+)
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import Theta
 from mocap_calib.core.position.graph import PositionInit, Prior, Take, TakeStart
@@ -19,10 +25,6 @@ from mocap_calib.core.position.stage import PositionResult, run_position_stage
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-
-#: Parameters compared between segments, takes and noise models.
-COMPARED = ("R_MI", "p_MI", "t_d")
-
 
 def init_from(pos: PositionResult, which: list[IntArray]) -> PositionInit:
     """The solution as a start, for the windows ``which`` of every take (empty: the take is
@@ -53,45 +55,45 @@ def everything(pos: PositionResult) -> list[IntArray]:
     return [np.arange(t.windows.count) for t in pos.takes]
 
 
-@dataclass
-class Estimate:
-    """One refit's answer (``t_d``: the first take's, relative to its raw stamps) and 1-sigma."""
+@dataclass(frozen=True)
+class FitAnswer:
+    """One refit's answer for the compared parameters (``t_d``: the first take's, relative to
+    its raw stamps; None when not estimated) and their 1-sigma."""
 
     R_MI: Array
     p_MI: Array
     t_d: float | None
-    sigma: dict[str, Array]
+    sigma: dict[Parameter, Array]
 
     @classmethod
-    def of(cls, fit: PositionResult, timed: bool) -> Estimate:
-        sig = {"R_MI": np.sqrt(np.diag(fit.cov["rotation"])),
-               "p_MI": np.sqrt(np.diag(fit.cov["translation"]))}
+    def of(cls, fit: PositionResult, timed: bool) -> FitAnswer:
+        sig = sigmas(fit)
         t_d = None
-        if timed and CLOCK_OFFSET.name in fit.cov:
-            sig["t_d"] = np.sqrt(np.diag(fit.cov[CLOCK_OFFSET.name]))
+        if not timed:
+            sig.pop(TIME_OFFSET, None)
+        elif TIME_OFFSET in sig:
             t_d = float(fit.takes[0].delta - fit.takes[0].s.clock_shift)
         return cls(fit.R_MI, fit.p_MI, t_d, sig)
 
 
-def z_pair(a: Estimate | Theta | PositionResult, b: Estimate | Theta | PositionResult,
-           sa: dict[str, Array], sb: dict[str, Array] | None) -> dict[str, float]:
-    """Largest per-axis |a - b| / sigma (combined when ``sb`` is given)."""
-    def comb(k: str) -> Array:
-        return sa[k] if sb is None else np.hypot(sa[k], sb[k])
+def z_pair(a: FitAnswer | Theta | PositionResult, b: FitAnswer | Theta | PositionResult,
+           sa: dict[Parameter, Array], sb: dict[Parameter, Array] | None
+           ) -> dict[Parameter, float]:
+    """Per compared parameter, the largest per-axis |a - b| / sigma (combined when ``sb`` is
+    given)."""
+    def comb(p: Parameter) -> Array:
+        return sa[p] if sb is None else np.hypot(sa[p], sb[p])
 
-    out = {"R_MI": float(np.max(np.abs(so3.log(a.R_MI.T @ b.R_MI)) / comb("R_MI"))),
-           "p_MI": float(np.max(np.abs(a.p_MI - b.p_MI) / comb("p_MI")))}
-    if sa.get("t_d") is not None and (sb is None or sb.get("t_d") is not None):
-        ta = a.t_d if isinstance(a, Estimate) else a.delta
-        tb = b.t_d if isinstance(b, Estimate) else b.delta
+    out = {ROTATION: float(np.max(np.abs(ROTATION.difference(a.R_MI, b.R_MI)) / comb(ROTATION))),
+           TRANSLATION: float(np.max(np.abs(a.p_MI - b.p_MI) / comb(TRANSLATION)))}
+    if sa.get(TIME_OFFSET) is not None and (sb is None or sb.get(TIME_OFFSET) is not None):
+        ta = a.t_d if isinstance(a, FitAnswer) else a.delta
+        tb = b.t_d if isinstance(b, FitAnswer) else b.delta
         if ta is not None and tb is not None:
-            out["t_d"] = float(abs(ta - tb) / comb("t_d")[0])
+            out[TIME_OFFSET] = float(abs(ta - tb) / comb(TIME_OFFSET)[0])
     return out
 
 
-def sigmas(pos: PositionResult) -> dict[str, Array]:
-    d = {"R_MI": np.sqrt(np.diag(pos.cov["rotation"])),
-         "p_MI": np.sqrt(np.diag(pos.cov["translation"]))}
-    if CLOCK_OFFSET.name in pos.cov:
-        d["t_d"] = np.sqrt(np.diag(pos.cov[CLOCK_OFFSET.name]))
-    return d
+def sigmas(pos: PositionResult) -> dict[Parameter, Array]:
+    """The statistical 1-sigma of the compared parameters the fit estimated."""
+    return {p: np.sqrt(np.diag(pos.cov[p.name])) for p in COMPARED if p.name in pos.cov}

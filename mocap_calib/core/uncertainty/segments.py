@@ -9,17 +9,16 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.parameters import ROTATION, TIME_OFFSET, TRANSLATION, Parameter
 from mocap_calib.core.model.stats import chi2_sf
 from mocap_calib.core.position.stage import PositionResult
-from mocap_calib.core.uncertainty.refit import Estimate, refit, z_pair
+from mocap_calib.core.uncertainty.refit import FitAnswer, refit, z_pair
 from mocap_calib.errors import CalibrationError, Interrupted
 
 Array = NDArray[np.float64]
@@ -29,7 +28,7 @@ IntArray = NDArray[np.int64]
 MAX_PAIR_Z = 3.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class SegmentEstimate:
     """One segment's answer (``t_d`` relative to the raw stamps, of a single take) with its
     1-sigma; ``start_s`` on the clock of ``take``, ``end_s`` on that of ``end_take`` (takes
@@ -37,60 +36,40 @@ class SegmentEstimate:
 
     start_s: float
     end_s: float
-    est: Estimate
+    est: FitAnswer
     take: int | None = None
     end_take: int | None = None
 
-    def to_dict(self) -> dict[str, Any]:
-        e = self.est
-        return {**({"take": self.take} if self.take is not None else {}),
-                **({"end_take": self.end_take} if self.end_take not in (None, self.take)
-                   else {}),
-                "start_s": round(self.start_s, 3), "end_s": round(self.end_s, 3),
-                "rotation_wxyz": so3.rotmat_to_quat(e.R_MI).tolist(),
-                "translation": e.p_MI.tolist(), "time_offset": e.t_d,
-                "sigma": {"rotation": e.sigma["R_MI"].tolist(),
-                          "translation": e.sigma["p_MI"].tolist(),
-                          "time_offset": (None if "t_d" not in e.sigma
-                                          else float(e.sigma["t_d"][0]))}}
 
-
-@dataclass
+@dataclass(frozen=True)
 class Consistency:
-    """Segments, their largest pairwise |difference| / combined sigma per parameter, and the
-    Birge ratio of each parameter (``sqrt(chi2 / dof)`` of the segments about their weighted
-    mean; about 1 when they scatter as their sigmas say)."""
+    """Segments, their largest pairwise |difference| / combined sigma per compared parameter,
+    and the Birge ratio of each (``sqrt(chi2 / dof)`` of the segments about their weighted
+    mean; about 1 when they scatter as their sigmas say); ``note``: why there are none (a
+    segment too short, or one that could not be calibrated on its own)."""
 
-    segments: list[SegmentEstimate] = field(default_factory=list)
-    max_z: dict[str, float] = field(default_factory=dict)
-    birge: dict[str, float] = field(default_factory=dict)
+    segments: tuple[SegmentEstimate, ...] = ()
+    max_z: dict[Parameter, float] = field(default_factory=dict)
+    birge: dict[Parameter, float] = field(default_factory=dict)
     note: str = ""
 
-    def failed(self, param: str) -> bool:
-        """The check fails for ``param``: two segments disagree beyond MAX_PAIR_Z."""
-        return self.max_z.get(param, 0.0) > MAX_PAIR_Z
+    def failed(self, p: Parameter) -> bool:
+        """The check fails for ``p``: two segments disagree beyond MAX_PAIR_Z."""
+        return self.max_z.get(p, 0.0) > MAX_PAIR_Z
 
-    def factor(self, param: str) -> float:
-        """How much the full session's statistical sigma of ``param`` must grow to cover the
+    def factor(self, p: Parameter) -> float:
+        """How much the full session's statistical sigma of ``p`` must grow to cover the
         segments: where the check fails, the larger of the Birge ratio and max_z / 3 (the
         segments' own sigmas grown as much then agree within 3); else 1."""
-        if not self.failed(param):
+        if not self.failed(p):
             return 1.0
-        return max(self.birge.get(param, 1.0), self.max_z[param] / MAX_PAIR_Z)
+        return max(self.birge.get(p, 1.0), self.max_z[p] / MAX_PAIR_Z)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"segments": [s.to_dict() for s in self.segments],
-                "max_pairwise_z": {k: round(v, 3) for k, v in self.max_z.items()},
-                "birge_ratio": {k: round(v, 3) for k, v in self.birge.items()},
-                "sigma_factor": {k: round(self.factor(k), 3) for k in self.max_z},
-                "chi2_p_value": {k: round(self.p_value(k), 4) for k in self.birge},
-                **({"note": self.note} if self.note else {})}
-
-    def p_value(self, param: str) -> float:
-        r = self.birge.get(param)
+    def p_value(self, p: Parameter) -> float:
+        r = self.birge.get(p)
         if r is None or len(self.segments) < 2:
             return 1.0
-        dof = (len(self.segments) - 1) * {"R_MI": 3, "p_MI": 3, "t_d": 1}[param]
+        dof = (len(self.segments) - 1) * p.dim
         return float(chi2_sf(r * r * dof, dof))
 
 
@@ -130,7 +109,7 @@ def take_consistency(pos: PositionResult, model: Model,
 
 def _compare(pos: PositionResult, model: Model, parts: list[list[IntArray]],
              max_iterations: int, by_take: bool, one_step: bool = True) -> Consistency:
-    out = Consistency()
+    segments: list[SegmentEstimate] = []
     single = len(pos.takes) == 1  # takes have clocks of their own: t_d is not compared
     what = "take" if by_take else "segment"
     for i, which in enumerate(parts):
@@ -147,34 +126,33 @@ def _compare(pos: PositionResult, model: Model, parts: list[list[IntArray]],
         takes = [j for j, w in enumerate(which) if len(w)]
         t0 = pos.takes[takes[0]]
         w0, w1 = which[takes[0]][0], which[takes[-1]][-1]
-        est = Estimate.of(fit, single)
-        out.segments.append(SegmentEstimate(
+        est = FitAnswer.of(fit, single)
+        segments.append(SegmentEstimate(
             float(t0.windows.start[w0] - t0.s.tau[0]),
             float(pos.takes[takes[-1]].windows.end[w1] - pos.takes[takes[-1]].s.tau[0]),
             est, *((takes[0] + 1, takes[-1] + 1) if (by_take or len(pos.takes) > 1)
                    else (None, None))))
-    out.birge = _birge(out.segments)
-    for a, b in itertools.combinations(out.segments, 2):
-        for name, v in z_pair(a.est, b.est, a.est.sigma, b.est.sigma).items():
-            out.max_z[name] = max(out.max_z.get(name, 0.0), v)
-    return out
+    max_z: dict[Parameter, float] = {}
+    for a, b in itertools.combinations(segments, 2):
+        for p, v in z_pair(a.est, b.est, a.est.sigma, b.est.sigma).items():
+            max_z[p] = max(max_z.get(p, 0.0), v)
+    return Consistency(tuple(segments), max_z, _birge(segments))
 
 
-def _birge(segs: list[SegmentEstimate]) -> dict[str, float]:
+def _birge(segs: list[SegmentEstimate]) -> dict[Parameter, float]:
     """``sqrt(chi2 / dof)`` of the segments about their inverse-variance weighted mean."""
     out = {}
     R0 = segs[0].est.R_MI
-    vals = {"R_MI": [so3.log(R0.T @ s.est.R_MI) for s in segs],
-            "p_MI": [s.est.p_MI for s in segs]}
-    sig = {"R_MI": [s.est.sigma["R_MI"] for s in segs],
-           "p_MI": [s.est.sigma["p_MI"] for s in segs]}
+    vals = {ROTATION: [ROTATION.difference(R0, s.est.R_MI) for s in segs],
+            TRANSLATION: [s.est.p_MI for s in segs]}
+    sig = {p: [s.est.sigma[p] for s in segs] for p in vals}
     if all(s.est.t_d is not None for s in segs):
-        vals["t_d"] = [np.array([s.est.t_d]) for s in segs]
-        sig["t_d"] = [s.est.sigma["t_d"] for s in segs]
-    for name in vals:
-        x, sg = np.array(vals[name]), np.array(sig[name])
+        vals[TIME_OFFSET] = [np.array([s.est.t_d]) for s in segs]
+        sig[TIME_OFFSET] = [s.est.sigma[TIME_OFFSET] for s in segs]
+    for p in vals:
+        x, sg = np.array(vals[p]), np.array(sig[p])
         w = 1.0 / sg**2
         mean = (w * x).sum(axis=0) / w.sum(axis=0)
         chi2 = float((w * (x - mean) ** 2).sum())
-        out[name] = float(np.sqrt(chi2 / ((len(segs) - 1) * x.shape[1])))
+        out[p] = float(np.sqrt(chi2 / ((len(segs) - 1) * x.shape[1])))
     return out

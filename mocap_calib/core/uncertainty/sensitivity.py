@@ -28,8 +28,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.model import so3
-from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, Model
+from mocap_calib.core.model.effects import EFFECTS, Model
+from mocap_calib.core.model.parameters import (
+    ACCEL_BIAS,
+    GRAVITY_DIRECTION,
+    GYRO_BIAS,
+    ROTATION,
+    TIME_OFFSET,
+    TRANSLATION,
+    Parameter,
+)
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import Prior
@@ -57,11 +65,6 @@ MOCAP_AR1 = "mocap_ar1"
 #: The key of the model with the effects the data show (the effect tests) among them.
 EFFECTS_SHOWN = "effects_shown"
 
-#: Result parameter -> covariance block of the position stage.
-_BLOCKS = {"R_MI": "rotation", "p_MI": "translation", "t_d": "time_offset",
-           "gyro_bias": "gyro_bias", "accel_bias": "accel_bias", "gravity": "gravity"}
-
-
 @dataclass
 class Sensitivity:
     """How far the answer moves under other noise models.
@@ -70,47 +73,41 @@ class Sensitivity:
         shift: alternative -> parameter -> |change| per component beyond what the reweighting
             explains by chance (parameter units; rotation and gravity in rad).
         raw: alternative -> parameter -> |change|.
-        moved: alternative -> parameter -> largest |change| / the statistical sigma.
+        moved: alternative -> compared parameter -> largest |change| / the statistical sigma.
         mocap_model: the correlated mocap model fitted (time constant, fraction, likelihood
             gain over white noise) when one was.
         accel_density: the accelerometer noise density the windows' likelihood prefers at the
             solution (m/s^2/sqrt(Hz); ``--accel-noise-from-data`` would use it), 0 if not
             computed.
+        failed: alternative -> why its refit failed (the alternative is then left out).
     """
 
-    shift: dict[str, dict[str, Array]] = field(default_factory=dict)
-    raw: dict[str, dict[str, Array]] = field(default_factory=dict)
-    moved: dict[str, dict[str, float]] = field(default_factory=dict)
+    shift: dict[str, dict[Parameter, Array]] = field(default_factory=dict)
+    raw: dict[str, dict[Parameter, Array]] = field(default_factory=dict)
+    moved: dict[str, dict[Parameter, float]] = field(default_factory=dict)
     mocap_model: dict[str, float] = field(default_factory=dict)
     accel_density: float = 0.0
-    note: str = ""
+    failed: dict[str, str] = field(default_factory=dict)
 
-    def systematic(self, param: str, which: tuple[str, ...] | None = None) -> Array | None:
+    @property
+    def note(self) -> str:
+        """The last failed alternative, as the result file's ``note`` names it."""
+        if not self.failed:
+            return ""
+        key, why = list(self.failed.items())[-1]
+        return f"{key}: refit failed ({why})"
+
+    def systematic(self, p: Parameter, which: tuple[str, ...] | None = None) -> Array | None:
         """Per component, the largest shift beyond chance over the alternatives (``which``:
         only those), or None when not computed."""
-        shifts = [d[param] for k, d in self.shift.items()
-                  if param in d and (which is None or k in which)]
+        shifts = [d[p] for k, d in self.shift.items()
+                  if p in d and (which is None or k in which)]
         return np.max(np.stack(shifts), axis=0) if shifts else None
 
-    def largest_move(self, param: str) -> Array | None:
+    def largest_move(self, p: Parameter) -> Array | None:
         """Per component, the largest plain |change| over the alternatives."""
-        moves = [d[param] for d in self.raw.values() if param in d]
+        moves = [d[p] for d in self.raw.values() if p in d]
         return np.max(np.stack(moves), axis=0) if moves else None
-
-    def to_dict(self, total_sigma: dict[str, Array] | None = None) -> dict[str, Any]:
-        d: dict[str, Any] = {"moved_statistical_sigmas": {
-            f: {k: round(v, 3) for k, v in m.items()} for f, m in self.moved.items()}}
-        if total_sigma:
-            d["moved_sigmas"] = {
-                f: {k: round(float(np.max(v / total_sigma[k])), 3) for k, v in sh.items()
-                    if k in total_sigma} for f, sh in self.raw.items()}
-        if self.mocap_model:
-            d["mocap_noise_model"] = {k: round(v, 4) for k, v in self.mocap_model.items()}
-        if self.accel_density:
-            d["accel_noise_density_from_data"] = float(f"{self.accel_density:.4g}")
-        if self.note:
-            d["note"] = self.note
-        return d
 
 
 def gyro_frame(pos: PositionResult) -> Array:
@@ -128,25 +125,25 @@ def gyro_frame(pos: PositionResult) -> Array:
 
 
 def _shifts(alt: PositionResult, pos: PositionResult
-            ) -> tuple[dict[str, Array], dict[str, Array]]:
+            ) -> tuple[dict[Parameter, Array], dict[Parameter, Array]]:
     """Per parameter and component, the part of |alt - pos| that the reweighting itself does
     not explain, and the plain |alt - pos|. Two estimates from the same data under different
     weights differ by chance with variance about |var_alt - var| (Hausman); only the excess is a
     systematic shift."""
     R_alt = alt.R_MI @ gyro_frame(alt).T @ gyro_frame(pos)
-    raw = {"R_MI": so3.log(pos.R_MI.T @ R_alt), "p_MI": alt.p_MI - pos.p_MI,
-           "gyro_bias": alt.gyro_bias_mean - pos.gyro_bias_mean,
-           "accel_bias": alt.accel_bias_mean - pos.accel_bias_mean,
-           "gravity": np.asarray(gtsam.Unit3(pos.g_dir).localCoordinates(gtsam.Unit3(alt.g_dir)))}
-    if CLOCK_OFFSET.name in pos.cov:
-        raw["t_d"] = np.array([alt.delta - pos.delta])
+    raw = {ROTATION: ROTATION.difference(pos.R_MI, R_alt),
+           TRANSLATION: TRANSLATION.difference(pos.p_MI, alt.p_MI),
+           GYRO_BIAS: GYRO_BIAS.difference(pos.gyro_bias_mean, alt.gyro_bias_mean),
+           ACCEL_BIAS: ACCEL_BIAS.difference(pos.accel_bias_mean, alt.accel_bias_mean),
+           GRAVITY_DIRECTION: GRAVITY_DIRECTION.difference(pos.g_dir, alt.g_dir)}
+    if TIME_OFFSET.name in pos.cov:
+        raw[TIME_OFFSET] = TIME_OFFSET.difference(pos.delta, alt.delta)
     excess = {}
-    for name, d in raw.items():
-        block = _BLOCKS[name]
+    for p, d in raw.items():
         chance = 0.0
-        if block in pos.cov and block in alt.cov:
-            chance = np.abs(np.diag(alt.cov[block]) - np.diag(pos.cov[block]))
-        excess[name] = np.sqrt(np.maximum(d**2 - chance, 0.0))
+        if p.name in pos.cov and p.name in alt.cov:
+            chance = np.abs(np.diag(alt.cov[p.name]) - np.diag(pos.cov[p.name]))
+        excess[p] = np.sqrt(np.maximum(d**2 - chance, 0.0))
     return excess, {k: np.abs(v) for k, v in raw.items()}
 
 
@@ -180,7 +177,7 @@ def noise_sensitivity(pos: PositionResult, model: Model,
         except Interrupted:
             raise
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
-            out.note = f"{key}: refit failed ({err})"
+            out.failed[key] = str(err)
             return
         out.shift[key], out.raw[key] = _shifts(alt, pos)
         out.moved[key] = z_pair(alt, pos, sig, None)

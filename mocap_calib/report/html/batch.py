@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mocap_calib.core.model.parameters import TRANSLATION
 from mocap_calib.report.html.mpl import AXIS_COLORS, new_figure, styled, to_png
 from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
 
@@ -34,7 +35,7 @@ def trends_png(groups: Mapping[str, list[tuple[str, CalibrationResult]]]) -> byt
             a1.errorbar(x, td, yerr=sd, fmt="o", ms=3, capsize=3, label=imu)
             for i in range(3):
                 p = [np.nan if r.translation is None else 1e3 * r.translation[i] for _, r in rows]
-                s = [0.0 if r.sigma_translation is None else 1e3 * r.sigma_translation[i]
+                s = [0.0 if r.sigma(TRANSLATION) is None else 1e3 * r.sigma(TRANSLATION)[i]
                      for _, r in rows]
                 a2.errorbar(x, p, yerr=s, fmt="o", ms=3, capsize=3, color=AXIS_COLORS[i],
                             label="xyz"[i] if x0 == 0 else None)
@@ -54,7 +55,7 @@ def _summary_rows(sessions: Sequence[Mapping[str, Any]],
     rows: list[list[str | Cell]] = []
     for s in sessions:
         r = results.get(str(s.get("id")))
-        verdict = "-" if r is None else str((r.plausibility or {}).get("verdict", "-"))
+        verdict = "-" if r is None or r.plausibility is None else r.plausibility.verdict
         td = "-" if r is None or r.time_offset is None else (
             f"{1e3 * r.time_offset:.3f} ± {_fmt(r.sigma_time_offset, 1e3, 2)}")
         p = "-" if r is None or r.translation is None else ", ".join(
@@ -111,8 +112,7 @@ def batch_report_sections(sessions: Sequence[Mapping[str, Any]],
         r = results.get(str(s.get("id")))
         if r is None:
             continue
-        d = r.to_dict()
-        for sec in prefixed([result_section(r, d), checks_section(r, d)], f"s{i}-"):
+        for sec in prefixed([result_section(r), checks_section(r)], f"s{i}-"):
             sec.title = f"{s.get('id')}: {sec.title}"
             out.append(sec)
     return out

@@ -11,6 +11,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.model.parameters import TIME_OFFSET, TRANSLATION
+from mocap_calib.core.result.verdicts import SegmentRecord
 from mocap_calib.core.stages.figures import ResidualSeries
 from mocap_calib.report.html.mpl import (
     AXIS_COLORS,
@@ -160,28 +162,31 @@ def imu_spectra_png(freq: Array, gyro: Array, gyro_floor: Array, accel: Array,
         return to_png(fig)
 
 
-def segments_png(segments: list[dict], full: dict[str, float | list[float] | None]) -> bytes:
-    """Per-segment t_d and p_MI with 1-sigma bars, relative to the whole session's estimate."""
+def segments_png(segments: Sequence[SegmentRecord], time_offset: Array | None,
+                 translation: Array | None) -> bytes:
+    """Per-segment t_d and p_MI with 1-sigma bars, relative to the whole session's estimate
+    (``time_offset``, ``translation``; None: not determined)."""
     with styled():
         fig = new_figure(9.5, 2.4, left=0.07, bottom=0.2, wspace=0.2)
         a1, a2 = fig.subplots(1, 2)
-        mid = np.array([0.5 * (s["start_s"] + s["end_s"]) for s in segments])
+        mid = np.array([0.5 * (s.start_s + s.end_s) for s in segments])
         span = float(np.ptp(mid)) if len(mid) > 1 else 1.0
-        ref = full.get("time_offset")
-        if all(s.get("time_offset") is not None for s in segments):
-            td = 1e3 * (np.array([s["time_offset"] for s in segments]) - float(ref or 0.0))
-            a1.errorbar(mid, td, yerr=1e3 * np.array([s["sigma"]["time_offset"]
-                                                      for s in segments]),
+        td = [s.estimates[TIME_OFFSET] for s in segments]
+        if all(e.value is not None for e in td):
+            ref = 0.0 if time_offset is None else float(time_offset[0])
+            a1.errorbar(mid, 1e3 * (np.array([float(e.value[0]) for e in td]) - ref),
+                        yerr=1e3 * np.array([float(e.sigma[0]) for e in td]),
                         fmt="o", ms=3, capsize=3, color="#444")
             a1.axhline(0.0, color="k", lw=0.8)
             a1.set_title("t_d per segment minus whole session (ms)", y=1.0)
         else:  # a model without the clock offset: the segments fit none
             a1.set_axis_off()
             a1.set_title("t_d fixed (not in the model)", y=1.0)
-        pref = np.asarray(full.get("translation") or np.zeros(3), dtype=float)
+        pref = np.zeros(3) if translation is None else np.asarray(translation, dtype=float)
+        p = [s.estimates[TRANSLATION] for s in segments]
         for i in range(3):
-            v = 1e3 * (np.array([s["translation"][i] for s in segments]) - pref[i])
-            e = 1e3 * np.array([s["sigma"]["translation"][i] for s in segments])
+            v = 1e3 * (np.array([e.value[i] for e in p]) - pref[i])
+            e = 1e3 * np.array([q.sigma[i] for q in p])
             a2.errorbar(mid + (i - 1) * 0.02 * span, v, yerr=e, fmt="o", ms=3, capsize=3,
                         color=AXIS_COLORS[i], label="xyz"[i])
         a2.axhline(0.0, color="k", lw=0.8)

@@ -32,9 +32,8 @@ def calibration_sections(result: CalibrationResult,
     )
     from mocap_calib.report.html.residuals import residuals_section, trajectory_section
 
-    d = result.to_dict()
     ex = extras or CalibrationExtras()
-    return [result_section(result, d), checks_section(result, d), clock_section(result, d),
+    return [result_section(result), checks_section(result), clock_section(result),
             residuals_section(result, ex), trajectory_section(result, ex)]
 
 

@@ -119,8 +119,10 @@ def write_report(path: Path, title: str, sections: Sequence[Section], inputs: Se
 
 def calibration_verdict(result: CalibrationResult) -> tuple[str, str] | None:
     """The plausibility verdict as a badge (text, ok/bad)."""
-    v = (result.plausibility or {}).get("verdict")
-    return None if v is None else (f"plausibility: {v}", "ok" if v == "plausible" else "bad")
+    if result.plausibility is None:
+        return None
+    v = result.plausibility.verdict
+    return (f"plausibility: {v}", "ok" if v == "plausible" else "bad")
 
 
 def _every_take(sections: list[Section], result: CalibrationResult,
