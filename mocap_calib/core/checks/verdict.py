@@ -112,7 +112,8 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
         say("sensitivity: IMU noise densities x3 and x1/3, correlated mocap noise")
         shown = () if r.effect_tests is None else r.effect_tests.shown
         sens = noise_sensitivity(pos, opts.model, max_iterations=opts.max_iterations,
-                                 priors=opts.priors, effects_shown=shown)
+                                 priors=opts.priors, effects_shown=shown,
+                                 limits=opts.plausible)
     t2 = time.perf_counter()
     r = _apply_rule(r, cons, takes, sens)
     total = {p: e.terms.total for p, e in r.estimates.items() if e.terms is not None}
@@ -174,20 +175,16 @@ def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency,
             f"fraction {m.get('fraction', 0):g}) moves "
             + ", ".join(f"{p.symbol} by {v:.1f}" for p, v in big.items())
             + " of its statistical sigma: the sigmas carry that move as model uncertainty")
-    used = r.noise.accelerometer_noise_density
-    if sens.accel_density and used and abs(np.log(sens.accel_density / used)) > np.log(2.0):
-        out.append(
-            f"the accelerometer's noise is not the {used:.3g} m/s^2/sqrt(Hz) used: at this "
-            f"solution the windows' likelihood is best at {sens.accel_density:.3g} "
-            f"({sens.accel_density / used:.3g} x; in flight the rotors' vibration adds to the "
-            "data sheet's); --accel-noise-from-data estimates it with the mocap's levels and "
-            "uses it")
     if EFFECTS_SHOWN in sens.raw and r.effect_tests is not None:
         out.append("the sigmas carry how far the answer moves when the effects the data "
                    "show are added to the model (" + ", ".join(r.effect_tests.shown)
                    + "): fit them with --model auto")
+    if sens.implausible:
+        out.append("the effects the data show are not added to the sigmas as model "
+                   f"uncertainty: with them the fit is not physical ({sens.implausible}); a "
+                   "misfit of the noise model can pass for an effect")
     if sens.shift:
         out.append("sigmas include the shifts under other noise models (IMU densities x3 "
-                   "and x1/3, correlated mocap noise) beyond chance and cover their moves "
-                   "(the uncertainty section lists every term)")
+                   "and x1/3 of those used, correlated mocap noise) beyond chance and cover "
+                   "their moves (the uncertainty section lists every term)")
     return out

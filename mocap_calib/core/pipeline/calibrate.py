@@ -49,6 +49,7 @@ from mocap_calib.core.result.sections import (
     ClockSummary,
     Degradation,
     ImuGapsSummary,
+    NoiseIdentification,
     SolverFigures,
     TakeResult,
     per_axis_figures,
@@ -257,17 +258,18 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     sr, sp = pos.solver["mocap_noise_variance_scale"]
     att = np.degrees(pos.noise.mocap_rotation_sigma * np.sqrt(pos.axis_scale[0:3]))
     posn = 1e3 * pos.noise.mocap_position_sigma * np.sqrt(pos.axis_scale[3:6])
-    if max(abs(np.log(sr)), abs(np.log(sp)), *np.abs(np.log(pos.axis_scale))) > np.log(1.1):
+    ident = _identification(pos, opts)
+    if ident is not None:
+        notes.append(ident.summary())
+    used = ident is not None and ident.used
+    if not used and max(abs(np.log(sr)), abs(np.log(sp)),
+                        *np.abs(np.log(pos.axis_scale))) > np.log(1.1):
         notes.append(
             "mocap noise estimated from the residuals: "
             + ", ".join(f"{x:.3g}" for x in posn) + " mm and "
             + ", ".join(f"{x:.3g}" for x in att) + " deg per axis (assumed "
             f"{1e3 * opts.noise.mocap_position_sigma:.3g} mm, "
             f"{np.degrees(opts.noise.mocap_rotation_sigma):.3g} deg)")
-    a_given, a_used = (n.accelerometer_noise_density for n in (opts.noise, pos.noise))
-    if a_used != a_given:
-        notes.append(f"accelerometer noise density from the data: {a_used:.3g} m/s^2/sqrt(Hz) "
-                     f"({a_used / a_given:.3g} x the {a_given:.3g} given)")
     # The sigmas are the larger of the model's and the sandwich's (see uncertainty.py), which
     # already carries residuals beyond the noise model: no chi2 scaling on top.
     if pos.chi2_per_dof > 1.2:
@@ -296,8 +298,18 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     result = CalibrationResult(
         estimates=estimates, gravity_magnitude=float(pos.g_mag), model=str(model),
         effects=effects, unobservable=unob, stages=tuple(stages), solver=solver,
-        noise=pos.noise, notes=tuple(notes), session=session_info, diagnostics=diag)
+        noise=pos.noise, noise_identification=ident, notes=tuple(notes),
+        session=session_info, diagnostics=diag)
     return result.with_degraded(*_settling(pos))
+
+
+def _identification(pos: PositionResult, opts: CalibrationOptions) -> NoiseIdentification | None:
+    """The noise identification's section (None when the noise was held fixed)."""
+    found = pos.identification
+    if found is None:
+        return None
+    return NoiseIdentification(found.noise, opts.noise, found.contradicts, found.gain,
+                               found.threshold, found.windows, found.samples)
 
 
 def _settling(pos: PositionResult) -> list[Degradation]:

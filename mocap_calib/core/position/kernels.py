@@ -139,25 +139,19 @@ def predict_cov(P, ns, Fb, hk, a, par, tmp, cov, R):  # pragma: no cover  (compi
         for j in range(i + 1, ns):
             P[i, j], P[j, i] = P[j, i], P[i, j]
     phi_rows(P, ns, Fb, hk, ns, a, tmp)
-    sa2 = par[Q_ACCEL]
     for i in range(3):
         P[i, i] += par[Q_GYRO] * hk
         P[9 + i, 9 + i] += par[Q_GYRO_WALK] * hk
         P[12 + i, 12 + i] += par[Q_ACCEL_WALK] * hk
-    if accel_noise(par, R, cov):
-        for i in range(3):
-            for j in range(3):
-                q = cov[i, j]
-                P[3 + i, 3 + j] += q * hk * hk * hk / 3.0
-                P[6 + i, 6 + j] += q * hk
-                P[3 + i, 6 + j] += q * hk * hk / 2.0
-                P[6 + i, 3 + j] += q * hk * hk / 2.0
-    else:
-        for i in range(3):
-            P[3 + i, 3 + i] += sa2 * hk * hk * hk / 3.0
-            P[6 + i, 6 + i] += sa2 * hk
-            P[3 + i, 6 + i] += sa2 * hk * hk / 2.0
-            P[6 + i, 3 + i] += sa2 * hk * hk / 2.0
+    # The accelerometer's noise: off the diagonal only when it differs per IMU axis.
+    n = 3 if accel_noise(par, R, cov) else 1
+    for i in range(3):
+        for j in range(3) if n == 3 else range(i, i + 1):
+            q = cov[i, j] if n == 3 else par[Q_ACCEL]
+            P[3 + i, 3 + j] += q * hk * hk * hk / 3.0
+            P[6 + i, 6 + j] += q * hk
+            P[3 + i, 6 + j] += q * hk * hk / 2.0
+            P[6 + i, 3 + j] += q * hk * hk / 2.0
     if ns == 21:
         mocap_cov(par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), cov)
         for i in range(6):
