@@ -314,10 +314,10 @@ def _identification(pos: PositionResult, opts: CalibrationOptions) -> NoiseIdent
 
 def _settling(pos: PositionResult) -> list[Degradation]:
     """The position stage's settling rounds cut off by their cap."""
-    if pos.solver.get("position_rounds", 0) < SETTLING_ROUNDS:
+    if not pos.solver.get("position_rounds_capped", False):
         return []
     return [Degradation(
         "position stage", f"the rounds that settle the mocap noise levels and robust weights "
-        f"reached their cap ({SETTLING_ROUNDS}) before the levels stopped moving, or just as "
-        "they did", "the answer and its sigmas are at the last levels and weights; the "
+        f"reached their cap ({SETTLING_ROUNDS}) before the levels and weights stopped moving",
+        "the answer and its sigmas are at the last levels and weights; the "
         "sensitivity to the noise model covers what a further round could move")]

@@ -277,6 +277,7 @@ def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUnce
               "windows": sum(t.windows.count for t in takes),
               "window_steps": max(t.windows.steps for t in takes),
               "position_rounds": fit.rounds,
+              "position_rounds_capped": fit.capped,
               "mocap_noise_variance_scale": [round(float(x), 4) for x in fit.noise_scale],
               "sandwich_over_model_sigma": unc.robust_ratio}
     fits = [TakeFit(t, th.delta, th.knots, u.knot_sigma, u.bias_mean[0:3], u.bias_mean[3:6],
@@ -327,6 +328,7 @@ class _Fit:
     innovations0: list[Array] | None  # per take, the innovations at the start values
     rounds: int = 1
     linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
+    capped: bool = False  # the settling rounds ended at their cap, the levels still moving
 
 
 def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
@@ -372,7 +374,7 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     inn0: list[Array] | None = None
     noise_scale = np.ones(2)
     prev_cost = None
-    final = rounds <= 1
+    final = settled = rounds <= 1
     given = pg.problem.noise
     ident = None
     pg.identification = None
@@ -410,11 +412,12 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
         cost = float(rep.final_error)
         small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
         prev_cost = cost
-        final = (not changed) or (small and moved < np.log(1.05)) or rnd >= rounds - 1
+        settled = (not changed) or (small and moved < np.log(1.05))
+        final = settled or rnd >= rounds - 1
         del outs  # not alive while the next round evaluates (60 min: 37 MB)
         batch.invalidate()
     require_converged("position", rep, max_iterations)
-    return _Fit(sol, iterations, noise_scale, inn0, rnd)
+    return _Fit(sol, iterations, noise_scale, inn0, rnd, capped=not settled)
 
 
 def identify(pg: PositionGraph, values: gtsam.Values,

@@ -217,7 +217,7 @@ def _implausible_effect(alt: PositionResult, fuller: Model, model: Model,
         value, _ = effect_estimate(alt, name, 0.0)
         problem = effect_problem(name, value, limits or PlausibleLimits())
         if problem:
-            return f"{name} fitted as {problem}"
+            return problem
     return ""
 
 
