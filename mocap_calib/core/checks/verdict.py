@@ -1,12 +1,15 @@
 """The verdict on a finished calibration: plausible or refused, consistent, robust to the noise
 models, with one documented rule for every reported sigma.
 
-1. Plausibility (:mod:`~mocap_calib.core.checks.plausibility`): an answer no physical rig could
-   have is refused (exit 4), or with ``accept_implausible`` returned marked as such.
-2. Consistency (:mod:`~mocap_calib.core.uncertainty.segments`): the session's time segments
+1. Consistency (:mod:`~mocap_calib.core.uncertainty.segments`): the session's time segments
    (and its takes) calibrated on their own.
-3. Sensitivity (:mod:`~mocap_calib.core.uncertainty.sensitivity`): the answer under IMU noise
+2. Sensitivity (:mod:`~mocap_calib.core.uncertainty.sensitivity`): the answer under IMU noise
    densities x3 and x1/3 and under the correlated mocap noise model the session prefers.
+3. The sigmas by the rule below; a parameter whose sigma is beyond use is reported
+   undetermined (:func:`~mocap_calib.core.checks.degenerate.mark_undetermined`).
+4. Plausibility (:mod:`~mocap_calib.core.checks.plausibility`) of what is determined: an answer
+   no physical rig could have is refused (exit 4), or with ``accept_implausible`` returned
+   marked as such.
 
 The rule, per parameter and component (``uncertainty`` in the result lists every term):
 
@@ -34,7 +37,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.checks.degenerate import single_axis_refusal
+from mocap_calib.core.checks.degenerate import mark_undetermined, single_axis_refusal
 from mocap_calib.core.checks.plausibility import check_plausibility
 from mocap_calib.core.checks.reports import (
     consistency_degraded,
@@ -83,22 +86,12 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
 
     Raises:
         PlausibilityError: the answer is implausible and ``opts.accept_implausible`` is off.
-        ObservabilityError: the same, on motion about one axis only.
+        ObservabilityError: the same, on motion about one axis only; or the motion determines
+            none of R_MI, p_MI and the clock offset.
     """
     clock = clocks[0] if len(clocks) == 1 else None
     if clock is not None:
         r = replace(r, clock=ClockSummary.of(clock, r.time_offset))
-    plaus = check_plausibility(r, opts.plausible, None if clock is None else clock.time_offset)
-    r = replace(r, plausibility=plaus)
-    if plaus.failed:
-        reasons = "; ".join(plaus.failed)
-        if not opts.accept_implausible and single_axis is not None:
-            raise single_axis_refusal(single_axis, f"the fit: {reasons}")
-        if not opts.accept_implausible:
-            raise PlausibilityError(
-                f"implausible calibration: {reasons}; check the inputs' units, conventions and "
-                "clock, or pass --accept-implausible to write it marked as such")
-        r = r.with_notes(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
     cons, takes, sens = Consistency(), Consistency(), Sensitivity()
     t0 = time.perf_counter()
     if opts.segments >= 2:
@@ -115,7 +108,10 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
                                  priors=opts.priors, effects_shown=shown,
                                  limits=opts.plausible)
     t2 = time.perf_counter()
-    r = _apply_rule(r, cons, takes, sens)
+    # What the session cannot determine is reported as such before anything is judged
+    # plausible: never a verdict on a number the result says it does not know.
+    r = plausibility_gate(mark_undetermined(_apply_rule(r, cons, takes, sens)), opts, clock,
+                   single_axis)
     total = {p: e.terms.total for p, e in r.estimates.items() if e.terms is not None}
     r = replace(r, consistency=consistency_report(cons, takes),
                 sensitivity=sensitivity_report(sens, total))
@@ -124,6 +120,28 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
                         *consistency_degraded(takes, "take", len(pos.takes) > 1),
                         *sensitivity_degraded(sens))
     return r, {"consistency": round(t1 - t0, 3), "sensitivity": round(t2 - t1, 3)}
+
+
+def plausibility_gate(r: CalibrationResult, opts: CalibrationOptions, clock: ClockSearch | None,
+               single_axis: Array | None) -> CalibrationResult:
+    """``r`` with its plausibility section (and a note when accepted as implausible).
+
+    Raises:
+        PlausibilityError: the answer is implausible and ``opts.accept_implausible`` is off.
+        ObservabilityError: the same, on motion about one axis only.
+    """
+    plaus = check_plausibility(r, opts.plausible, None if clock is None else clock.time_offset)
+    r = replace(r, plausibility=plaus)
+    if not plaus.failed:
+        return r
+    reasons = "; ".join(plaus.failed)
+    if not opts.accept_implausible and single_axis is not None:
+        raise single_axis_refusal(single_axis, f"the fit: {reasons}")
+    if not opts.accept_implausible:
+        raise PlausibilityError(
+            f"implausible calibration: {reasons}; check the inputs' units, conventions and "
+            "clock, or pass --accept-implausible to write it marked as such")
+    return r.with_notes(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
 
 
 def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,

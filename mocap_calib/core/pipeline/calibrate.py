@@ -21,7 +21,6 @@ from numpy.typing import NDArray
 from mocap_calib.core import interrupt
 from mocap_calib.core.checks.degenerate import (
     mark_single_axis,
-    mark_undetermined,
     single_axis,
     single_axis_refusal,
 )
@@ -170,7 +169,6 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
     result, axis = mark_single_axis(result, f.s, pos.delta)
     result, steps = judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits],
                           say, axis)
-    result = mark_undetermined(result)
     interrupt.check()
     solver = replace(result.solver, total_seconds=round(time.perf_counter() - t0, 3))
     return replace(result, solver=solver.with_steps(last={
