@@ -8,8 +8,10 @@ accelerometer is weighted against the mocap, so the weights must be the data's o
 Every level is identified jointly by the windows' exact Gaussian likelihood (the window filter
 of :mod:`mocap_calib.core.position.engine`) at the current solution: the accelerometer's and
 the gyro's white-noise densities, the mocap's attitude and position levels, the time constant
-and fraction of its correlated (AR(1)) part, then the accelerometer's level per IMU axis (the
-rotors shake a drone hardest along its thrust axis). Jointly, because each level can pass
+and fraction of its correlated (AR(1)) part; then the accelerometer's level per IMU axis (the
+rotors shake a drone hardest along its thrust axis), kept where the data show it; then the
+bias random walks with the white densities they trade with (a random walk given 3x too high
+took two thirds of the accelerometer's white level when it was held). Jointly, because each level can pass
 for another: a white mocap model absorbs an accelerometer too noisy for its density (the
 position level grows tenfold), and a white accelerometer level absorbs correlated mocap
 noise. The likelihood separates them (the accelerometer's error grows with the time since a
@@ -22,8 +24,8 @@ rate; every IMU sample between the kept poses is still integrated): a coarse gri
 start, then Newton steps on a quadratic model of ``-2 log L`` in the log-levels, its gradient
 and Hessian from one batch of likelihood passes around the current point (the trajectory is
 integrated once per batch, only the filter runs per candidate). A weak prior on the IMU
-densities, centred on the ones given, keeps a level the data cannot see (the gyro's, when the
-mocap attitude noise dominates) where it was given.
+densities and random walks, centred on the ones given, keeps a level the data cannot see (the
+gyro's, when the mocap attitude noise dominates) where it was given.
 """
 
 from __future__ import annotations
@@ -47,10 +49,16 @@ Array = NDArray[np.float64]
 PARAMETERS = ("accelerometer_noise_density", "gyroscope_noise_density",
               "mocap_position_sigma", "mocap_rotation_sigma", "mocap_noise_corr_time",
               "mocap_noise_corr_fraction", "accelerometer_axis_scale_x",
-              "accelerometer_axis_scale_y")
+              "accelerometer_axis_scale_y", "accelerometer_random_walk",
+              "gyroscope_random_walk")
 #: The levels searched first, then the accelerometer's axes (with its level).
 LEVELS = (0, 1, 2, 3, 4, 5)
 AXES = (0, 6, 7)
+#: Then the bias random walks with the white densities they trade with.
+WALKS = (0, 1, 8, 9)
+#: The accelerometer's per-axis levels are kept when they lower -2 log L beyond the
+#: chi-square quantile of this tail probability.
+AXES_ALPHA = 1e-3
 #: Windows the likelihood is evaluated on, spread over every take.
 MAX_WINDOWS = 8
 #: Mocap rate (Hz) the windows are thinned to for the search.
@@ -126,7 +134,8 @@ class _Objective:
         self.problems = problems
         self.base = base
         self.centre = np.log([given.accelerometer_noise_density,
-                              given.gyroscope_noise_density])
+                              given.gyroscope_noise_density, given.accelerometer_random_walk,
+                              given.gyroscope_random_walk])
         self.evaluations = 0
 
     def noise(self, x: Array) -> NoiseModel:
@@ -138,7 +147,9 @@ class _Objective:
                        mocap_position_sigma=float(np.exp(x[2])),
                        mocap_rotation_sigma=float(np.exp(x[3])),
                        mocap_noise_corr_time=T, mocap_noise_corr_fraction=rho,
-                       accelerometer_axis_scale=tuple(float(np.exp(a)) for a in axes))
+                       accelerometer_axis_scale=tuple(float(np.exp(a)) for a in axes),
+                       accelerometer_random_walk=float(np.exp(x[8])),
+                       gyroscope_random_walk=float(np.exp(x[9])))
 
     def __call__(self, xs: list[Array]) -> Array:
         return self.likelihood([self.noise(x) for x in xs]) + np.array(
@@ -154,7 +165,8 @@ class _Objective:
         return total
 
     def prior(self, x: Array) -> float:
-        return float(np.sum(((x[0:2] - self.centre) / np.log(PRIOR_FACTOR)) ** 2))
+        imu = np.r_[x[0:2], x[8:10]]
+        return float(np.sum(((imu - self.centre) / np.log(PRIOR_FACTOR)) ** 2))
 
 
 def to_vector(nz: NoiseModel) -> Array:
@@ -165,7 +177,8 @@ def to_vector(nz: NoiseModel) -> Array:
     axes -= axes.mean()
     return np.array([np.log(nz.accelerometer_noise_density), np.log(nz.gyroscope_noise_density),
                      np.log(nz.mocap_position_sigma), np.log(nz.mocap_rotation_sigma),
-                     np.log(T), np.log(rho / (1.0 - rho)), axes[0], axes[1]])
+                     np.log(T), np.log(rho / (1.0 - rho)), axes[0], axes[1],
+                     np.log(nz.accelerometer_random_walk), np.log(nz.gyroscope_random_walk)])
 
 
 def identify_noise(problems: list[tuple[PositionProblem, Theta]], start: NoiseModel,
@@ -184,7 +197,12 @@ def identify_noise(problems: list[tuple[PositionProblem, Theta]], start: NoiseMo
     f0 = float(f.likelihood([start])[0])
     x = to_vector(warm) if warm is not None else _grid_start(f, start, given)
     x, fx = _newton(f, x, LEVELS)
-    x, fx = _newton(f, x, AXES)
+    x_axes, f_axes = _newton(f, x, AXES)
+    # Per-axis levels only where the data show them (a likelihood-ratio test on their 2
+    # degrees of freedom): a few windows give each axis's variance a scatter of its own.
+    if fx - f_axes > float(chi2_ppf(1.0 - AXES_ALPHA, 2)):
+        x = x_axes
+    x, fx = _newton(f, x, WALKS)
     best = f.noise(x)
     gain = f0 - float(f.likelihood([best])[0])
     return NoiseIdentification(
