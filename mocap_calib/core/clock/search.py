@@ -28,15 +28,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.clock.filters import (
-    Spectra,
-    correlate_full,
-    median5,
-    peaks_apart,
-    savgol,
-)
-from mocap_calib.core.model import so3
-from mocap_calib.core.policy import GRAVITY, gap_threshold
+from mocap_calib.core.clock.filters import Spectra, correlate_full, peaks_apart
+from mocap_calib.core.clock.signals import signals
+from mocap_calib.core.policy import GRAVITY
+from mocap_calib.core.prepare.noise_band import Smoothing
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]
@@ -50,12 +45,6 @@ MIN_MARGIN_Z = 3.0
 PEAK_SEPARATION_S = 1.0
 #: With raw stamps of one epoch, lags within this range (s) are searched first.
 SAME_EPOCH_RANGE_S = 5.0
-#: Signal variation below which a signal cannot align anything.
-MIN_SPEED_STD = 0.05  # rad/s
-MIN_FORCE_STD = 0.3  # m/s^2
-#: Axis-aligned candidates for the mocap world's up direction (gravity points down).
-UP_AXES = {"+z": (2, 1.0), "-z": (2, -1.0), "+y": (1, 1.0), "-y": (1, -1.0), "+x": (0, 1.0),
-           "-x": (0, -1.0)}
 
 
 @dataclass(frozen=True)
@@ -85,6 +74,7 @@ class ClockSearch:
     score: Array = field(repr=False, default_factory=lambda: np.zeros(0))
     candidates: tuple[tuple[float, float], ...] = ()
     verified_by_fit: bool = False  # chosen among equal peaks by stage 1-2 fits
+    smoothing: Smoothing | None = None  # the signals' low-pass widths
 
     @property
     def resolved(self) -> bool:
@@ -97,77 +87,10 @@ class ClockSearch:
                 "second_best_time_offset": self.second_offset,
                 "searched_near_zero_first": self.restricted,
                 "chosen_by_fit_among_peaks": self.verified_by_fit,
-                "candidates": [{"time_offset": t, "z": round(z, 2)} for t, z in self.candidates]}
-
-
-def mocap_angular_speed(t: Array, R: Array) -> tuple[Array, Array]:
-    """Angular speed (rad/s) between consecutive mocap samples, at interval midpoints."""
-    dR = np.einsum("nji,njk->nik", R[:-1], R[1:])
-    dt = np.diff(t)
-    speed = np.linalg.norm(so3.log(dR), axis=1) / dt
-    return 0.5 * (t[1:] + t[:-1]), speed
-
-
-def _resample(t: Array, y: Array, dt: float, gap: float) -> tuple[float, Array, Array]:
-    """``y`` on a uniform grid, mean removed; samples inside gaps are zero (no signal).
-    Returns the grid start, the values and the in-gap mask."""
-    grid = np.arange(t[0], t[-1], dt)
-    out = np.interp(grid, t, y)
-    idx = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
-    in_gap = (t[idx] - t[idx - 1]) > gap
-    z = out - (out[~in_gap].mean() if np.any(~in_gap) else out.mean())
-    z[in_gap] = 0.0
-    return float(grid[0]), z, in_gap
-
-
-def _smooth(y: Array, n: int) -> Array:
-    """Median then Savitzky-Golay: single-sample spikes out, differentiation noise down."""
-    if len(y) <= max(7, n):
-        return y
-    return savgol(median5(y), n | 1, 2)
-
-
-@dataclass
-class _Signal:
-    name: str
-    start_i: float
-    x: Array  # IMU side on the grid
-    start_m: float
-    y: Array  # mocap side on the grid
-
-
-def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
-             dt: float, gravity: float) -> list[_Signal]:
-    gap_i = gap_threshold(u)
-    gap_m = gap_threshold(tau)
-    win = max(5, int(round(0.05 / dt)))
-    out = []
-    t_m, w_m = mocap_angular_speed(tau, R_WM)
-    s_i, x, _ = _resample(u, np.linalg.norm(gyro, axis=1), dt, gap_i)
-    s_m, y, _ = _resample(t_m, _smooth(w_m, 5), dt, gap_m)
-    if np.std(x) >= MIN_SPEED_STD and np.std(y) >= MIN_SPEED_STD:
-        out.append(_Signal("angular speed", s_i, _smooth(x, win), s_m, y))
-    # Specific force: the mocap's acceleration from a smoothing second derivative.
-    s_i, xf, _ = _resample(u, np.linalg.norm(accel, axis=1), dt, gap_i)
-    grid = np.arange(tau[0], tau[-1], dt)
-    if len(grid) > 4 * win and np.std(xf) >= MIN_FORCE_STD:
-        pos = np.stack([np.interp(grid, tau, p_WM[:, i]) for i in range(3)], axis=1)
-        n = max(7, int(round(0.1 / dt)) | 1)
-        acc = savgol(pos, n, 3, deriv=2, delta=dt)
-        idx = np.clip(np.searchsorted(tau, grid), 1, len(tau) - 1)
-        in_gap = (tau[idx] - tau[idx - 1]) > gap_m
-        # A gap corrupts the derivative around it: blank a filter length on both sides.
-        near = np.convolve(in_gap.astype(float), np.ones(n), mode="same") > 0
-        xs = _smooth(xf, win)  # one array for every axis (its transforms are shared)
-        for axis_name, (i, sign) in UP_AXES.items():
-            g = np.zeros(3)
-            g[i] = -gravity * sign  # gravity points down the up axis
-            f_m = np.linalg.norm(acc - g, axis=1)
-            f_m = f_m - f_m[~near].mean() if np.any(~near) else f_m - f_m.mean()
-            f_m[near] = 0.0
-            out.append(_Signal(f"specific force ({axis_name} up)", s_i, xs,
-                               float(grid[0]), f_m))
-    return out
+                "candidates": [{"time_offset": t, "z": round(z, 2)} for t, z in self.candidates],
+                **({} if self.smoothing is None else {"smoothing_s": {
+                    "angular speed": self.smoothing.rate_s,
+                    "specific force": self.smoothing.force_s}})}
 
 
 def _correlation(x: Array, y: Array, dt: float,
@@ -229,7 +152,7 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
         ObservabilityError: no signal varies enough (no motion), or nothing in range.
     """
     dt = 1.0 / GRID_HZ
-    sigs = _signals(u, gyro, accel, tau, R_WM, p_WM, dt, gravity)
+    sigs, sm = signals(u, gyro, accel, tau, R_WM, p_WM, dt, gravity)
     if not sigs:
         raise ObservabilityError(
             "cannot align the clocks: neither the angular speed nor the specific force varies "
@@ -271,8 +194,8 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     if (lo <= 0.0 <= hi) and max_offset is None:  # raw stamps of one epoch: near zero first
         found = _peak(td, z, valid & (np.abs(td) <= SAME_EPOCH_RANGE_S))
         if found.resolved:
-            return _with_curve(found, names, True, td, z)
-    return _with_curve(_peak(td, z, valid), names, False, td, z)
+            return _with_curve(found, names, True, td, z, sm)
+    return _with_curve(_peak(td, z, valid), names, False, td, z, sm)
 
 
 def _refine(td: Array, zz: Array, k: int) -> float:
@@ -304,9 +227,9 @@ def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
 
 
 def _with_curve(found: ClockSearch, names: tuple[str, ...], restricted: bool, td: Array,
-                z: Array, max_points: int = 4000) -> ClockSearch:
+                z: Array, sm: Smoothing, max_points: int = 4000) -> ClockSearch:
     """The search result with the signals used and a decimated curve for reports."""
     k = max(1, len(td) // max_points)
     return ClockSearch(found.time_offset, names, found.peak_z, found.margin_z,
                        found.second_offset, restricted, td[::k].copy(), z[::k].copy(),
-                       found.candidates)
+                       found.candidates, smoothing=sm)
