@@ -2,9 +2,10 @@
 
 Signals that do not depend on the unknown IMU-to-marker rotation are cross-correlated over
 every lag the two recordings allow (so offsets of any size work, also clocks of different
-epochs):
+epochs), both sides low-passed alike, as much as the mocap's noise needs
+(:mod:`~mocap_calib.core.clock.signals`):
 
-- angular speed: ``|gyro|`` against the mocap's ``|w|`` from consecutive attitudes;
+- angular speed: ``|gyro|`` against the mocap's ``|w|`` from its attitudes;
 - specific force: ``|accel|`` against ``|a_W - g_W|`` from the mocap's second derivative of
   position; the world's up axis is not known yet, so each axis-aligned up (z-up Vicon, y-up
   OptiTrack, ...) is tried and the best kept. This is the signal of translation-dominated
@@ -12,7 +13,8 @@ epochs):
 
 Each signal's correlation at every lag is turned into the statistic of a test against "no
 relation": Fisher's ``atanh(r)`` times ``sqrt(n_eff - 3)``, with ``n_eff`` the overlap's length
-over the signal's own correlation time (smooth motion has few independent samples). Without a
+over the signals' correlation time (smooth motion, and the smoothing, leave few independent
+samples). Without a
 relation it is about standard normal, so it reads in null sigmas. The signals' statistics are
 combined (Stouffer). A lag is resolved when its peak stands out of the null and clears every
 other peak (more than a second away) by a margin; periodic motion gives several peaks of about

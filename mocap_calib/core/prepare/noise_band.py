@@ -217,3 +217,14 @@ def choose_smoothing(gyro: Gridded, accel: Gridded, rates: Gridded, positions: G
         out.append(_choose(widths, noise, signal))
     (rs, rr), (fs, fr) = out
     return Smoothing(rs, fs, rr, fr)
+
+
+def noise_band(u: Array, gyro: Array, accel: Array, tau: Array, R: Array, p: Array,
+               dt: float = 0.01) -> Smoothing:
+    """The widths two raw streams need (see :func:`choose_smoothing`), both on a grid of
+    step ``dt``."""
+    gap_m = mocap_gap(tau)
+    gap_i = gap_threshold(u)
+    return choose_smoothing(imu_on_grid(u, gyro, dt, gap_i), imu_on_grid(u, accel, dt, gap_i),
+                            mocap_rates(tau, R, dt, gap_m), mocap_positions(tau, p, dt, gap_m),
+                            tau, dt, gap_m)

@@ -86,19 +86,31 @@ def grid_step(x: Array, smallest: float) -> float | None:
     d = d[d > 1e-6 * float(np.max(np.abs(x), initial=0.0))]
     if len(d) < 10:
         return None
-    cand = float(np.percentile(d, 1))
-    close = d[(d > 0.5 * cand) & (d < 1.5 * cand)]
-    q = float(np.median(close)) if len(close) else cand
-    if q < smallest:
-        return None
-    for _ in range(2):  # least squares: x = n q with n the nearest integers
+    # Candidate steps: the gaps' quantiles, smallest first (a few values off the grid leave
+    # small gaps of their own); the first that the values lie on is the step.
+    for cand in np.percentile(d, [1, 5, 10, 25, 50]):
+        k = np.round(d / cand)
+        ones = d[k == 1]
+        q = float(np.median(ones)) if len(ones) else float(cand)
+        if q >= smallest and _on_grid(x, q):
+            return _refined(x, q)
+    return None
+
+
+def _refined(x: Array, q: float) -> float:
+    """Least squares of ``x = n q`` with ``n`` the nearest integers (twice)."""
+    for _ in range(2):
         n = np.round(x / q)
         nn = float(n @ n)
         if nn == 0:
-            return None
+            break
         q = float(n @ x) / nn
-    frac = np.abs(x / q - np.round(x / q))
-    return q if float(np.mean(frac < GRID_TOLERANCE)) >= ON_GRID else None
+    return q
+
+
+def _on_grid(x: Array, q: float) -> bool:
+    r = _refined(x, q)
+    return float(np.mean(np.abs(x / r - np.round(x / r)) < GRID_TOLERANCE)) >= ON_GRID
 
 
 def arrived_together(t: Array, near_step_s: float) -> Mask:

@@ -20,6 +20,7 @@ from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, r
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.policy import MIN_SESSION_S, gap_threshold
 from mocap_calib.core.prepare.gaps import ImuGaps, find_imu_gaps
+from mocap_calib.core.prepare.noise_band import noise_band
 from mocap_calib.core.prepare.pose_screen import PoseScreen, screen_poses
 from mocap_calib.core.prepare.pose_stream import arrived_together, describe_stream, stream_note
 from mocap_calib.errors import InputError, ObservabilityError
@@ -55,6 +56,9 @@ class PreparedSession:
     imu_faults: ImuFaults | None = None  # saturated / frozen IMU samples (left out later)
     notes: tuple[str, ...] = ()  # what the sensor-fault screen removed
     imu_gaps: ImuGaps | None = None  # the IMU's gaps: nothing is integrated across them
+    #: low-pass width (s, Gaussian sigma) the mocap's noise needs for rates and accelerations
+    #: compared with the IMU (:func:`~mocap_calib.core.prepare.noise_band.noise_band`)
+    band_s: float = 0.0
 
     def imu_clear(self, u0: Array, u1: Array) -> NDArray[np.bool_]:
         """Whether IMU-clock spans ``[u0, u1]`` hold no IMU gap (with the interpolant's
@@ -151,6 +155,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSIO
     bad = screen.jumps | screen.late
     keep = ~bad
     R = mocap.rotation
+    band = noise_band(imu.t, imu.gyro, imu.accel, mocap.t[keep], R[keep], mocap.position[keep])
     return PreparedSession(
         u=imu.t, gyro=imu.gyro, accel=imu.accel, tau=mocap.t[keep], R_WM=R[keep],
         p_WM=mocap.position[keep],
@@ -162,6 +167,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSIO
         imu_faults=imu_faults(imu.gyro, imu.accel, imu.rate_hz),
         notes=tuple(notes),
         imu_gaps=gaps,
+        band_s=max(band.rate_s, band.force_s),
     )
 
 
