@@ -1,8 +1,8 @@
 """The mocap's gross errors, judged by each pose's deviation from a local fit of its neighbours.
 
 Every pose is compared with the quadratic fitted (least squares, in time) to the poses around
-it, itself left out: position in metres, attitude as the rotation vector from the pose to the
-fit. A marker swap or a mis-solved frame moves the pose by centimetres or degrees for one to a
+it, itself left out: position in metres, attitude as the rotation between the fit and the
+pose. A marker swap or a mis-solved frame moves the pose by centimetres or degrees for one to a
 few frames, far outside the fit; the mocap's noise, quantisation and (for poses stamped on
 arrival) the stamps' scatter move it by a fraction of that. The fit spans a time, not a pair
 of samples, so poses a few microseconds apart (two that arrived together) do not turn their
@@ -11,11 +11,13 @@ noise into huge rates as finite differences do.
 Thresholds: a deviation beyond :data:`NOISE_FACTOR` times the data's own robust noise level
 (normalised for the fit's own uncertainty) and beyond the floors :data:`FLOOR_POSITION_M` /
 :data:`FLOOR_ROTATION_RAD` is a jump. Fits are repeated without the poses found (a swap of
-several frames spoils its neighbours' first fits) until nothing changes.
+several frames spoils its neighbours' first fits) until nothing changes (at most
+:data:`MAX_PASSES` times).
 
 For poses stamped on arrival, a pose that reached the receiver late (after a radio gap) lies
 behind the motion along the velocity and angular rate at once; a deviation that one time shift
-explains (no larger than the steps around the pose) is a late pose, not a swap.
+explains (a capture before the stamp, no earlier than the steps around the pose allow) is a
+late pose, not a swap.
 """
 
 from __future__ import annotations
@@ -96,15 +98,14 @@ class Neighbourhoods:
                           ).reshape(len(self.rows), len(offs), 3)
 
     def fit(self, use: Mask) -> Deviations:
-        """Leave-one-out quadratic fits from the neighbours in ``use``."""
+        """Leave-one-out quadratic fits (see :class:`Deviations`) from the neighbours in
+        ``use``."""
         wt = (self.inside & use[self.idx]).astype(float)
         x = self.x
         V = np.stack([np.ones_like(x), x, x * x], axis=2)  # (M, n, 3)
         Vt = np.transpose(V * wt[..., None], (0, 2, 1))  # weights 0 or 1
         N = Vt @ V
-        sides = (np.any((x < 0) & (wt > 0), axis=1).astype(int)
-                 + np.any((x > 0) & (wt > 0), axis=1).astype(int))
-        valid = (wt.sum(axis=1) >= MIN_NEIGHBOURS) & (sides >= 1)
+        valid = wt.sum(axis=1) >= MIN_NEIGHBOURS  # (one-sided near ends and gaps)
         N[~valid] = np.eye(3)
         Ninv = np.linalg.inv(N)
         cp = Ninv @ (Vt @ self.yp)
@@ -114,21 +115,6 @@ class Neighbourhoods:
             a[~valid] = 0.0
         spread = np.sqrt(1.0 + np.where(valid, Ninv[:, 0, 0], 0.0))
         return Deviations(*out, spread, valid)
-
-
-def deviations(t: Array, R: Array, p: Array, gap: float, use: Mask | None = None,
-               half: int | None = None) -> Deviations:
-    """Leave-one-out local quadratic fits (see :class:`Deviations`).
-
-    Args:
-        t: (M,) times (s); R: (M, 3, 3) attitudes; p: (M, 3) positions.
-        gap: a step longer than this (s) ends a fit's span.
-        use: (M,) poses the fits may use (all by default).
-        half: neighbours on each side (default :func:`fit_half_width`).
-    """
-    half = fit_half_width(t) if half is None else half
-    nb = Neighbourhoods(t, R, p, gap, half)
-    return nb.fit(np.ones(len(t), bool) if use is None else use)
 
 
 def robust_sigma(d: Array, spread: Array, valid: Mask) -> float:
@@ -199,9 +185,11 @@ def screen_poses(t: Array, R: Array, p: Array, gap: float, sigma_p: float, sigma
         off = _beyond(d.dp, d.dr, thr_p, thr_r)
         rest = _beyond(d.dp + d.v * shift[:, None], d.dr + d.w * shift[:, None], thr_p,
                        thr_r)
+        # Late: explained by a capture before the stamp (arrival stamps are never early).
         # A pose whose fit cannot be judged keeps its verdict.
-        jumps = np.where(d.valid, off & rest, flagged & ~(off & ~rest))
-        late = np.where(d.valid, off & ~rest, False)
+        explained = off & ~rest & (shift > 0)
+        jumps = np.where(d.valid, off & ~explained, flagged)
+        late = d.valid & explained
         now = jumps | late
         if np.array_equal(now, flagged):
             break

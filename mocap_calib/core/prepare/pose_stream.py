@@ -136,14 +136,15 @@ def stream_note(stream: PoseStream, left_together: int, late: int, late_s: Array
         q05, q50, q95 = (1e3 * x for x in stream.step_quantiles_s)
         text = (f"poses stamped on arrival: steps {q05:.1f}-{q95:.1f} ms (5-95 %) around "
                 f"{q50:.1f} ms, {100 * stream.near_fraction:.2f} % within "
-                f"{1e3 * stream.near_step_s:.2g} ms of the previous")
+                f"{1e3 * stream.near_step_s:.1f} ms of the previous")
         if left_together:
             text += f" (the earlier of each such pair, {left_together} poses, left out)"
         parts.append(text)
         if late:
-            ms = 1e3 * np.abs(late_s)
-            parts.append(f"{late} poses delivered {ms.min():.0f}-{ms.max():.0f} ms late "
-                         "after radio dropouts left out")
+            ms = np.round(1e3 * np.abs(late_s))
+            span = f"{ms.min():.0f}" + (f"-{ms.max():.0f}" if ms.max() > ms.min() else "")
+            parts.append(f"{late} poses delivered {span} ms late (behind the motion by that "
+                         "time) left out")
     if stream.position_quantum_m is not None:
         parts.append(f"positions quantised to {_length(stream.position_quantum_m)}")
     if stream.attitude_quantum_rad is not None:
