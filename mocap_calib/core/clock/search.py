@@ -24,14 +24,14 @@ are searched first. The pipeline then confirms the choice by the fine fit.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
 from mocap_calib.core.clock.filters import Spectra, correlate_full, peaks_apart
-from mocap_calib.core.clock.signals import signals
+from mocap_calib.core.clock.signals import ClockSignal, signals
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.prepare.noise_band import Smoothing
 from mocap_calib.errors import ObservabilityError
@@ -165,14 +165,15 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     # transforms and correlation time are computed once.
     x_spectra: dict[tuple[int, int, int], tuple[Array, ...]] = {}
     x_time: dict[int, float] = {}
+    tau_cs: dict[str, float] = {}
     for sg in sigs:
         interrupt.check()
         corr, n, lags = _correlation(sg.x, sg.y, dt, x_spectra)
         td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
         if id(sg.x) not in x_time:
             x_time[id(sg.x)] = _correlation_time(sg.x, dt)
-        tau_c = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
-        curves[sg.name] = (td, _statistic(corr, n, tau_c, dt))
+        tau_cs[sg.name] = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
+        curves[sg.name] = (td, _statistic(corr, n, tau_cs[sg.name], dt))
     # Specific force: keep the up axis whose curve has the highest peak.
     force = {k: v for k, v in curves.items() if k.startswith("specific force")}
     if force:
@@ -193,11 +194,44 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
             raise ObservabilityError(
                 f"no clock offset within --max-offset {max_offset:g} s leaves enough overlap of "
                 "the two streams; widen --max-offset or check the files")
-    if (lo <= 0.0 <= hi) and max_offset is None:  # raw stamps of one epoch: near zero first
-        found = _peak(td, z, valid & (np.abs(td) <= SAME_EPOCH_RANGE_S))
-        if found.resolved:
-            return _with_curve(found, names, True, td, z, sm)
-    return _with_curve(_peak(td, z, valid), names, False, td, z, sm)
+    used = [sg for sg in sigs if sg.name in curves]
+    restricted = (lo <= 0.0 <= hi) and max_offset is None  # one epoch: near zero first
+    found = _peak(td, z, valid & (np.abs(td) <= SAME_EPOCH_RANGE_S)) if restricted else None
+    if found is None or not found.resolved:
+        restricted, found = False, _peak(td, z, valid)
+    fine = _fine_peak(used, tau_cs, found.time_offset, clock_shift, dt)
+    return _with_curve(replace(found, time_offset=fine), names, restricted, td, z, sm)
+
+
+def _fine_peak(sigs: list[ClockSignal], tau_c: dict[str, float], t_d: float,
+               clock_shift: float, dt: float) -> float:
+    """The combined statistic's peak within a grid step of ``t_d``, at tenths of a step: the
+    IMU side interpolated at each offset, usable points only. (On the grid, the curves of
+    smooth, slowly varying signals have flat tops that a parabola through three points
+    places off by several milliseconds.)"""
+    offsets = t_d + np.arange(-10, 11) * (dt / 10.0)
+    score = np.zeros(len(offsets))
+    for sg in sigs:
+        t_y = sg.start_m + np.arange(len(sg.y)) * dt
+        pos = (t_y[None, :] - clock_shift - offsets[:, None] - sg.start_i) / dt
+        k = np.clip(np.floor(pos).astype(int), 0, len(sg.x) - 2)
+        a = pos - k
+        ok = ((pos >= 0) & (pos <= len(sg.x) - 1) & sg.y_ok[None, :] & sg.x_ok[k]
+              & sg.x_ok[k + 1])
+        xi = (1.0 - a) * sg.x[k] + a * sg.x[k + 1]
+        for j in range(len(offsets)):
+            r = _pearson(xi[j][ok[j]], sg.y[ok[j]])
+            n_eff = max(ok[j].sum() * dt / tau_c[sg.name], 4.0)
+            score[j] += np.arctanh(np.clip(r, -0.9999, 0.9999)) * np.sqrt(n_eff - 3.0)
+    return _refine(offsets, score, int(np.argmax(score)))
+
+
+def _pearson(a: Array, b: Array) -> float:
+    if len(a) < 3:
+        return 0.0
+    a, b = a - a.mean(), b - b.mean()
+    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    return float(np.sum(a * b) / den) if den > 0 else 0.0
 
 
 def _refine(td: Array, zz: Array, k: int) -> float:

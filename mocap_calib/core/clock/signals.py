@@ -35,6 +35,7 @@ from mocap_calib.core.prepare.noise_band import (
 )
 
 Array = NDArray[np.float64]
+Mask = NDArray[np.bool_]
 
 #: Signal variation below which a signal cannot align anything.
 MIN_SPEED_STD = 0.05  # rad/s
@@ -44,24 +45,28 @@ UP_AXES = {"+z": (2, 1.0), "-z": (2, -1.0), "+y": (1, 1.0), "-y": (1, -1.0), "+x
            "-x": (0, -1.0)}
 
 
-@dataclass
-class _Signal:
+@dataclass(frozen=True)
+class ClockSignal:
+    """One signal on both sides, each on its grid ``start + k dt``: mean removed over the
+    usable points (``*_ok``), zero elsewhere (gaps and ends the filter reaches)."""
+
     name: str
     start_i: float
-    x: Array  # IMU side on the grid
+    x: Array  # IMU side
+    x_ok: Mask
     start_m: float
-    y: Array  # mocap side on the grid
+    y: Array  # mocap side
+    y_ok: Mask
 
 
-def _centred(z: Array, blank: NDArray[np.bool_]) -> Array:
-    """Mean removed over the usable points; the others zero (no signal)."""
+def _centred(z: Array, blank: Mask) -> Array:
     out = z - (z[~blank].mean() if np.any(~blank) else z.mean())
     out[blank] = 0.0
     return out
 
 
 def signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
-             dt: float, gravity: float) -> tuple[list[_Signal], Smoothing]:
+            dt: float, gravity: float) -> tuple[list[ClockSignal], Smoothing]:
     """The angular speed and specific-force signals on both sides, smoothed as the mocap's
     noise needs (the widths are returned too)."""
     gap_i, gap_m = gap_threshold(u), mocap_gap(tau)
@@ -73,18 +78,19 @@ def signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: 
     x = np.linalg.norm(smooth(g_i.values, sm.rate_s, dt), axis=1)
     y = np.linalg.norm(smooth(w_m.values, sm.rate_s, dt), axis=1)
     if np.std(x) >= MIN_SPEED_STD and np.std(y) >= MIN_SPEED_STD:
-        out.append(_Signal("angular speed", g_i.start,
-                           _centred(x, near_gap(g_i.in_gap, sm.rate_s, dt)), w_m.start,
-                           _centred(y, near_gap(w_m.in_gap, sm.rate_s, dt))))
+        bx, by = near_gap(g_i.in_gap, sm.rate_s, dt), near_gap(w_m.in_gap, sm.rate_s, dt)
+        out.append(ClockSignal("angular speed", g_i.start, _centred(x, bx), ~bx, w_m.start,
+                               _centred(y, by), ~by))
     xf = np.linalg.norm(smooth(a_i.values, sm.force_s, dt), axis=1)
     if len(pos.values) > 8 * sm.force_s / dt and np.std(xf) >= MIN_FORCE_STD:
         acc = smooth(pos.values, sm.force_s, dt, order=2)
         near = near_gap(pos.in_gap, sm.force_s, dt)
-        xs = _centred(xf, near_gap(a_i.in_gap, sm.force_s, dt))  # one array for every axis
+        bx = near_gap(a_i.in_gap, sm.force_s, dt)
+        xs = _centred(xf, bx)  # one array for every axis
         for axis_name, (i, sign) in UP_AXES.items():
             g = np.zeros(3)
             g[i] = -gravity * sign  # gravity points down the up axis
             f_m = _centred(np.linalg.norm(acc - g, axis=1), near)
-            out.append(_Signal(f"specific force ({axis_name} up)", a_i.start, xs, pos.start,
-                               f_m))
+            out.append(ClockSignal(f"specific force ({axis_name} up)", a_i.start, xs, ~bx,
+                                   pos.start, f_m, ~near))
     return out, sm

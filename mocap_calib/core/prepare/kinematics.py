@@ -51,7 +51,7 @@ class SmoothedImu:
 
     @classmethod
     def of(cls, s: PreparedSession) -> SmoothedImu:
-        n = max(1, int(round(GRID_S * s.imu_rate)))
+        n = max(1, int(round(GRID_S * s.imu_rate))) | 1  # odd: centred, no half-sample delay
         k = np.ones(n) / n
         box = [np.stack([np.convolve(x[:, i], k, mode="same") for i in range(3)], axis=1)
                for x in (s.gyro, s.accel)]

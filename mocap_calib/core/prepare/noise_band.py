@@ -99,7 +99,7 @@ def imu_on_grid(u: Array, x: Array, dt: float, gap: float) -> Gridded:
     """IMU samples averaged over a grid step (no aliasing of fast vibration into the band),
     then sampled on the grid."""
     rate = 1.0 / float(np.median(np.diff(u)))
-    n = max(1, int(round(dt * rate)))
+    n = max(1, int(round(dt * rate))) | 1  # odd: centred (an even box delays by half a sample)
     k = np.ones(n) / n
     box = np.stack([np.convolve(x[:, i], k, mode="same") for i in range(3)], axis=1)
     grid = np.arange(u[0], u[-1], dt)

@@ -56,8 +56,8 @@ class PreparedSession:
     imu_faults: ImuFaults | None = None  # saturated / frozen IMU samples (left out later)
     notes: tuple[str, ...] = ()  # what the sensor-fault screen removed
     imu_gaps: ImuGaps | None = None  # the IMU's gaps: nothing is integrated across them
-    #: low-pass width (s, Gaussian sigma) the mocap's noise needs for rates and accelerations
-    #: compared with the IMU (:func:`~mocap_calib.core.prepare.noise_band.noise_band`)
+    #: low-pass width (s, Gaussian sigma) the mocap's attitude noise needs for its body rates
+    #: to be compared with the gyro (:func:`~mocap_calib.core.prepare.noise_band.noise_band`)
     band_s: float = 0.0
 
     def imu_clear(self, u0: Array, u1: Array) -> NDArray[np.bool_]:
@@ -167,7 +167,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSIO
         imu_faults=imu_faults(imu.gyro, imu.accel, imu.rate_hz),
         notes=tuple(notes),
         imu_gaps=gaps,
-        band_s=max(band.rate_s, band.force_s),
+        band_s=band.rate_s,
     )
 
 
