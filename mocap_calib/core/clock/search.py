@@ -17,8 +17,8 @@ over the signals' correlation time (smooth motion, and the smoothing, leave few 
 samples). Without a
 relation it is about standard normal, so it reads in null sigmas. The signals' statistics are
 combined (Stouffer). A lag is resolved when its peak stands out of the null and clears every
-other peak (more than a second away) by a margin; periodic motion gives several peaks of about
-the same height and is not resolved. When the raw stamps already share an epoch, lags near zero
+other peak (more than a second away) by a margin (null sigmas, and a fraction of its height);
+periodic motion gives several peaks of about the same height and is not resolved. When the raw stamps already share an epoch, lags near zero
 are searched first. The pipeline then confirms the choice by the fine fit.
 """
 
@@ -45,6 +45,10 @@ MIN_PEAK_Z = 6.0
 #: ... and this many above every other peak further than :data:`PEAK_SEPARATION_S` away.
 MIN_MARGIN_Z = 3.0
 PEAK_SEPARATION_S = 1.0
+#: ... and by this fraction of its own height: periodic motion gives peaks of nearly equal
+#: correlation, and near 1 the Fisher statistic turns small differences in it (the model's,
+#: not chance's) into many null sigmas.
+MIN_LEAD = 0.1
 #: With raw stamps of one epoch, lags within this range (s) are searched first.
 SAME_EPOCH_RANGE_S = 5.0
 
@@ -80,7 +84,12 @@ class ClockSearch:
 
     @property
     def resolved(self) -> bool:
-        return self.peak_z >= MIN_PEAK_Z and self.margin_z >= MIN_MARGIN_Z
+        return self.peak_z >= MIN_PEAK_Z and self.margin_z >= self.required_margin
+
+    @property
+    def required_margin(self) -> float:
+        """The lead (null sigmas) the peak needs over every other (see :data:`MIN_LEAD`)."""
+        return max(MIN_MARGIN_Z, MIN_LEAD * self.peak_z)
 
     def to_dict(self) -> dict[str, object]:
         return {"method": "rotation-invariant cross-correlation (Fisher statistic, combined)",
