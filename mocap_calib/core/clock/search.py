@@ -14,12 +14,13 @@ epochs), both sides low-passed alike, as much as the mocap's noise needs
 Each signal's correlation at every lag is turned into the statistic of a test against "no
 relation": Fisher's ``atanh(r)`` times ``sqrt(n_eff - 3)``, with ``n_eff`` the overlap's length
 over the signals' correlation time (smooth motion, and the smoothing, leave few independent
-samples). Without a
-relation it is about standard normal, so it reads in null sigmas. The signals' statistics are
-combined (Stouffer). A lag is resolved when its peak stands out of the null and clears every
-other peak (more than a second away) by a margin (null sigmas, and a fraction of its height);
-periodic motion gives several peaks of about the same height and is not resolved. When the raw stamps already share an epoch, lags near zero
-are searched first. The pipeline then confirms the choice by the fine fit.
+samples). Without a relation it is about standard normal, so it reads in null sigmas. The
+signals' statistics are combined (Stouffer). A lag is resolved when its peak stands out of the
+null and clears every other peak (more than a second away) by a margin (null sigmas, and a
+fraction of its height); periodic motion gives several peaks of about the same height and is
+not resolved. When the raw stamps already share an epoch, lags near zero are searched first.
+The chosen peak is refined on the signals at a tenth of a grid step; the pipeline then
+confirms the choice by the fine fit.
 """
 
 from __future__ import annotations
