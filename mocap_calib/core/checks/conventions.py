@@ -40,6 +40,7 @@ from mocap_calib.core.prepare.kinematics import (
     overlap,
     rotation_fit,
 )
+from mocap_calib.core.prepare.sensor_agreement import refuse_unmeasured_motion
 from mocap_calib.core.prepare.session import PreparedSession, local_derivative
 from mocap_calib.errors import InputError, ObservabilityError
 
@@ -331,8 +332,10 @@ def check_conventions(s: PreparedSession, offsets: list[float], gravity: float =
     Raises:
         InputError: a reading other than the given one, or the given one with other units,
             signs or handedness, explains the data (and the given one does not).
-        ObservabilityError: no reading does, and the best agreement is no better than chance
-            (the streams are not of the same stretch of the same recording).
+        ObservabilityError: no reading does, and the gyro follows the poses while the
+            accelerometer does not (:mod:`~mocap_calib.core.prepare.sensor_agreement`), or
+            the best agreement is no better than chance (the streams are not of the same
+            stretch of the same recording).
     """
     imu = SmoothedImu.of(s)
     fits: dict[str, Fit] = {}
@@ -354,6 +357,8 @@ def check_conventions(s: PreparedSession, offsets: list[float], gravity: float =
             return None  # the data as given fit too (only their parameters are off): unclear
         named = ([READINGS[best]] if best != "given" else []) + fixes[best]
         raise InputError("; ".join(named) + " (the data as they are read do not fit)")
+    if "given" in fits:  # the gyro follows the poses, the accelerometer does not: say so
+        refuse_unmeasured_motion(s, fits["given"].t_d, gravity)
     best = min(fits, key=lambda k: fits[k].score)
     R, p = read_as(best, s.R_WM, s.p_WM)
     chance = _chance(s, R, p, fits[best].t_d, imu)

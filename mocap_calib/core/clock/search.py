@@ -2,9 +2,10 @@
 
 Signals that do not depend on the unknown IMU-to-marker rotation are cross-correlated over
 every lag the two recordings allow (so offsets of any size work, also clocks of different
-epochs):
+epochs), both sides low-passed alike, as much as the mocap's noise needs
+(:mod:`~mocap_calib.core.clock.signals`):
 
-- angular speed: ``|gyro|`` against the mocap's ``|w|`` from consecutive attitudes;
+- angular speed: ``|gyro|`` against the mocap's ``|w|`` from its attitudes;
 - specific force: ``|accel|`` against ``|a_W - g_W|`` from the mocap's second derivative of
   position; the world's up axis is not known yet, so each axis-aligned up (z-up Vicon, y-up
   OptiTrack, ...) is tried and the best kept. This is the signal of translation-dominated
@@ -12,31 +13,28 @@ epochs):
 
 Each signal's correlation at every lag is turned into the statistic of a test against "no
 relation": Fisher's ``atanh(r)`` times ``sqrt(n_eff - 3)``, with ``n_eff`` the overlap's length
-over the signal's own correlation time (smooth motion has few independent samples). Without a
-relation it is about standard normal, so it reads in null sigmas. The signals' statistics are
-combined (Stouffer). A lag is resolved when its peak stands out of the null and clears every
-other peak (more than a second away) by a margin; periodic motion gives several peaks of about
-the same height and is not resolved. When the raw stamps already share an epoch, lags near zero
-are searched first. The pipeline then confirms the choice by the fine fit.
+over the signals' correlation time (smooth motion, and the smoothing, leave few independent
+samples). Without a relation it is about standard normal, so it reads in null sigmas. The
+signals' statistics are combined (Stouffer). A lag is resolved when its peak stands out of the
+null and clears every other peak (more than a second away) by a margin (null sigmas, and a
+fraction of its height); periodic motion gives several peaks of about the same height and is
+not resolved. When the raw stamps already share an epoch, lags near zero are searched first.
+The chosen peak is refined on the signals at a tenth of a grid step; the pipeline then
+confirms the choice by the fine fit.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.clock.filters import (
-    Spectra,
-    correlate_full,
-    median5,
-    peaks_apart,
-    savgol,
-)
-from mocap_calib.core.model import so3
-from mocap_calib.core.policy import GRAVITY, gap_threshold
+from mocap_calib.core.clock.filters import Spectra, correlate_full, peaks_apart
+from mocap_calib.core.clock.signals import ClockSignal, signals
+from mocap_calib.core.policy import GRAVITY
+from mocap_calib.core.prepare.noise_band import Smoothing
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]
@@ -48,14 +46,12 @@ MIN_PEAK_Z = 6.0
 #: ... and this many above every other peak further than :data:`PEAK_SEPARATION_S` away.
 MIN_MARGIN_Z = 3.0
 PEAK_SEPARATION_S = 1.0
+#: ... and by this fraction of its own height: periodic motion gives peaks of nearly equal
+#: correlation, and near 1 the Fisher statistic turns small differences in it (the model's,
+#: not chance's) into many null sigmas.
+MIN_LEAD = 0.1
 #: With raw stamps of one epoch, lags within this range (s) are searched first.
 SAME_EPOCH_RANGE_S = 5.0
-#: Signal variation below which a signal cannot align anything.
-MIN_SPEED_STD = 0.05  # rad/s
-MIN_FORCE_STD = 0.3  # m/s^2
-#: Axis-aligned candidates for the mocap world's up direction (gravity points down).
-UP_AXES = {"+z": (2, 1.0), "-z": (2, -1.0), "+y": (1, 1.0), "-y": (1, -1.0), "+x": (0, 1.0),
-           "-x": (0, -1.0)}
 
 
 @dataclass(frozen=True)
@@ -85,10 +81,16 @@ class ClockSearch:
     score: Array = field(repr=False, default_factory=lambda: np.zeros(0))
     candidates: tuple[tuple[float, float], ...] = ()
     verified_by_fit: bool = False  # chosen among equal peaks by stage 1-2 fits
+    smoothing: Smoothing | None = None  # the signals' low-pass widths
 
     @property
     def resolved(self) -> bool:
-        return self.peak_z >= MIN_PEAK_Z and self.margin_z >= MIN_MARGIN_Z
+        return self.peak_z >= MIN_PEAK_Z and self.margin_z >= self.required_margin
+
+    @property
+    def required_margin(self) -> float:
+        """The lead (null sigmas) the peak needs over every other (see :data:`MIN_LEAD`)."""
+        return max(MIN_MARGIN_Z, MIN_LEAD * self.peak_z)
 
     def to_dict(self) -> dict[str, object]:
         return {"method": "rotation-invariant cross-correlation (Fisher statistic, combined)",
@@ -97,77 +99,10 @@ class ClockSearch:
                 "second_best_time_offset": self.second_offset,
                 "searched_near_zero_first": self.restricted,
                 "chosen_by_fit_among_peaks": self.verified_by_fit,
-                "candidates": [{"time_offset": t, "z": round(z, 2)} for t, z in self.candidates]}
-
-
-def mocap_angular_speed(t: Array, R: Array) -> tuple[Array, Array]:
-    """Angular speed (rad/s) between consecutive mocap samples, at interval midpoints."""
-    dR = np.einsum("nji,njk->nik", R[:-1], R[1:])
-    dt = np.diff(t)
-    speed = np.linalg.norm(so3.log(dR), axis=1) / dt
-    return 0.5 * (t[1:] + t[:-1]), speed
-
-
-def _resample(t: Array, y: Array, dt: float, gap: float) -> tuple[float, Array, Array]:
-    """``y`` on a uniform grid, mean removed; samples inside gaps are zero (no signal).
-    Returns the grid start, the values and the in-gap mask."""
-    grid = np.arange(t[0], t[-1], dt)
-    out = np.interp(grid, t, y)
-    idx = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
-    in_gap = (t[idx] - t[idx - 1]) > gap
-    z = out - (out[~in_gap].mean() if np.any(~in_gap) else out.mean())
-    z[in_gap] = 0.0
-    return float(grid[0]), z, in_gap
-
-
-def _smooth(y: Array, n: int) -> Array:
-    """Median then Savitzky-Golay: single-sample spikes out, differentiation noise down."""
-    if len(y) <= max(7, n):
-        return y
-    return savgol(median5(y), n | 1, 2)
-
-
-@dataclass
-class _Signal:
-    name: str
-    start_i: float
-    x: Array  # IMU side on the grid
-    start_m: float
-    y: Array  # mocap side on the grid
-
-
-def _signals(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p_WM: Array,
-             dt: float, gravity: float) -> list[_Signal]:
-    gap_i = gap_threshold(u)
-    gap_m = gap_threshold(tau)
-    win = max(5, int(round(0.05 / dt)))
-    out = []
-    t_m, w_m = mocap_angular_speed(tau, R_WM)
-    s_i, x, _ = _resample(u, np.linalg.norm(gyro, axis=1), dt, gap_i)
-    s_m, y, _ = _resample(t_m, _smooth(w_m, 5), dt, gap_m)
-    if np.std(x) >= MIN_SPEED_STD and np.std(y) >= MIN_SPEED_STD:
-        out.append(_Signal("angular speed", s_i, _smooth(x, win), s_m, y))
-    # Specific force: the mocap's acceleration from a smoothing second derivative.
-    s_i, xf, _ = _resample(u, np.linalg.norm(accel, axis=1), dt, gap_i)
-    grid = np.arange(tau[0], tau[-1], dt)
-    if len(grid) > 4 * win and np.std(xf) >= MIN_FORCE_STD:
-        pos = np.stack([np.interp(grid, tau, p_WM[:, i]) for i in range(3)], axis=1)
-        n = max(7, int(round(0.1 / dt)) | 1)
-        acc = savgol(pos, n, 3, deriv=2, delta=dt)
-        idx = np.clip(np.searchsorted(tau, grid), 1, len(tau) - 1)
-        in_gap = (tau[idx] - tau[idx - 1]) > gap_m
-        # A gap corrupts the derivative around it: blank a filter length on both sides.
-        near = np.convolve(in_gap.astype(float), np.ones(n), mode="same") > 0
-        xs = _smooth(xf, win)  # one array for every axis (its transforms are shared)
-        for axis_name, (i, sign) in UP_AXES.items():
-            g = np.zeros(3)
-            g[i] = -gravity * sign  # gravity points down the up axis
-            f_m = np.linalg.norm(acc - g, axis=1)
-            f_m = f_m - f_m[~near].mean() if np.any(~near) else f_m - f_m.mean()
-            f_m[near] = 0.0
-            out.append(_Signal(f"specific force ({axis_name} up)", s_i, xs,
-                               float(grid[0]), f_m))
-    return out
+                "candidates": [{"time_offset": t, "z": round(z, 2)} for t, z in self.candidates],
+                **({} if self.smoothing is None else {"smoothing_s": {
+                    "angular speed": self.smoothing.rate_s,
+                    "specific force": self.smoothing.force_s}})}
 
 
 def _correlation(x: Array, y: Array, dt: float,
@@ -229,7 +164,7 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
         ObservabilityError: no signal varies enough (no motion), or nothing in range.
     """
     dt = 1.0 / GRID_HZ
-    sigs = _signals(u, gyro, accel, tau, R_WM, p_WM, dt, gravity)
+    sigs, sm = signals(u, gyro, accel, tau, R_WM, p_WM, dt, gravity)
     if not sigs:
         raise ObservabilityError(
             "cannot align the clocks: neither the angular speed nor the specific force varies "
@@ -240,14 +175,15 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     # transforms and correlation time are computed once.
     x_spectra: dict[tuple[int, int, int], tuple[Array, ...]] = {}
     x_time: dict[int, float] = {}
+    tau_cs: dict[str, float] = {}
     for sg in sigs:
         interrupt.check()
         corr, n, lags = _correlation(sg.x, sg.y, dt, x_spectra)
         td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
         if id(sg.x) not in x_time:
             x_time[id(sg.x)] = _correlation_time(sg.x, dt)
-        tau_c = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
-        curves[sg.name] = (td, _statistic(corr, n, tau_c, dt))
+        tau_cs[sg.name] = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
+        curves[sg.name] = (td, _statistic(corr, n, tau_cs[sg.name], dt))
     # Specific force: keep the up axis whose curve has the highest peak.
     force = {k: v for k, v in curves.items() if k.startswith("specific force")}
     if force:
@@ -268,11 +204,44 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
             raise ObservabilityError(
                 f"no clock offset within --max-offset {max_offset:g} s leaves enough overlap of "
                 "the two streams; widen --max-offset or check the files")
-    if (lo <= 0.0 <= hi) and max_offset is None:  # raw stamps of one epoch: near zero first
-        found = _peak(td, z, valid & (np.abs(td) <= SAME_EPOCH_RANGE_S))
-        if found.resolved:
-            return _with_curve(found, names, True, td, z)
-    return _with_curve(_peak(td, z, valid), names, False, td, z)
+    used = [sg for sg in sigs if sg.name in curves]
+    restricted = (lo <= 0.0 <= hi) and max_offset is None  # one epoch: near zero first
+    found = _peak(td, z, valid & (np.abs(td) <= SAME_EPOCH_RANGE_S)) if restricted else None
+    if found is None or not found.resolved:
+        restricted, found = False, _peak(td, z, valid)
+    fine = _fine_peak(used, tau_cs, found.time_offset, clock_shift, dt)
+    return _with_curve(replace(found, time_offset=fine), names, restricted, td, z, sm)
+
+
+def _fine_peak(sigs: list[ClockSignal], tau_c: dict[str, float], t_d: float,
+               clock_shift: float, dt: float) -> float:
+    """The combined statistic's peak within a grid step of ``t_d``, at tenths of a step: the
+    IMU side interpolated at each offset, usable points only. (On the grid, the curves of
+    smooth, slowly varying signals have flat tops that a parabola through three points
+    places off by several milliseconds.)"""
+    offsets = t_d + np.arange(-10, 11) * (dt / 10.0)
+    score = np.zeros(len(offsets))
+    for sg in sigs:
+        t_y = sg.start_m + np.arange(len(sg.y)) * dt
+        pos = (t_y[None, :] - clock_shift - offsets[:, None] - sg.start_i) / dt
+        k = np.clip(np.floor(pos).astype(int), 0, len(sg.x) - 2)
+        a = pos - k
+        ok = ((pos >= 0) & (pos <= len(sg.x) - 1) & sg.y_ok[None, :] & sg.x_ok[k]
+              & sg.x_ok[k + 1])
+        xi = (1.0 - a) * sg.x[k] + a * sg.x[k + 1]
+        for j in range(len(offsets)):
+            r = _pearson(xi[j][ok[j]], sg.y[ok[j]])
+            n_eff = max(ok[j].sum() * dt / tau_c[sg.name], 4.0)
+            score[j] += np.arctanh(np.clip(r, -0.9999, 0.9999)) * np.sqrt(n_eff - 3.0)
+    return _refine(offsets, score, int(np.argmax(score)))
+
+
+def _pearson(a: Array, b: Array) -> float:
+    if len(a) < 3:
+        return 0.0
+    a, b = a - a.mean(), b - b.mean()
+    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    return float(np.sum(a * b) / den) if den > 0 else 0.0
 
 
 def _refine(td: Array, zz: Array, k: int) -> float:
@@ -304,9 +273,9 @@ def _peak(td: Array, z: Array, use: NDArray[np.bool_]) -> ClockSearch:
 
 
 def _with_curve(found: ClockSearch, names: tuple[str, ...], restricted: bool, td: Array,
-                z: Array, max_points: int = 4000) -> ClockSearch:
+                z: Array, sm: Smoothing, max_points: int = 4000) -> ClockSearch:
     """The search result with the signals used and a decimated curve for reports."""
     k = max(1, len(td) // max_points)
     return ClockSearch(found.time_offset, names, found.peak_z, found.margin_z,
                        found.second_offset, restricted, td[::k].copy(), z[::k].copy(),
-                       found.candidates)
+                       found.candidates, smoothing=sm)

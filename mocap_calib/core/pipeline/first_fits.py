@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.checks.conventions import explain_failure, screen_conventions
-from mocap_calib.core.clock.search import MIN_MARGIN_Z, ClockSearch, search_clock
+from mocap_calib.core.clock.search import ClockSearch, search_clock
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.imu_model import Intrinsics, correct
@@ -222,7 +222,7 @@ def _disambiguate(s: PreparedSession, opts: CalibrationOptions, search: ClockSea
     """Several lags correlate about equally well: fit stages 1-2 at each and keep the one
     whose fit is clearly better (half the chi2/dof of the next), else refuse."""
     best_z = search.peak_z
-    cands = [t for t, z in search.candidates if z >= best_z - MIN_MARGIN_Z][:4]
+    cands = [t for t, z in search.candidates if z >= best_z - search.required_margin][:4]
     if best_z < 3.0 or len(cands) < 2:
         raise ObservabilityError(
             "cannot align the clocks: no lag of the two streams correlates clearly (peak "

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.prepare.noise_band import BRIDGE_S
 from mocap_calib.core.prepare.session import PreparedSession
 
 Array = NDArray[np.float64]
@@ -28,8 +29,14 @@ SMOOTH_S = 0.04
 STRETCH_S = 60.0
 
 
-def smooth(x: Array) -> Array:
-    return gaussian_filter1d(x, SMOOTH_S / GRID_S, axis=0, mode="nearest")
+def smooth(x: Array, width: float = SMOOTH_S) -> Array:
+    return gaussian_filter1d(x, width / GRID_S, axis=0, mode="nearest")
+
+
+def smoothing_of(s: PreparedSession) -> float:
+    """The session's smoothing (s): :data:`SMOOTH_S`, or wider when the mocap's noise needs
+    it (``s.band_s``, chosen from the data when the session was prepared)."""
+    return max(SMOOTH_S, s.band_s)
 
 
 @dataclass(frozen=True)
@@ -40,26 +47,34 @@ class SmoothedImu:
     gyro: Array
     accel: Array
     session: PreparedSession | None = None
+    width: float = SMOOTH_S
 
     @classmethod
     def of(cls, s: PreparedSession) -> SmoothedImu:
-        n = max(1, int(round(GRID_S * s.imu_rate)))
+        n = max(1, int(round(GRID_S * s.imu_rate))) | 1  # odd: centred, no half-sample delay
         k = np.ones(n) / n
         box = [np.stack([np.convolve(x[:, i], k, mode="same") for i in range(3)], axis=1)
                for x in (s.gyro, s.accel)]
-        return cls(s.u, box[0], box[1], s)
+        return cls(s.u, box[0], box[1], s, smoothing_of(s))
 
     def clear(self, u: Array) -> NDArray[np.bool_]:
         """Points whose smoothed value reaches no IMU gap."""
         if self.session is None:
             return np.ones(len(u), bool)
-        reach = 4 * SMOOTH_S + GRID_S
+        reach = 4 * self.width + GRID_S
         return self.session.imu_clear(u - reach, u + reach)
 
     def at(self, u: Array) -> tuple[Array, Array]:
-        g = np.stack([np.interp(u, self.u, self.gyro[:, i]) for i in range(3)], axis=1)
-        a = np.stack([np.interp(u, self.u, self.accel[:, i]) for i in range(3)], axis=1)
-        return smooth(g), smooth(a)
+        """Gyro and accelerometer smoothed at times ``u`` (smoothed on a contiguous grid, so
+        that points left out of ``u`` do not change the filter)."""
+        pad = 4 * self.width + GRID_S
+        grid = np.arange(u.min() - pad, u.max() + pad + GRID_S, GRID_S)
+        out = []
+        for x in (self.gyro, self.accel):
+            on = smooth(np.stack([np.interp(grid, self.u, x[:, i]) for i in range(3)], axis=1),
+                        self.width)
+            out.append(np.stack([np.interp(u, grid, on[:, i]) for i in range(3)], axis=1))
+        return out[0], out[1]
 
 
 @dataclass(frozen=True)
@@ -76,11 +91,13 @@ class MocapGrid:
 
 
 def mocap_grid(s: PreparedSession, R: Array, p: Array, lo: float, hi: float) -> MocapGrid:
+    width = smoothing_of(s)
     T = np.arange(lo, hi, GRID_S)
     idx = np.clip(np.searchsorted(s.tau, T), 1, len(s.tau) - 1)
-    gap = (s.tau[idx] - s.tau[idx - 1]) > s.gap
+    # Holes the smoothing bridges (a radio link's dropouts) are not gaps.
+    gap = (s.tau[idx] - s.tau[idx - 1]) > max(s.gap, BRIDGE_S)
     # Smoothing and differences reach a few sigma around a gap: leave those points out.
-    reach = int(np.ceil(4 * SMOOTH_S / GRID_S)) + 2
+    reach = int(np.ceil(4 * width / GRID_S)) + 2
     bad = np.convolve(gap.astype(float), np.ones(2 * reach + 1), mode="same") > 0
     bad[:reach] = bad[-reach:] = True
     i = np.clip(idx - 1, 0, len(s.tau) - 2)
@@ -89,9 +106,9 @@ def mocap_grid(s: PreparedSession, R: Array, p: Array, lo: float, hi: float) -> 
     Rg = R[i] @ so3.exp(a[:, None] * d)
     pg = p[i] + a[:, None] * (p[i + 1] - p[i])
     w_mid = so3.log(np.einsum("nji,njk->nik", Rg[:-1], Rg[1:])) / GRID_S
-    w_M = smooth(np.vstack([w_mid[:1], 0.5 * (w_mid[1:] + w_mid[:-1]), w_mid[-1:]]))
+    w_M = smooth(np.vstack([w_mid[:1], 0.5 * (w_mid[1:] + w_mid[:-1]), w_mid[-1:]]), width)
     alpha = np.gradient(w_M, GRID_S, axis=0)
-    a_W = np.gradient(np.gradient(smooth(pg), GRID_S, axis=0), GRID_S, axis=0)
+    a_W = np.gradient(np.gradient(smooth(pg, width), GRID_S, axis=0), GRID_S, axis=0)
     return MocapGrid(T, ~bad, w_M, alpha, a_W, Rg)
 
 

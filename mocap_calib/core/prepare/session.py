@@ -20,6 +20,9 @@ from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, r
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.policy import MIN_SESSION_S, gap_threshold
 from mocap_calib.core.prepare.gaps import ImuGaps, find_imu_gaps
+from mocap_calib.core.prepare.noise_band import noise_band
+from mocap_calib.core.prepare.pose_screen import PoseScreen, screen_poses
+from mocap_calib.core.prepare.pose_stream import arrived_together, describe_stream, stream_note
 from mocap_calib.errors import InputError, ObservabilityError
 
 Array = NDArray[np.float64]
@@ -53,6 +56,9 @@ class PreparedSession:
     imu_faults: ImuFaults | None = None  # saturated / frozen IMU samples (left out later)
     notes: tuple[str, ...] = ()  # what the sensor-fault screen removed
     imu_gaps: ImuGaps | None = None  # the IMU's gaps: nothing is integrated across them
+    #: low-pass width (s, Gaussian sigma) the mocap's attitude noise needs for its body rates
+    #: to be compared with the gyro (:func:`~mocap_calib.core.prepare.noise_band.noise_band`)
+    band_s: float = 0.0
 
     def imu_clear(self, u0: Array, u1: Array) -> NDArray[np.bool_]:
         """Whether IMU-clock spans ``[u0, u1]`` hold no IMU gap (with the interpolant's
@@ -100,8 +106,9 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSIO
             noise: NoiseModel | None = None) -> PreparedSession:
     """Check that the two streams can support a calibration and put them on relative clocks.
 
-    Gross mocap outliers (see :func:`screen_mocap_spikes`) are removed here; their count is in
-    ``spikes_removed``.
+    Gross mocap errors (see :func:`~mocap_calib.core.prepare.pose_screen.screen_poses`) are
+    removed here; the jumps' count is in ``spikes_removed``. Poses stamped on arrival lose the
+    earlier of each pair that arrived together and those delivered late (one note says so).
 
     Raises:
         InputError: too few samples, rates the method cannot use.
@@ -143,22 +150,43 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSIO
             "the session is (nearly) static: the body rotates less than 10 deg or the gyro "
             "barely moves; calibration needs motion that rotates the body about all axes")
     gap = gap_threshold(mocap.t, 0.02)
-    nz = noise or NoiseModel()
-    bad = screen_mocap_spikes(mocap.t, R, mocap.position, nz.mocap_position_sigma,
-                              nz.mocap_rotation_sigma, gap)
+    mocap, screen, note = _screen_poses(mocap, gap, noise or NoiseModel())
+    notes += [note] if note else []
+    bad = screen.jumps | screen.late
     keep = ~bad
+    R = mocap.rotation
+    band = noise_band(imu.t, imu.gyro, imu.accel, mocap.t[keep], R[keep], mocap.position[keep])
     return PreparedSession(
         u=imu.t, gyro=imu.gyro, accel=imu.accel, tau=mocap.t[keep], R_WM=R[keep],
         p_WM=mocap.position[keep],
         clock_shift=(imu.time_origin_ns - mocap.time_origin_ns) * 1e-9,
         gap=gap,
         dropped_mocap_rows=mocap.dropped_rows,
-        spikes_removed=int(bad.sum()),
-        removed_tau=mocap.t[bad],
+        spikes_removed=int(screen.jumps.sum()),
+        removed_tau=mocap.t[screen.jumps],
         imu_faults=imu_faults(imu.gyro, imu.accel, imu.rate_hz),
         notes=tuple(notes),
         imu_gaps=gaps,
+        band_s=band.rate_s,
     )
+
+
+def _screen_poses(mocap: MocapPoses, gap: float, nz: NoiseModel
+                  ) -> tuple[MocapPoses, PoseScreen, str | None]:
+    """The stream described, the earlier of poses that arrived together left out, and the
+    gross errors found (see :func:`~mocap_calib.core.prepare.pose_screen.screen_poses`)."""
+    stream = describe_stream(mocap.t, mocap.quat_wxyz, mocap.position)
+    together = np.zeros(len(mocap), bool)
+    if stream.arrival_stamped:
+        together = arrived_together(mocap.t, stream.near_step_s)
+        mocap = mocap.select(~together)
+    screen = screen_poses(mocap.t, mocap.rotation, mocap.position, gap,
+                          nz.mocap_position_sigma, nz.mocap_rotation_sigma,
+                          stream.arrival_stamped)
+    note = stream_note(stream, int(together.sum()), int(screen.late.sum()),
+                       screen.late_s[screen.late], screen.sigma_position_m,
+                       screen.sigma_rotation_rad)
+    return mocap, screen, note
 
 
 def _both_static(imu: ImuSamples, mocap: MocapPoses) -> bool:
@@ -167,42 +195,6 @@ def _both_static(imu: ImuSamples, mocap: MocapPoses) -> bool:
     angles = np.linalg.norm(so3.log(np.einsum("ji,njk->nik", R[0], R)), axis=1)
     return bool(np.percentile(speed, 90) < 0.1 and np.max(angles) < np.radians(10)
                 and np.max(np.ptp(mocap.position, axis=0)) < 0.05)
-
-
-def screen_mocap_spikes(tau: Array, R: Array, p: Array, sigma_p: float, sigma_r: float,
-                        gap: float) -> NDArray[np.bool_]:
-    """Flag gross mocap outliers (marker swaps, jumps) by their implausible accelerations.
-
-    A jump of a few centimetres or degrees between 10 ms samples implies hundreds of m/s^2 or
-    rad/s^2, far above both real motion and what the mocap noise produces. Spikes closer than
-    six samples are one event: every sample between them is flagged.
-
-    Returns:
-        (M,) True for samples to drop.
-    """
-    M = len(tau)
-    bad = np.zeros(M, bool)
-    if M < 5:
-        return bad
-    dt = np.diff(tau)
-    v = np.diff(p, axis=0) / dt[:, None]
-    w = so3.log(np.einsum("nji,njk->nik", R[:-1], R[1:])) / dt[:, None]
-    hdt = 0.5 * (dt[1:] + dt[:-1])
-    acc = np.linalg.norm(np.diff(v, axis=0), axis=1) / hdt
-    alpha = np.linalg.norm(np.diff(w, axis=0), axis=1) / hdt
-    ok = (dt[1:] < gap) & (dt[:-1] < gap)
-    dtm = float(np.median(dt))
-    # Thresholds: well above real motion, the assumed noise and the noise the data show
-    # (differentiated mocap noise dominates these medians at 100 Hz and above).
-    thr_p = max(150.0, 10.0 * np.sqrt(6.0) * sigma_p / dtm**2, 10.0 * float(np.median(acc[ok])))
-    thr_r = max(300.0, 10.0 * np.sqrt(6.0) * sigma_r / dtm**2, 10.0 * float(np.median(alpha[ok])))
-    spikes = np.flatnonzero(ok & ((acc > thr_p) | (alpha > thr_r))) + 1
-    if len(spikes) == 0:
-        return bad
-    groups = np.split(spikes, np.flatnonzero(np.diff(spikes) > 6) + 1)
-    for g in groups:
-        bad[g[0]:g[-1] + 1] = True
-    return bad
 
 
 def local_derivative(t: Array, y: Array, half: int,
