@@ -11,8 +11,8 @@ the gyro's white-noise densities, the mocap's attitude and position levels, the 
 and fraction of its correlated (AR(1)) part; then the accelerometer's level per IMU axis (the
 rotors shake a drone hardest along its thrust axis), kept where the data show it; then the
 bias random walks with the white densities they trade with (a random walk given 3x too high
-took two thirds of the accelerometer's white level when it was held). Jointly, because each level can pass
-for another: a white mocap model absorbs an accelerometer too noisy for its density (the
+took two thirds of the accelerometer's white level when it was held). Jointly, because each
+level can pass for another: a white mocap model absorbs an accelerometer too noisy for its density (the
 position level grows tenfold), and a white accelerometer level absorbs correlated mocap
 noise. The likelihood separates them (the accelerometer's error grows with the time since a
 window's start, correlated mocap noise does not), and a simulated flight's true levels are
