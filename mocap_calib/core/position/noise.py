@@ -12,9 +12,9 @@ and fraction of its correlated (AR(1)) part; then the accelerometer's level per 
 rotors shake a drone hardest along its thrust axis), kept where the data show it; then the
 bias random walks with the white densities they trade with (a random walk given 3x too high
 took two thirds of the accelerometer's white level when it was held). Jointly, because each
-level can pass for another: a white mocap model absorbs an accelerometer too noisy for its density (the
-position level grows tenfold), and a white accelerometer level absorbs correlated mocap
-noise. The likelihood separates them (the accelerometer's error grows with the time since a
+level can pass for another: a white mocap model absorbs an accelerometer too noisy for its
+density (the position level grows tenfold), and a white accelerometer level absorbs
+correlated mocap noise. The likelihood separates them (the accelerometer's error grows with the time since a
 window's start, correlated mocap noise does not), and a simulated flight's true levels are
 found within a few per cent (``tests/test_noise_identification.py``).
 
