@@ -6,17 +6,17 @@ the mocap noise is correlated over a fraction of a second. The answer depends on
 accelerometer is weighted against the mocap, so the weights must be the data's own.
 
 Every level is identified jointly by the windows' exact Gaussian likelihood (the window filter
-of :mod:`mocap_calib.core.position.engine`) at the current solution: the accelerometer's and
-the gyro's white-noise densities, the mocap's attitude and position levels, the time constant
-and fraction of its correlated (AR(1)) part; then the accelerometer's level per IMU axis (the
-rotors shake a drone hardest along its thrust axis), kept where the data show it; then the
-bias random walks with the white densities they trade with (a random walk given 3x too high
-took two thirds of the accelerometer's white level when it was held). Jointly, because each
-level can pass for another: a white mocap model absorbs an accelerometer too noisy for its
-density (the position level grows tenfold), and a white accelerometer level absorbs
-correlated mocap noise. The likelihood separates them (the accelerometer's error grows with the time since a
-window's start, correlated mocap noise does not), and a simulated flight's true levels are
-found within a few per cent (``tests/test_noise_identification.py``).
+of :mod:`mocap_calib.core.position.engine`) at the current solution: the accelerometer's and the
+gyro's white-noise densities, the mocap's attitude and position levels, the time constant and
+fraction of its correlated (AR(1)) part; then the accelerometer's level per IMU axis (the rotors
+shake a drone hardest along its thrust axis), kept where the data show it; then the bias random
+walks with the white densities they trade with (a random walk given 3x too high took two thirds
+of the accelerometer's white level when it was held). Jointly, because each level can pass for
+another: a white mocap model absorbs an accelerometer too noisy for its density (the position
+level grows tenfold), and a white accelerometer level absorbs correlated mocap noise. The
+likelihood separates them (the accelerometer's error grows with the time since a window's start,
+correlated mocap noise does not), and a simulated flight's true levels are found within a few
+per cent (``tests/test_noise_identification.py``).
 
 The search runs on a subset of the windows, spread over every take and thinned to about
 :data:`RATE_HZ` (the per-sample mocap noise and the correlation time mean the same at any
