@@ -1,10 +1,11 @@
 """Before/after comparison of calibration results across a code change.
 
-``run`` calibrates a fixed set of sessions through the command line (EuRoC V2_03, BROAD
-15/21/27 from ``../shared/data`` and simulated sessions written once to ``--sessions``) and keeps
-every result YAML in OUT; ``compare`` reads two such folders and prints, per session and
-parameter, the largest difference and the largest |difference| / sigma (the "after" sigma). A
-refactor must give identical results; a speed change must stay within 0.1 sigma.
+``run`` calibrates a fixed set of sessions through the command line (EuRoC V2_03, BROAD 15/21/27
+and the Crazyflie flights from ``../shared/data``, and simulated sessions written once to
+``--sessions``) and keeps every result YAML in OUT; ``compare`` reads two such folders and
+prints, per session and parameter, the largest difference and the largest |difference| / sigma
+(the "after" sigma). A refactor must give identical results; a speed change must stay within 0.1
+sigma.
 
 Usage:
     python scripts/before_after.py run OUT [--sessions DIR] [--only euroc,sim1]
@@ -47,6 +48,9 @@ def sessions(sim_dir: Path) -> dict[str, list[str]]:
                   "27_disturbed_phone_vibration_B"):
         csv = str(DATA / f"broad_{trial}" / "data.csv")
         out[f"broad{trial[:2]}"] = ["--imu", csv, "--mocap", csv, "--columns", "broad"]
+    for flight in ("cfBolt-log00", "0425-traj1", "0422-log00"):
+        log = str(DATA / "crazyflie_util" / flight)
+        out[f"cf_{flight}"] = ["--imu", log, "--mocap", log]
     for name in SIMULATED:
         out[name] = [str(sim_dir / name)]
     return out
