@@ -58,17 +58,22 @@ def test_calibrate_with_two_files_and_an_effect(session: Path, tmp_path: Path, c
 
 
 
-def test_accel_noise_from_data_flag_takes_effect(session: Path, tmp_path: Path, capsys) -> None:
-    """The flag reaches the calibration: the density used is the estimated one (this session
-    was simulated at the default's level, so it stays near it) and the result says so."""
-    out = tmp_path / "a.yaml"
-    code = main(["calibrate", str(session), "--out", str(out), "--accel-noise-from-data",
-                 "--segments", "0", "-q"])
-    assert code == 0, capsys.readouterr().err
-    d = yaml.safe_load(out.read_text())
-    used = d["noise"]["accelerometer_noise_density"]
-    assert used != 2e-3 and used == pytest.approx(2e-3, rel=0.3), used
-    assert any("accelerometer noise density from the data" in n for n in d["notes"]), d["notes"]
+def test_noise_from_data_and_fixed_noise(tmp_path: Path, capsys) -> None:
+    """A flight whose accelerometer is 10x noisier than its data sheet (the flying preset):
+    by default the calibration uses the levels the data show, with --fixed-noise the given
+    ones."""
+    sess = tmp_path / "fly"
+    assert main(["simulate", str(sess), "--preset", "flying", "--duration", "40",
+                 "--seed", "3"]) == 0
+    used = {}
+    for flag in ("--noise-from-data", "--fixed-noise"):
+        out = tmp_path / f"{flag}.yaml"
+        code = main(["calibrate", str(sess), "--out", str(out), flag, "--segments", "0", "-q"])
+        assert code == 0, capsys.readouterr().err
+        used[flag] = yaml.safe_load(out.read_text())["noise"]["accelerometer_noise_density"]
+    assert used["--fixed-noise"] == pytest.approx(2e-3)
+    assert used["--noise-from-data"] > 5 * 2e-3, used
+
 
 @pytest.mark.parametrize(("args", "named"), [
     ([], "give a mav0 folder, or both --imu and --mocap"),  # neither a folder nor files

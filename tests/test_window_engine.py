@@ -108,18 +108,33 @@ def _observation(th: Theta, Rbar: np.ndarray) -> np.ndarray:
     return H
 
 
+def _process_noise(noise: NoiseModel, R: np.ndarray, h: float) -> np.ndarray:
+    """A step's process noise written out: white gyro noise on the attitude, the
+    accelerometer's (per IMU axis, turned into the world by the nominal attitude ``R`` at the
+    step's start) integrated into velocity and position, the bias random walks."""
+    Qa = noise.accelerometer_noise_density**2 * (
+        R @ np.diag(noise.accelerometer_axis_scale) @ R.T)
+    Q = np.zeros((15, 15))
+    Q[0:3, 0:3] = noise.gyroscope_noise_density**2 * h * np.eye(3)
+    Q[3:6, 3:6] = Qa * h**3 / 3.0
+    Q[6:9, 6:9] = Qa * h
+    Q[3:6, 6:9] = Q[6:9, 3:6] = Qa * h**2 / 2.0
+    Q[9:12, 9:12] = noise.gyroscope_random_walk**2 * h * np.eye(3)
+    Q[12:15, 12:15] = noise.accelerometer_random_walk**2 * h * np.eye(3)
+    return Q
+
+
 def _dense_cov(ex: dict, w: int, m1: int, noise: NoiseModel, full: np.ndarray, rho: float,
                Rn: np.ndarray, wt: np.ndarray, H: np.ndarray) -> np.ndarray:
     """Dense covariance of all residuals of window ``w`` from the filter's state-space model
     (``ex``, the engine's extras), the observation rows ``H`` and the mocap noise written out
     (``full``, ``Rn``)."""
-    F, qd, qpv = ex["F"][w], ex["q_diag"][w], ex["q_pv"][w]
+    F = ex["F"][w]
     P = np.diag(np.r_[np.full(3, 1.0), np.full(3, 1.0), np.full(3, 0.25), np.zeros(6)])
     Ps = [P]
     for k in range(m1 - 1):
-        Q = np.diag(qd[k])
-        Q[3:6, 6:9] += qpv[k] * np.eye(3)
-        Q[6:9, 3:6] += qpv[k] * np.eye(3)
+        Q = _process_noise(noise, ex["Rbar"][w, k], ex["h"][w, k])
+        np.testing.assert_allclose(ex["Q"][w, k], Q, rtol=1e-9, atol=1e-12 * np.abs(Q).max())
         P = F[k] @ P @ F[k].T + Q
         Ps.append(P)
     # The correlated mocap noise, written out as its own Gauss-Markov sequence.
@@ -157,8 +172,14 @@ def _dense_cov(ex: dict, w: int, m1: int, noise: NoiseModel, full: np.ndarray, r
     (NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
                 mocap_noise_corr_fraction=0.7), np.ones(6)),
     (NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
-                mocap_noise_corr_fraction=0.7), np.array([2.0, 0.5, 1.0, 0.25, 3.0, 1.0]))],
-    ids=["white", "white-axes", "correlated", "correlated-axes"])
+                mocap_noise_corr_fraction=0.7), np.array([2.0, 0.5, 1.0, 0.25, 3.0, 1.0])),
+    # The accelerometer noisier along one IMU axis (a drone's thrust axis).
+    (NoiseModel(accelerometer_axis_scale=(0.5, 0.7, 2.9)), np.ones(6)),
+    (NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+                mocap_noise_corr_fraction=0.7, accelerometer_axis_scale=(3.0, 0.5, 0.6)),
+     np.array([2.0, 0.5, 1.0, 0.25, 3.0, 1.0]))],
+    ids=["white", "white-axes", "correlated", "correlated-axes", "accel-axes",
+         "correlated-accel-axes"])
 def test_kalman_whitening_equals_dense_gaussian_likelihood(short_session, noise, axes):
     sim, s, v = short_session
     model = Model.parse("base+time_offset")

@@ -28,7 +28,7 @@ class CalibrationOptions:
         plausible: the limits of a physically possible answer.
         max_mocap_rate: the position stage decimates faster mocap streams to this rate (Hz).
         adapt_noise: re-estimate the mocap noise level from the residuals (and, with
-            ``accel_noise_from_data``, the accelerometer's from the windows' likelihood).
+            ``noise_from_data``, identify every level from the windows' likelihood).
         sensitivity: refit with the IMU noise densities scaled by 3 and 1/3 and under the
             correlated mocap noise model.
         effect_tests: test every canonical effect the model lacks at the solution.
@@ -63,10 +63,11 @@ class CalibrationOptions:
         "skip)", lo=2, hi=20, also=(0,))
     robust: bool = param(True, "down-weight mocap outliers (--no-robust: every sample counts "
                          "fully)")
-    accel_noise_from_data: bool = param(
-        False, "set the accelerometer's noise density to the level the data show (the windows' "
-        "likelihood; in flight the rotors' vibration adds to the data sheet's) instead of the "
-        "one given", decls=("--accel-noise-from-data",))
+    noise_from_data: bool = param(
+        True, "identify the IMU's and the mocap's noise levels from the data (the windows' "
+        "likelihood: in flight the rotors' vibration adds to the data sheet's, and mocap noise "
+        "is correlated) and use them where the data contradict the densities given; "
+        "--fixed-noise holds the given ones", decls=("--noise-from-data/--fixed-noise",))
     accept_implausible: bool = param(
         False, "write an answer that fails the plausibility checks (marked as such) instead of "
         "exiting 4", decls=("--accept-implausible",))

@@ -52,7 +52,8 @@ class ParamInfo:
         """The name a user types (``--keyframe-spacing``), or the argument's name."""
         if self.argument:
             return name.upper()
-        return self.decls[0] if self.decls else "--" + name.replace("_", "-")
+        # A flag pair (``--noise-from-data/--fixed-noise``) is named by its first form.
+        return self.decls[0].split("/")[0] if self.decls else "--" + name.replace("_", "-")
 
     def allowed(self) -> str:
         """The allowed values in words (empty when anything of the type goes)."""

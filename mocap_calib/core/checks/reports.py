@@ -48,8 +48,7 @@ def sensitivity_report(sens: Sensitivity, total: dict[Parameter, Array]) -> Sens
                      if p in total} for f, sh in sens.raw.items()}
     return SensitivityReport(
         {f: {p: round(v, 3) for p, v in m.items()} for f, m in sens.moved.items()}, moved,
-        {k: round(v, 4) for k, v in sens.mocap_model.items()} or None,
-        float(f"{sens.accel_density:.4g}") if sens.accel_density else None, sens.note)
+        {k: round(v, 4) for k, v in sens.mocap_model.items()} or None, sens.note)
 
 
 def consistency_degraded(c: Consistency, what: str, asked: bool) -> list[Degradation]:

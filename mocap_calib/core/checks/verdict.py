@@ -1,12 +1,15 @@
 """The verdict on a finished calibration: plausible or refused, consistent, robust to the noise
 models, with one documented rule for every reported sigma.
 
-1. Plausibility (:mod:`~mocap_calib.core.checks.plausibility`): an answer no physical rig could
-   have is refused (exit 4), or with ``accept_implausible`` returned marked as such.
-2. Consistency (:mod:`~mocap_calib.core.uncertainty.segments`): the session's time segments
+1. Consistency (:mod:`~mocap_calib.core.uncertainty.segments`): the session's time segments
    (and its takes) calibrated on their own.
-3. Sensitivity (:mod:`~mocap_calib.core.uncertainty.sensitivity`): the answer under IMU noise
+2. Sensitivity (:mod:`~mocap_calib.core.uncertainty.sensitivity`): the answer under IMU noise
    densities x3 and x1/3 and under the correlated mocap noise model the session prefers.
+3. The sigmas by the rule below; a parameter whose sigma is beyond use is reported
+   undetermined (:func:`~mocap_calib.core.checks.degenerate.mark_undetermined`).
+4. Plausibility (:mod:`~mocap_calib.core.checks.plausibility`) of what is determined: an answer
+   no physical rig could have is refused (exit 4), or with ``accept_implausible`` returned
+   marked as such.
 
 The rule, per parameter and component (``uncertainty`` in the result lists every term):
 
@@ -34,7 +37,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.checks.degenerate import single_axis_refusal
+from mocap_calib.core.checks.degenerate import mark_undetermined, single_axis_refusal
 from mocap_calib.core.checks.plausibility import check_plausibility
 from mocap_calib.core.checks.reports import (
     consistency_degraded,
@@ -83,22 +86,12 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
 
     Raises:
         PlausibilityError: the answer is implausible and ``opts.accept_implausible`` is off.
-        ObservabilityError: the same, on motion about one axis only.
+        ObservabilityError: the same, on motion about one axis only; or the motion determines
+            none of R_MI, p_MI and the clock offset.
     """
     clock = clocks[0] if len(clocks) == 1 else None
     if clock is not None:
         r = replace(r, clock=ClockSummary.of(clock, r.time_offset))
-    plaus = check_plausibility(r, opts.plausible, None if clock is None else clock.time_offset)
-    r = replace(r, plausibility=plaus)
-    if plaus.failed:
-        reasons = "; ".join(plaus.failed)
-        if not opts.accept_implausible and single_axis is not None:
-            raise single_axis_refusal(single_axis, f"the fit: {reasons}")
-        if not opts.accept_implausible:
-            raise PlausibilityError(
-                f"implausible calibration: {reasons}; check the inputs' units, conventions and "
-                "clock, or pass --accept-implausible to write it marked as such")
-        r = r.with_notes(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
     cons, takes, sens = Consistency(), Consistency(), Sensitivity()
     t0 = time.perf_counter()
     if opts.segments >= 2:
@@ -112,9 +105,13 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
         say("sensitivity: IMU noise densities x3 and x1/3, correlated mocap noise")
         shown = () if r.effect_tests is None else r.effect_tests.shown
         sens = noise_sensitivity(pos, opts.model, max_iterations=opts.max_iterations,
-                                 priors=opts.priors, effects_shown=shown)
+                                 priors=opts.priors, effects_shown=shown,
+                                 limits=opts.plausible)
     t2 = time.perf_counter()
-    r = _apply_rule(r, cons, takes, sens)
+    # What the session cannot determine is reported as such before anything is judged
+    # plausible: never a verdict on a number the result says it does not know.
+    r = plausibility_gate(mark_undetermined(_apply_rule(r, cons, takes, sens)), opts, clock,
+                   single_axis)
     total = {p: e.terms.total for p, e in r.estimates.items() if e.terms is not None}
     r = replace(r, consistency=consistency_report(cons, takes),
                 sensitivity=sensitivity_report(sens, total))
@@ -123,6 +120,28 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
                         *consistency_degraded(takes, "take", len(pos.takes) > 1),
                         *sensitivity_degraded(sens))
     return r, {"consistency": round(t1 - t0, 3), "sensitivity": round(t2 - t1, 3)}
+
+
+def plausibility_gate(r: CalibrationResult, opts: CalibrationOptions, clock: ClockSearch | None,
+               single_axis: Array | None) -> CalibrationResult:
+    """``r`` with its plausibility section (and a note when accepted as implausible).
+
+    Raises:
+        PlausibilityError: the answer is implausible and ``opts.accept_implausible`` is off.
+        ObservabilityError: the same, on motion about one axis only.
+    """
+    plaus = check_plausibility(r, opts.plausible, None if clock is None else clock.time_offset)
+    r = replace(r, plausibility=plaus)
+    if not plaus.failed:
+        return r
+    reasons = "; ".join(plaus.failed)
+    if not opts.accept_implausible and single_axis is not None:
+        raise single_axis_refusal(single_axis, f"the fit: {reasons}")
+    if not opts.accept_implausible:
+        raise PlausibilityError(
+            f"implausible calibration: {reasons}; check the inputs' units, conventions and "
+            "clock, or pass --accept-implausible to write it marked as such")
+    return r.with_notes(f"IMPLAUSIBLE (accepted with --accept-implausible): {reasons}")
 
 
 def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,
@@ -174,20 +193,16 @@ def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency,
             f"fraction {m.get('fraction', 0):g}) moves "
             + ", ".join(f"{p.symbol} by {v:.1f}" for p, v in big.items())
             + " of its statistical sigma: the sigmas carry that move as model uncertainty")
-    used = r.noise.accelerometer_noise_density
-    if sens.accel_density and used and abs(np.log(sens.accel_density / used)) > np.log(2.0):
-        out.append(
-            f"the accelerometer's noise is not the {used:.3g} m/s^2/sqrt(Hz) used: at this "
-            f"solution the windows' likelihood is best at {sens.accel_density:.3g} "
-            f"({sens.accel_density / used:.3g} x; in flight the rotors' vibration adds to the "
-            "data sheet's); --accel-noise-from-data estimates it with the mocap's levels and "
-            "uses it")
     if EFFECTS_SHOWN in sens.raw and r.effect_tests is not None:
         out.append("the sigmas carry how far the answer moves when the effects the data "
                    "show are added to the model (" + ", ".join(r.effect_tests.shown)
                    + "): fit them with --model auto")
+    if sens.implausible:
+        out.append("the effects the data show are not added to the sigmas as model "
+                   f"uncertainty: with them the fit is not physical ({sens.implausible}); a "
+                   "misfit of the noise model can pass for an effect")
     if sens.shift:
         out.append("sigmas include the shifts under other noise models (IMU densities x3 "
-                   "and x1/3, correlated mocap noise) beyond chance and cover their moves "
-                   "(the uncertainty section lists every term)")
+                   "and x1/3 of those used, correlated mocap noise) beyond chance and cover "
+                   "their moves (the uncertainty section lists every term)")
     return out

@@ -7,6 +7,7 @@ own clock), so nanosecond stamps survive a read/write round trip and float times
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -140,9 +141,21 @@ class NoiseModel:
     # filters smooth): a fraction of its variance is an AR(1) process with this time constant.
     mocap_noise_corr_time: float = 0.0  # s; 0: white
     mocap_noise_corr_fraction: float = 0.0  # fraction of the variance that is correlated
+    # The accelerometer's white-noise variance per IMU axis, as factors on its density's square
+    # (a drone's vibration is strongest along the thrust axis); all ones: the same on each.
+    accelerometer_axis_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
-    def to_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in self.__dict__.items()}
+    @property
+    def isotropic(self) -> bool:
+        return tuple(self.accelerometer_axis_scale) == (1.0, 1.0, 1.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (the per-axis factors only when they are not all one)."""
+        out: dict[str, Any] = {k: float(v) for k, v in self.__dict__.items()
+                               if k != "accelerometer_axis_scale"}
+        if not self.isotropic:
+            out["accelerometer_axis_scale"] = [float(x) for x in self.accelerometer_axis_scale]
+        return out
 
     def imu_scaled(self, f: float) -> NoiseModel:
         """This model with the IMU noise densities and random walks times ``f`` (the noise
@@ -157,6 +170,11 @@ class NoiseModel:
         return self.mocap_noise_corr_time > 0.0 and self.mocap_noise_corr_fraction > 0.0
 
     @classmethod
-    def from_dict(cls, d: dict[str, float]) -> NoiseModel:
-        known = {k: float(v) for k, v in d.items() if k in cls.__dataclass_fields__}
+    def from_dict(cls, d: dict[str, Any]) -> NoiseModel:
+        known: dict[str, Any] = {k: float(v) for k, v in d.items()
+                                 if k in cls.__dataclass_fields__
+                                 and k != "accelerometer_axis_scale"}
+        if d.get("accelerometer_axis_scale") is not None:
+            known["accelerometer_axis_scale"] = tuple(
+                float(x) for x in d["accelerometer_axis_scale"])
         return cls(**known)

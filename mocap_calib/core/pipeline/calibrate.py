@@ -21,7 +21,6 @@ from numpy.typing import NDArray
 from mocap_calib.core import interrupt
 from mocap_calib.core.checks.degenerate import (
     mark_single_axis,
-    mark_undetermined,
     single_axis,
     single_axis_refusal,
 )
@@ -49,6 +48,7 @@ from mocap_calib.core.result.sections import (
     ClockSummary,
     Degradation,
     ImuGapsSummary,
+    NoiseIdentification,
     SolverFigures,
     TakeResult,
     per_axis_figures,
@@ -169,7 +169,6 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
     result, axis = mark_single_axis(result, f.s, pos.delta)
     result, steps = judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits],
                           say, axis)
-    result = mark_undetermined(result)
     interrupt.check()
     solver = replace(result.solver, total_seconds=round(time.perf_counter() - t0, 3))
     return replace(result, solver=solver.with_steps(last={
@@ -187,7 +186,7 @@ def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: Positi
                                   init, opts.priors, opts.robust, opts.max_iterations,
                                   irls_rounds=SETTLING_ROUNDS,
                                   adapt_noise=opts.adapt_noise,
-                                  adapt_accel=opts.adapt_noise and opts.accel_noise_from_data,
+                                  identify_noise=opts.adapt_noise and opts.noise_from_data,
                                   on_iteration=on_iteration, progress=say)
     except ConvergenceError as err:
         axis = single_axis(fits[lead].s, fits[lead].delta0)
@@ -257,17 +256,18 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     sr, sp = pos.solver["mocap_noise_variance_scale"]
     att = np.degrees(pos.noise.mocap_rotation_sigma * np.sqrt(pos.axis_scale[0:3]))
     posn = 1e3 * pos.noise.mocap_position_sigma * np.sqrt(pos.axis_scale[3:6])
-    if max(abs(np.log(sr)), abs(np.log(sp)), *np.abs(np.log(pos.axis_scale))) > np.log(1.1):
+    ident = _identification(pos, opts)
+    if ident is not None:
+        notes.append(ident.summary())
+    used = ident is not None and ident.used
+    if not used and max(abs(np.log(sr)), abs(np.log(sp)),
+                        *np.abs(np.log(pos.axis_scale))) > np.log(1.1):
         notes.append(
             "mocap noise estimated from the residuals: "
             + ", ".join(f"{x:.3g}" for x in posn) + " mm and "
             + ", ".join(f"{x:.3g}" for x in att) + " deg per axis (assumed "
             f"{1e3 * opts.noise.mocap_position_sigma:.3g} mm, "
             f"{np.degrees(opts.noise.mocap_rotation_sigma):.3g} deg)")
-    a_given, a_used = (n.accelerometer_noise_density for n in (opts.noise, pos.noise))
-    if a_used != a_given:
-        notes.append(f"accelerometer noise density from the data: {a_used:.3g} m/s^2/sqrt(Hz) "
-                     f"({a_used / a_given:.3g} x the {a_given:.3g} given)")
     # The sigmas are the larger of the model's and the sandwich's (see uncertainty.py), which
     # already carries residuals beyond the noise model: no chi2 scaling on top.
     if pos.chi2_per_dof > 1.2:
@@ -296,16 +296,26 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
     result = CalibrationResult(
         estimates=estimates, gravity_magnitude=float(pos.g_mag), model=str(model),
         effects=effects, unobservable=unob, stages=tuple(stages), solver=solver,
-        noise=pos.noise, notes=tuple(notes), session=session_info, diagnostics=diag)
+        noise=pos.noise, noise_identification=ident, notes=tuple(notes),
+        session=session_info, diagnostics=diag)
     return result.with_degraded(*_settling(pos))
+
+
+def _identification(pos: PositionResult, opts: CalibrationOptions) -> NoiseIdentification | None:
+    """The noise identification's section (None when the noise was held fixed)."""
+    found = pos.identification
+    if found is None:
+        return None
+    return NoiseIdentification(found.noise, opts.noise, found.contradicts, found.gain,
+                               found.threshold, found.windows, found.samples)
 
 
 def _settling(pos: PositionResult) -> list[Degradation]:
     """The position stage's settling rounds cut off by their cap."""
-    if pos.solver.get("position_rounds", 0) < SETTLING_ROUNDS:
+    if not pos.solver.get("position_rounds_capped", False):
         return []
     return [Degradation(
         "position stage", f"the rounds that settle the mocap noise levels and robust weights "
-        f"reached their cap ({SETTLING_ROUNDS}) before the levels stopped moving, or just as "
-        "they did", "the answer and its sigmas are at the last levels and weights; the "
+        f"reached their cap ({SETTLING_ROUNDS}) before the levels and weights stopped moving",
+        "the answer and its sigmas are at the last levels and weights; the "
         "sensitivity to the noise model covers what a further round could move")]

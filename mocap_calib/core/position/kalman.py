@@ -39,8 +39,9 @@ def step_mean(y_nodes: Array, hs: Array, h: Array) -> Array:
 def noise_params(nz: NoiseModel, axis_scale: Array = UNIT_AXES) -> Array:
     """The filter's noise parameters (:data:`~mocap_calib.core.position.kernels.N_PAR` values):
     IMU densities and random walks squared, the correlated fraction and time constant of the
-    mocap noise (zero when white) and the six mocap variances: attitude per axis in the IMU
-    frame, position per axis in the world frame, each times ``axis_scale``."""
+    mocap noise (zero when white), the six mocap variances: attitude per axis in the IMU
+    frame, position per axis in the world frame, each times ``axis_scale``, and the
+    accelerometer's variance factors per IMU axis."""
     par = np.zeros(kn.N_PAR)
     par[kn.Q_GYRO] = nz.gyroscope_noise_density**2
     par[kn.Q_ACCEL] = nz.accelerometer_noise_density**2
@@ -52,6 +53,7 @@ def noise_params(nz: NoiseModel, axis_scale: Array = UNIT_AXES) -> Array:
     scale = np.asarray(axis_scale, dtype=float)
     par[kn.SIG2:kn.SIG2 + 3] = nz.mocap_rotation_sigma**2 * scale[0:3]
     par[kn.SIG2 + 3:kn.SIG2 + 6] = nz.mocap_position_sigma**2 * scale[3:6]
+    par[kn.ACCEL_AXES:kn.ACCEL_AXES + 3] = nz.accelerometer_axis_scale
     return par
 
 
@@ -154,17 +156,17 @@ def likelihood_pass(h: Array, mask: NDArray[np.bool_], wh: Whitening, Rbar: Arra
 
 def state_space(h: Array, wh: Whitening, Rbar: Array) -> dict[str, Array]:
     """The filter's state-space model written out (tests against a dense likelihood):
-    transitions ``F``, process noise ``q_diag``/``q_pv``, white mocap noise ``Rn``, the
+    transitions ``F``, process noise ``Q``, white mocap noise ``Rn``, the
     position rows' attitude block ``Hp``, the weights, and with correlated mocap noise its
     ``Fm``, ``Qm`` and ``Pm0``."""
     W, m = h.shape
     corr = wh.par[kn.RHO] > 0 and wh.par[kn.T_CORR] > 0
-    F, q_diag, q_pv = np.zeros((W, m, 15, 15)), np.zeros((W, m, 15)), np.zeros((W, m))
+    F, Q = np.zeros((W, m, 15, 15)), np.zeros((W, m, 15, 15))
     Rn, Hp = np.zeros((W, m + 1, 6, 6)), np.zeros((W, m + 1, 3, 3))
     Fm, Qm, Pm0 = np.zeros((W, m, 6, 6)), np.zeros((W, m, 6, 6)), np.zeros((W, 6, 6))
-    kn.state_space(_c(wh.inc), _c(Rbar), _c(h), _c(wh.M), _c(wh.par), F, q_diag, q_pv, Rn, Hp,
-                   Fm, Qm, Pm0)
-    out = {"F": F, "q_diag": q_diag, "q_pv": q_pv, "Rn": Rn, "Hp": Hp, "Rbar": Rbar.copy(),
+    kn.state_space(_c(wh.inc), _c(Rbar), _c(h), _c(wh.M), _c(wh.par), F, Q, Rn, Hp, Fm, Qm,
+                   Pm0)
+    out = {"F": F, "Q": Q, "Rn": Rn, "Hp": Hp, "Rbar": Rbar.copy(), "h": h.copy(),
            "weights": wh.weights.copy()}
     if corr:
         out.update(Fm=Fm, Qm=Qm, Pm0=Pm0)

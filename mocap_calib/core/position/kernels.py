@@ -13,7 +13,8 @@ Layouts: ``inc`` (W, m, 51) is a step's packed increments (dR, dv, dp, A, C, B, 
 :func:`~mocap_calib.core.model.preint.integrate_pieces`); ``par`` holds the noise: gyro and accel
 noise densities squared, their random walks squared, the correlated fraction and time constant of
 the mocap noise (AR(1) states when both are positive) and the six white mocap variances
-(attitude in the IMU frame, position in the world frame).
+(attitude in the IMU frame, position in the world frame), and the accelerometer's per-axis
+factors.
 """
 
 from __future__ import annotations
@@ -22,9 +23,12 @@ import numpy as np
 
 from mocap_calib.core.jit import kernel
 
-#: Index of the noise parameters in ``par``.
-Q_GYRO, Q_ACCEL, Q_GYRO_WALK, Q_ACCEL_WALK, RHO, T_CORR, SIG2 = 0, 1, 2, 3, 4, 5, 6
-N_PAR = 12
+#: Index of the noise parameters in ``par``: the densities squared, the mocap noise's AR(1)
+#: fraction and time constant, its six white variances, and the accelerometer's white-noise
+#: variance factors per IMU axis (all ones: isotropic).
+Q_GYRO, Q_ACCEL, Q_GYRO_WALK, Q_ACCEL_WALK, RHO, T_CORR, SIG2, ACCEL_AXES = (
+    0, 1, 2, 3, 4, 5, 6, 12)
+N_PAR = 15
 #: Diffuse prior of a window's start state: attitude (rad), position (m), velocity (m/s).
 DIFFUSE = (1.0, 1.0, 0.5)
 
@@ -111,23 +115,43 @@ def lever(R, M, L):  # pragma: no cover  (compiled)
 
 
 @kernel
-def predict_cov(P, ns, Fb, hk, a, par, tmp, cov):  # pragma: no cover  (compiled)
-    """Filter covariance through a step: ``Phi P Phi^T`` plus the process noise (and the AR(1)
-    states' innovation, ``rho (1 - a^2)`` of the mocap noise at the step's end sample)."""
+def accel_noise(par, R, Qa):  # pragma: no cover  (compiled)
+    """``Qa`` (3, 3) = the accelerometer's white-noise variance in the world frame at the
+    nominal attitude ``R``: ``R diag(q) R^T`` with the per-axis factors; returns False when
+    they are all one (``q I``, whatever ``R``)."""
+    f0, f1, f2 = par[ACCEL_AXES], par[ACCEL_AXES + 1], par[ACCEL_AXES + 2]
+    if f0 == 1.0 and f1 == 1.0 and f2 == 1.0:
+        return False
+    for i in range(3):
+        for j in range(3):
+            Qa[i, j] = par[Q_ACCEL] * (R[i, 0] * f0 * R[j, 0] + R[i, 1] * f1 * R[j, 1]
+                                       + R[i, 2] * f2 * R[j, 2])
+    return True
+
+
+@kernel
+def predict_cov(P, ns, Fb, hk, a, par, tmp, cov, R):  # pragma: no cover  (compiled)
+    """Filter covariance through a step: ``Phi P Phi^T`` plus the process noise (the
+    accelerometer's at the step's start attitude ``R``) and the AR(1) states' innovation,
+    ``rho (1 - a^2)`` of the mocap noise at the step's end sample."""
     phi_rows(P, ns, Fb, hk, ns, a, tmp)
     for i in range(ns):
         for j in range(i + 1, ns):
             P[i, j], P[j, i] = P[j, i], P[i, j]
     phi_rows(P, ns, Fb, hk, ns, a, tmp)
-    sa2 = par[Q_ACCEL]
     for i in range(3):
         P[i, i] += par[Q_GYRO] * hk
-        P[3 + i, 3 + i] += sa2 * hk * hk * hk / 3.0
-        P[6 + i, 6 + i] += sa2 * hk
         P[9 + i, 9 + i] += par[Q_GYRO_WALK] * hk
         P[12 + i, 12 + i] += par[Q_ACCEL_WALK] * hk
-        P[3 + i, 6 + i] += sa2 * hk * hk / 2.0
-        P[6 + i, 3 + i] += sa2 * hk * hk / 2.0
+    # The accelerometer's noise: off the diagonal only when it differs per IMU axis.
+    n = 3 if accel_noise(par, R, cov) else 1
+    for i in range(3):
+        for j in range(3) if n == 3 else range(i, i + 1):
+            q = cov[i, j] if n == 3 else par[Q_ACCEL]
+            P[3 + i, 3 + j] += q * hk * hk * hk / 3.0
+            P[6 + i, 6 + j] += q * hk
+            P[3 + i, 6 + j] += q * hk * hk / 2.0
+            P[6 + i, 3 + j] += q * hk * hk / 2.0
     if ns == 21:
         mocap_cov(par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), cov)
         for i in range(6):
@@ -169,11 +193,12 @@ def forward(Lc, B, nc, out):  # pragma: no cover  (compiled)
 
 
 @kernel
-def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp,
-              cov):  # pragma: no cover  (compiled)
+def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp, cov,
+              R):  # pragma: no cover  (compiled)
     """One step: the sensitivities ``S`` (rows 0:9 of ``Y``) through the current transition
     ``Fc`` with the parameters' inputs (``-d(w, f)/dtheta`` as bias rows, gravity directly),
-    the filter mean and covariance through the whitening's transition ``Fo``."""
+    the filter mean and covariance through the whitening's transition ``Fo`` (``R``: its
+    attitude at the step's start)."""
     if p > 0:
         for i in range(6):
             for c in range(p):
@@ -185,7 +210,7 @@ def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp,
                 Y[3 + i, col] += 0.5 * hk * hk * dg[i, g]
                 Y[6 + i, col] += hk * dg[i, g]
     phi_rows(X, p + 1, Fo, hk, ns, a, tmp)
-    predict_cov(P, ns, Fo, hk, a, par, tmp, cov)
+    predict_cov(P, ns, Fo, hk, a, par, tmp, cov, R)
 
 
 @kernel
@@ -340,7 +365,7 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
     HPHt, Sk, Lc, Li, cov = (np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)),
                              np.zeros((6, 6)), np.zeros((6, 6)))
     Lk = np.zeros((3, 3))
-    Rop, Rnext = np.zeros((3, 3)), np.zeros((3, 3))
+    Rop, Rnext, Rstart = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
     for w in range(W):
         last = -1
         for k in range(m + 1):
@@ -356,6 +381,7 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
                 j = k - 1
                 hk = h[w, j]
                 transition_blocks(inc[w, j], Rbar[w, j], Fc)
+                Rstart[:, :] = Rop
                 if frozen:
                     transition_blocks(op_inc[w, j], Rop, Fo)
                     chain(Rop, op_inc[w, j], Rnext)
@@ -363,7 +389,8 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
                     Fo[:, :, :] = Fc
                     Rop[:, :] = Rbar[w, k]
                 a = step_lever(Rop, M_op, Lk, hk, ns, par)
-                propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf[w, j], dg, gcols, a, par, tmp, cov)
+                propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf[w, j], dg, gcols, a, par, tmp, cov,
+                          Rstart)
             if not mask[w, k]:
                 continue
             ld += measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs,
@@ -417,7 +444,7 @@ def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, 
 
 
 @kernel
-def state_space(inc, Rbar, h, M, par, F, q_diag, q_pv, Rn, Hp, Fm, Qm,
+def state_space(inc, Rbar, h, M, par, F, Q, Rn, Hp, Fm, Qm,
                 Pm0):  # pragma: no cover  (compiled)
     """The window filter's state-space model written out (for checks against a dense
     likelihood): transitions, process noise, white mocap noise, the position rows' attitude
@@ -425,7 +452,7 @@ def state_space(inc, Rbar, h, M, par, F, q_diag, q_pv, Rn, Hp, Fm, Qm,
     W, m = h.shape
     ns = 21 if (par[RHO] > 0.0 and par[T_CORR] > 0.0) else 15
     Fb = np.zeros((8, 3, 3))
-    Lk = np.zeros((3, 3))
+    Lk, Qa = np.zeros((3, 3)), np.zeros((3, 3))
     for w in range(W):
         lever(Rbar[w, 0], M, Lk)
         Hp[w, 0] = Lk
@@ -446,13 +473,20 @@ def state_space(inc, Rbar, h, M, par, F, q_diag, q_pv, Rn, Hp, Fm, Qm,
                     for b, (r0, c0) in enumerate(((0, 0), (0, 9), (3, 0), (3, 9), (3, 12),
                                                   (6, 0), (6, 9), (6, 12))):
                         F[w, j, r0 + i, c0 + t] = Fb[b, i, t]
+            Q[w, j] = 0.0
+            if not accel_noise(par, Rbar[w, j], Qa):
+                for i in range(3):
+                    for t in range(3):
+                        Qa[i, t] = par[Q_ACCEL] if i == t else 0.0
             for i in range(3):
-                q_diag[w, j, i] = par[Q_GYRO] * hk
-                q_diag[w, j, 3 + i] = par[Q_ACCEL] * hk ** 3 / 3.0
-                q_diag[w, j, 6 + i] = par[Q_ACCEL] * hk
-                q_diag[w, j, 9 + i] = par[Q_GYRO_WALK] * hk
-                q_diag[w, j, 12 + i] = par[Q_ACCEL_WALK] * hk
-            q_pv[w, j] = par[Q_ACCEL] * hk ** 2 / 2.0
+                Q[w, j, i, i] = par[Q_GYRO] * hk
+                Q[w, j, 9 + i, 9 + i] = par[Q_GYRO_WALK] * hk
+                Q[w, j, 12 + i, 12 + i] = par[Q_ACCEL_WALK] * hk
+                for t in range(3):
+                    Q[w, j, 3 + i, 3 + t] = Qa[i, t] * hk ** 3 / 3.0
+                    Q[w, j, 6 + i, 6 + t] = Qa[i, t] * hk
+                    Q[w, j, 3 + i, 6 + t] = Qa[i, t] * hk ** 2 / 2.0
+                    Q[w, j, 6 + i, 3 + t] = Qa[i, t] * hk ** 2 / 2.0
             mocap_cov(par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, j + 1])
             if ns == 21:
                 Fm[w, j] = 0.0

@@ -1,10 +1,9 @@
 """Between the position stage's rounds: the mocap noise levels and the robust weights follow
-the innovations, and the accelerometer's noise level follows the windows' likelihood
-(:mod:`mocap_calib.core.position.stage` runs the rounds)."""
+the innovations (:mod:`mocap_calib.core.position.stage` runs the rounds; the identification of
+every level from the windows' likelihood is :mod:`.noise`)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 import gtsam
@@ -12,65 +11,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.graph import RELATIVE_TOL, huber_weight
-from mocap_calib.core.position.engine import ROBUST_C, PositionProblem, Theta
+from mocap_calib.core.position.engine import ROBUST_C
 from mocap_calib.core.position.graph import PositionGraph
 
 Array = NDArray[np.float64]
-
-#: Windows (spread over each take) whose likelihood chooses the accelerometer's noise level.
-ACCEL_LEVEL_WINDOWS = 30
-#: Its candidates per round: variance factors on the current level (density x1/4 to x32), a
-#: parabola in log through the best and its neighbours; later rounds start from the choice.
-ACCEL_LEVEL_GRID = 4.0 ** np.arange(-2.0, 5.5)
-#: The accelerometer's white-noise variance stays within these factors of the one assumed.
-ACCEL_LEVEL_RANGE = (1.0 / 16.0, 1e4)
-
-
-def accel_level(pg: PositionGraph, values: gtsam.Values) -> float:
-    """The factor on the accelerometer's white-noise variance that the windows' exact
-    likelihood prefers at ``values`` (every take; the mocap levels as they are: the rounds
-    alternate the two). See :func:`accel_level_of`."""
-    return accel_level_of([(pp, pg.theta(values, k)) for k, pp in enumerate(pg.problems)])
-
-
-def accel_level_of(problems: list[tuple[PositionProblem, Theta]]) -> float:
-    """The factor on the accelerometer's white-noise variance that the windows' exact
-    likelihood prefers, summed over ``(problem, parameters)`` pairs (each on up to
-    :data:`ACCEL_LEVEL_WINDOWS` of its windows, its noise, weights and mocap levels).
-
-    In flight the accelerometer also sees the vibration the rotors shake into it: on EuRoC
-    V2_03 its error against the Vicon is white over 0.1-5 Hz at 15-50 times the data sheet's
-    density. A level the data contradict weights the accelerometer against the mocap wrongly,
-    and the answer moves with it; this level is the data's own."""
-    grid = ACCEL_LEVEL_GRID
-    m2ll = np.zeros(len(grid))
-    for pp, th in problems:
-        sub, th_sub = pp.spread(th, ACCEL_LEVEL_WINDOWS)
-        d = sub.noise.accelerometer_noise_density
-        models = [replace(sub.noise, accelerometer_noise_density=d * float(np.sqrt(f)))
-                  for f in grid]
-        for i, (chi2, logdet) in enumerate(sub.likelihoods(th_sub, models)):
-            m2ll[i] += float(chi2.sum() + logdet.sum())
-    b = int(np.argmin(m2ll))
-    if b in (0, len(grid) - 1):
-        return float(grid[b])
-    x = np.log(grid[b - 1:b + 2])
-    a2, a1, _ = np.polyfit(x, m2ll[b - 1:b + 2], 2)
-    return float(np.exp(np.clip(-a1 / (2.0 * a2), x[0], x[2]))) if a2 > 0 else float(grid[b])
-
-
-def set_accel_level(pg: PositionGraph, values: gtsam.Values, assumed: float) -> float:
-    """Move every take's accelerometer density to the level the likelihood prefers (within
-    :data:`ACCEL_LEVEL_RANGE` of ``assumed``, the density given); returns the relative change
-    of the variance (0: none)."""
-    f = accel_level(pg, values)
-    now = pg.problem.noise.accelerometer_noise_density
-    lo, hi = (assumed * float(np.sqrt(r)) for r in ACCEL_LEVEL_RANGE)
-    new = float(np.clip(now * np.sqrt(f), lo, hi))
-    for pp in pg.problems:
-        pp.noise = replace(pp.noise, accelerometer_noise_density=new)
-    return abs(float(np.log((new / now) ** 2)))
-
 
 def mocap_levels(pg: PositionGraph, outs: list[Any], skip: int = 5) -> Array:
     """Per axis (attitude x, y, z; position x, y, z), how much larger (variance) the mocap

@@ -47,10 +47,10 @@ from mocap_calib.core.position.graph import (
     Take,
     build_position_graph,
 )
+from mocap_calib.core.position.noise import NoiseIdentification, identify_noise
 from mocap_calib.core.position.settle import (
     evaluate_at,
     innovations_near,
-    set_accel_level,
     settle,
 )
 from mocap_calib.core.position.windows import Windows
@@ -117,6 +117,9 @@ class PositionResult:
     #: The mocap noise's shape per axis (attitude x, y, z in the IMU frame, position x, y, z in
     #: the world frame), variance factors on ``noise``'s two levels (geometric mean 1 each).
     axis_scale: Array = field(default_factory=lambda: np.ones(6))
+    #: The noise model the data prefer, when it was identified (used if it contradicts the
+    #: given one: then ``noise`` is it).
+    identification: NoiseIdentification | None = None
 
     @property
     def delta(self) -> float:
@@ -186,7 +189,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
                        init: PositionInit, priors: list[Prior] | None = None,
                        robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
                        adapt_noise: bool = True, weights: list[Array] | None = None,
-                       adapt_accel: bool = False,
+                       identify_noise: bool = False,
                        on_iteration: IterationHook | None = None,
                        progress: Callable[[str], None] | None = None,
                        covariance: bool = True, one_step: bool | int = False,
@@ -202,8 +205,9 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         init: starting values.
         priors: user priors (earlier calibrations), added as prior factors.
         robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise levels from the innovations; adapt_accel:
-            and the accelerometer's density from the likelihood (:func:`.settle.accel_level`).
+        adapt_noise: re-estimate the mocap noise levels from the innovations;
+            identify_noise: and identify every level from the windows' likelihood after the
+            first solve (:mod:`.noise`), used from then on where it contradicts ``noise``.
         weights: per take, fixed robust weights (W, m+1) from an earlier fit: no re-weighting,
             so that fits of different models minimise costs of the same family.
         on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
@@ -235,8 +239,8 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
         fit = _gauss_newton_steps(pg, adapt_noise, int(one_step), reweight, settled)
     else:
         fit = _solve_rounds(pg, max_iterations,
-                            irls_rounds if (robust or adapt_noise or adapt_accel) else 1,
-                            robust, adapt_noise, history, progress, adapt_accel)
+                            irls_rounds if (robust or adapt_noise or identify_noise) else 1,
+                            robust, adapt_noise, history, progress, identify_noise)
     outs = pg.evals[-1]
     thetas = pg.thetas(fit.values)
     # A Gauss-Newton refit keeps the linearisation it last stepped from: its covariance is
@@ -258,10 +262,7 @@ def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
             for t, th in zip(takes, thetas, strict=True)])
     res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, one_step,
                   series)
-    res.covariances = None if covariance else covariances
-    if not covariance:
-        res.cov = {}
-    return res
+    return res if covariance else replace(res, covariances=covariances, cov={})
 
 
 def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUncertainty,
@@ -276,6 +277,7 @@ def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUnce
               "windows": sum(t.windows.count for t in takes),
               "window_steps": max(t.windows.steps for t in takes),
               "position_rounds": fit.rounds,
+              "position_rounds_capped": fit.capped,
               "mocap_noise_variance_scale": [round(float(x), 4) for x in fit.noise_scale],
               "sandwich_over_model_sigma": unc.robust_ratio}
     fits = [TakeFit(t, th.delta, th.knots, u.knot_sigma, u.bias_mean[0:3], u.bias_mean[3:6],
@@ -291,7 +293,8 @@ def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUnce
         # (a Gauss-Newton refit's cost would cost an evaluation at the new values: not needed)
         cost=float("nan") if one_step else 2.0 * pg.graph.error(fit.values), dof=int(dof),
         solver=solver, history=history.records,
-        axis_scale=pg.problem.mocap_axis_scale.copy())
+        axis_scale=pg.problem.mocap_axis_scale.copy(),
+        identification=getattr(pg, "identification", None))
 
 
 class _History:
@@ -325,6 +328,7 @@ class _Fit:
     innovations0: list[Array] | None  # per take, the innovations at the start values
     rounds: int = 1
     linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
+    capped: bool = False  # the settling rounds ended at their cap, the levels still moving
 
 
 def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
@@ -359,7 +363,7 @@ def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int
 
 def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
                   adapt_noise: bool, hook: _History,
-                  progress: Callable[[str], None] | None, adapt_accel: bool = False) -> _Fit:
+                  progress: Callable[[str], None] | None, identify_noise: bool = False) -> _Fit:
     """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
     are re-estimated from the innovations and the robust weights updated. The first run goes
     to convergence from the start values; the settling rounds after it are short; once nothing
@@ -370,8 +374,10 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
     inn0: list[Array] | None = None
     noise_scale = np.ones(2)
     prev_cost = None
-    final = rounds <= 1
-    assumed = pg.problem.noise.accelerometer_noise_density
+    final = settled = rounds <= 1
+    given = pg.problem.noise
+    ident = None
+    pg.identification = None
     rnd = 0
     while True:
         rnd += 1
@@ -391,18 +397,41 @@ def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: b
             outs = evaluate_at(pg, sol)
             break
         outs = innovations_near(pg, sol, float(rep.final_error))
-        changed, moved = settle(pg, outs, adapt_noise, robust, noise_scale)
-        if adapt_accel:
-            moved_a = set_accel_level(pg, sol, assumed)
-            changed, moved = changed or moved_a > np.log(1.05), max(moved, moved_a)
+        changed, moved = settle(pg, outs, adapt_noise and ident is None, robust, noise_scale)
+        if identify_noise and pg.identification is None:
+            # Once, after the first solve: the levels the data prefer there, used from then
+            # on when they contradict the given ones (a second identification at the final
+            # solution changed no answer by a tenth of a sigma on simulated flights).
+            pg.identification = identify(pg, sol, given)
+            if pg.identification.contradicts:
+                ident = pg.identification
+                moved_a = _noise_move(pg.problem.noise, ident.noise)
+                for pp in pg.problems:
+                    pp.noise = ident.noise
+                changed, moved = changed or moved_a > np.log(1.05), max(moved, moved_a)
         cost = float(rep.final_error)
         small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
         prev_cost = cost
-        final = (not changed) or (small and moved < np.log(1.05)) or rnd >= rounds - 1
+        settled = (not changed) or (small and moved < np.log(1.05))
+        final = settled or rnd >= rounds - 1
         del outs  # not alive while the next round evaluates (60 min: 37 MB)
         batch.invalidate()
     require_converged("position", rep, max_iterations)
-    return _Fit(sol, iterations, noise_scale, inn0, rnd)
+    return _Fit(sol, iterations, noise_scale, inn0, rnd, capped=not settled)
+
+
+def identify(pg: PositionGraph, values: gtsam.Values,
+             given: NoiseModel) -> NoiseIdentification:
+    """The noise model the windows' likelihood prefers at ``values`` (every take)."""
+    problems = [(pp, pg.theta(values, k)) for k, pp in enumerate(pg.problems)]
+    return identify_noise(problems, pg.problem.noise, given)
+
+
+def _noise_move(a: NoiseModel, b: NoiseModel) -> float:
+    """The largest relative change of a level between two noise models (log of the ratio)."""
+    keys = ("accelerometer_noise_density", "gyroscope_noise_density", "mocap_position_sigma",
+            "mocap_rotation_sigma")
+    return max(abs(float(np.log(getattr(b, k) / getattr(a, k)))) for k in keys)
 
 
 def _mean_bias(windows: Windows, th: Theta) -> Array:

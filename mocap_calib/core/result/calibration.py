@@ -38,6 +38,7 @@ from mocap_calib.core.result.sections import (
     ClockSummary,
     Degradation,
     ImuGapsSummary,
+    NoiseIdentification,
     SolverFigures,
     TakeResult,
 )
@@ -102,6 +103,7 @@ class CalibrationResult:
     plausibility: Plausibility | None = None
     effect_tests: EffectTests | None = None
     model_selection: ModelSelection | None = None
+    noise_identification: NoiseIdentification | None = None
     degraded: tuple[Degradation, ...] = ()
     version: int = RESULT_VERSION
     diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
@@ -219,6 +221,8 @@ class CalibrationResult:
             "stages": [s.to_dict() for s in self.stages],
             "solver": self.solver.to_dict(),
             "noise": self.noise.to_dict(),
+            **({"noise_identification": self.noise_identification.to_dict()}
+               if self.noise_identification is not None else {}),
             "session": self.session,
             "imu_gaps": {} if self.imu_gaps is None else self.imu_gaps.to_dict(),
             **({"takes": [t.to_dict() for t in self.takes]} if self.takes else {}),
@@ -260,6 +264,7 @@ class CalibrationResult:
             stages=tuple(StageStats.from_dict(s) for s in d.get("stages") or []),
             solver=SolverFigures.from_dict(d.get("solver")),
             noise=NoiseModel.from_dict(d.get("noise") or {}),
+            noise_identification=NoiseIdentification.from_dict(d.get("noise_identification")),
             notes=tuple(d.get("notes") or []),
             session=dict(d.get("session") or {}),
             imu_gaps=ImuGapsSummary.from_dict(d.get("imu_gaps")),

@@ -1,5 +1,6 @@
 """Sections of a calibration result about the session and the run: the clock search, the IMU's
-gaps, each take's own answer, the solver's figures and what ran degraded.
+gaps, each take's own answer, the solver's figures, the noise model identified from the data
+and what ran degraded.
 
 Each section is built once, by the pass that knows it, and never changed afterwards; it holds
 the numbers the result file shows (rounded where the file rounds). ``to_dict``/``from_dict``
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mocap_calib.core.model.parameters import ACCEL_BIAS, GYRO_BIAS, TIME_OFFSET, Parameter
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.result.estimate import Estimate, plain, read_sigma, read_value
 
 if TYPE_CHECKING:
@@ -283,3 +285,71 @@ def per_axis_figures(att_deg: np.ndarray, pos_mm: np.ndarray
     """The mocap noise per axis as the solver figures keep it (4 decimals)."""
     return (tuple(round(float(x), 4) for x in att_deg),
             tuple(round(float(x), 4) for x in pos_mm))
+
+
+@dataclass(frozen=True)
+class NoiseIdentification:
+    """The noise model the windows' likelihood prefers (:mod:`mocap_calib.core.position.noise`)
+    and whether the calibration used it.
+
+    Attributes:
+        identified: the model the data prefer.
+        given: the densities given (data sheet, ``--noise``, ``sensor.yaml``): the prior's
+            centre.
+        used: the data contradict the given densities (``gain`` over ``threshold``), so the
+            identified model was used; otherwise the given one was.
+        gain: ``-2 log L`` of the model the first solve used minus the identified one's, on
+            the identification's windows.
+        threshold: the chi-square quantile the gain is compared with.
+        windows, samples: what the identification ran on.
+    """
+
+    identified: NoiseModel
+    given: NoiseModel
+    used: bool
+    gain: float
+    threshold: float
+    windows: int
+    samples: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"used": self.used, "identified": self.identified.to_dict(),
+                "given": self.given.to_dict(),
+                "minus_2_log_likelihood_gain": round(self.gain, 1),
+                "threshold": round(self.threshold, 2), "windows": self.windows,
+                "samples": self.samples}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any] | None) -> NoiseIdentification | None:
+        if not d:
+            return None
+        return cls(NoiseModel.from_dict(d.get("identified") or {}),
+                   NoiseModel.from_dict(d.get("given") or {}), bool(d.get("used")),
+                   float(d.get("minus_2_log_likelihood_gain", 0.0)),
+                   float(d.get("threshold", 0.0)), int(d.get("windows", 0)),
+                   int(d.get("samples", 0)))
+
+    def summary(self) -> str:
+        """One line for the notes: the levels found against those given, and what was done."""
+        nz, g = self.identified, self.given
+        axes = ""
+        if not nz.isotropic:
+            axes = (" (variance per IMU axis x" + ", ".join(
+                f"{a:.2g}" for a in nz.accelerometer_axis_scale) + ")")
+        corr = (f", {100 * nz.mocap_noise_corr_fraction:.0f} % of it correlated over "
+                f"{nz.mocap_noise_corr_time:.2g} s" if nz.mocap_correlated else ", white")
+        levels = (
+            f"accelerometer {nz.accelerometer_noise_density:.3g} m/s^2/sqrt(Hz) "
+            f"({nz.accelerometer_noise_density / g.accelerometer_noise_density:.3g} x the "
+            f"{g.accelerometer_noise_density:.3g} given){axes}, gyro "
+            f"{nz.gyroscope_noise_density:.3g} rad/s/sqrt(Hz) "
+            f"({nz.gyroscope_noise_density / g.gyroscope_noise_density:.3g} x), mocap "
+            f"{1e3 * nz.mocap_position_sigma:.3g} mm and "
+            f"{np.degrees(nz.mocap_rotation_sigma):.3g} deg per sample{corr}")
+        if self.used:
+            return (f"noise identified from the data and used (the given densities are "
+                    f"contradicted: -2 log L lower by {self.gain:.4g}): {levels}; "
+                    "--fixed-noise holds the given ones")
+        return (f"noise levels the data prefer ({levels}) do not contradict those given "
+                f"(-2 log L lower by {self.gain:.3g}, below {self.threshold:.3g}): the given "
+                "ones used")

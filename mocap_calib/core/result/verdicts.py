@@ -149,14 +149,12 @@ class SensitivityReport:
         moved: the same in reported sigmas (None before the sigmas were set).
         mocap_noise_model: the correlated mocap model fitted, when one was (time constant,
             fraction, likelihood gain over white noise; rounded to 4 decimals).
-        accel_noise_density: the accelerometer density the windows prefer (m/s^2/sqrt(Hz)).
         note: why an alternative is missing.
     """
 
     moved_statistical: Mapping[str, Mapping[Parameter, float]] = field(default_factory=dict)
     moved: Mapping[str, Mapping[Parameter, float]] | None = None
     mocap_noise_model: Mapping[str, float] | None = None
-    accel_noise_density: float | None = None
     note: str = ""
 
     def to_dict(self) -> dict[str, Any]:
@@ -166,8 +164,6 @@ class SensitivityReport:
             d["moved_sigmas"] = {f: symbol_map(m) for f, m in self.moved.items()}
         if self.mocap_noise_model:
             d["mocap_noise_model"] = dict(self.mocap_noise_model)
-        if self.accel_noise_density:
-            d["accel_noise_density_from_data"] = self.accel_noise_density
         if self.note:
             d["note"] = self.note
         return d
@@ -180,8 +176,7 @@ class SensitivityReport:
         return cls({f: by_symbol_map(m) for f, m in
                     (d.get("moved_statistical_sigmas") or {}).items()},
                    None if moved is None else {f: by_symbol_map(m) for f, m in moved.items()},
-                   d.get("mocap_noise_model"), d.get("accel_noise_density_from_data"),
-                   str(d.get("note", "")))
+                   d.get("mocap_noise_model"), str(d.get("note", "")))
 
 
 @dataclass(frozen=True)

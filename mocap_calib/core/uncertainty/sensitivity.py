@@ -38,11 +38,11 @@ from mocap_calib.core.model.parameters import (
     TRANSLATION,
     Parameter,
 )
+from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import Prior
-from mocap_calib.core.position.settle import accel_level_of
-from mocap_calib.core.position.stage import PositionResult
+from mocap_calib.core.position.stage import PositionResult, effect_estimate
 from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
 from mocap_calib.core.uncertainty.refit import everything, refit, sigmas, z_pair
 from mocap_calib.errors import CalibrationError, Interrupted
@@ -76,9 +76,8 @@ class Sensitivity:
         moved: alternative -> compared parameter -> largest |change| / the statistical sigma.
         mocap_model: the correlated mocap model fitted (time constant, fraction, likelihood
             gain over white noise) when one was.
-        accel_density: the accelerometer noise density the windows' likelihood prefers at the
-            solution (m/s^2/sqrt(Hz); ``--accel-noise-from-data`` would use it), 0 if not
-            computed.
+        implausible: why the model with the effects the data show was left out (its fit
+            gives an effect no physical IMU has: not a credible completion of the model).
         failed: alternative -> why its refit failed (the alternative is then left out).
     """
 
@@ -86,7 +85,7 @@ class Sensitivity:
     raw: dict[str, dict[Parameter, Array]] = field(default_factory=dict)
     moved: dict[str, dict[Parameter, float]] = field(default_factory=dict)
     mocap_model: dict[str, float] = field(default_factory=dict)
-    accel_density: float = 0.0
+    implausible: str = ""
     failed: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -152,7 +151,8 @@ def noise_sensitivity(pos: PositionResult, model: Model,
                       max_iterations: int = 30, one_step: bool | int = REFIT_STEPS,
                       priors: list[Prior] | None = None,
                       mocap_model: bool = True,
-                      effects_shown: tuple[str, ...] = ()) -> Sensitivity:
+                      effects_shown: tuple[str, ...] = (),
+                      limits: PlausibleLimits | None = None) -> Sensitivity:
     """Refit with the IMU noise densities scaled, and under the correlated mocap noise model
     the session prefers (``mocap_model``), and with the effects the data show
     (``effects_shown``) added to ``model``, as full runs given those models would land.
@@ -167,22 +167,32 @@ def noise_sensitivity(pos: PositionResult, model: Model,
         # A step below a tenth of a sigma: the rest of the way is smaller still.
         return max(z_pair(a, b, sig, None).values()) < SETTLED_SIGMA
 
-    def run(key: str, noise: NoiseModel, scale: float, alt_model: Model = model) -> None:
+    # Mocap levels identified from the likelihood stay; levels from the residuals follow
+    # them again, as a run given the other model would.
+    adapt = pos.identification is None or not pos.identification.contradicts
+
+    def run(key: str, noise: NoiseModel, scale: float,
+            alt_model: Model = model) -> PositionResult | None:
         scaled_priors = [replace(p, sigma=np.asarray(p.sigma) * scale) for p in priors or []]
         interrupt.check()
         try:
-            alt = refit(pos, alt_model, everything(pos), noise=noise, adapt_noise=True,
+            alt = refit(pos, alt_model, everything(pos), noise=noise, adapt_noise=adapt,
                         reweight=True, priors=scaled_priors, max_iterations=max_iterations,
                         one_step=one_step, settled=settled)
         except Interrupted:
             raise
         except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
             out.failed[key] = str(err)
-            return
+            return None
+        if key == EFFECTS_SHOWN:
+            why = _implausible_effect(alt, alt_model, model, limits)
+            if why:
+                out.implausible = why
+                return None
         out.shift[key], out.raw[key] = _shifts(alt, pos)
         out.moved[key] = z_pair(alt, pos, sig, None)
+        return alt
 
-    out.accel_density = accel_density_from_data(pos, model)
     for f in factors:
         run(f"x{f:.3g}", pos.noise.imu_scaled(f), f)
     if mocap_model and not pos.noise.mocap_correlated:
@@ -198,16 +208,17 @@ def noise_sensitivity(pos: PositionResult, model: Model,
     return out
 
 
-def accel_density_from_data(pos: PositionResult, model: Model) -> float:
-    """The accelerometer noise density the windows' exact likelihood prefers at the solution,
-    every take (:func:`~mocap_calib.core.position.settle.accel_level_of`)."""
-    problems = []
-    for t in pos.takes:
-        problem = PositionProblem(t.s, model, pos.noise, t.windows, split=False)
-        problem.weights = t.weights
-        problem.mocap_axis_scale = pos.axis_scale.copy()
-        problems.append((problem, _theta(pos, t)))
-    return pos.noise.accelerometer_noise_density * float(np.sqrt(accel_level_of(problems)))
+def _implausible_effect(alt: PositionResult, fuller: Model, model: Model,
+                        limits: PlausibleLimits | None) -> str:
+    """Why an effect fitted in the fuller model is not physical (empty: all plausible)."""
+    for name in fuller.effects:
+        if model.has(name) or EFFECTS[name].acts_on == "clock":
+            continue
+        value, _ = effect_estimate(alt, name, 0.0)
+        problem = effect_problem(name, value, limits or PlausibleLimits())
+        if problem:
+            return problem
+    return ""
 
 
 def _theta(pos: PositionResult, t: Any) -> Theta:
