@@ -8,8 +8,8 @@ a window's residuals with respect to a time shift is the rate of change of the s
 included, read at the mocap's sample instants; there, content above the mocap's Nyquist
 frequency folds back into the motion's band (a rotor line the 200 Hz IMU aliases to 95 Hz is a
 5 Hz line in 100 Hz mocap steps). Counted as information about the shift, that noise made the
-clock offset's sigma a third too small on simulated flights with rotor vibration, and the
-estimate no better (``docs/validation.md``).
+clock offset's sigma a third too small on simulated flights with rotor vibration (the ``flying``
+preset: 0.068 ms for errors of 0.097 ms RMS over 24 flights), and the estimate no better.
 
 So the timing columns are built from the IMU samples smoothed by a Gaussian kernel whose
 response at the Nyquist frequency of the windows' samples (the lower of the IMU's and the
