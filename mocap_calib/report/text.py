@@ -16,6 +16,7 @@ from mocap_calib.core.model.parameters import (
     Parameter,
 )
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.estimate import SigmaTerms
 
 Array = NDArray[np.float64]
 
@@ -190,20 +191,26 @@ UNCERTAINTY_TERMS = (("statistical", "statistical"), ("imu_noise_shift", "IMU no
 
 
 def uncertainty_lines(r: CalibrationResult) -> list[str]:
-    """Per compared parameter, the largest axis of each term of its sigma (which one
-    dominates), in the unit its sigma prints in."""
+    """Per compared parameter (with several takes, per take for its own), the largest axis of
+    each term of its sigma (which one dominates), in the unit its sigma prints in."""
     out = []
     for p in COMPARED:
-        u = r.estimate(p).terms
-        if u is None:
-            continue
-        unit, k = p.printed.sigma_unit, p.printed.sigma_scale
-        parts = [f"{label} {k * max(getattr(u, t)):.3g}" for t, label in UNCERTAINTY_TERMS
-                 if getattr(u, t) is not None]
-        grown = (f" (statistical x{u.consistency_factor:.2f} for consistency)"
-                 if u.consistency_factor > 1.0 else "")
-        out.append(f"sigma of {p.symbol} ({unit}, largest axis): {', '.join(parts)}{grown}")
+        out += _terms_line(p, r.estimate(p).terms, "")
+        for t in r.takes:
+            e = t.estimates.get(p)
+            out += _terms_line(p, None if e is None else e.terms, f" take {t.take}")
     return out
+
+
+def _terms_line(p: Parameter, u: SigmaTerms | None, which: str) -> list[str]:
+    if u is None:
+        return []
+    unit, k = p.printed.sigma_unit, p.printed.sigma_scale
+    parts = [f"{label} {k * max(getattr(u, t)):.3g}" for t, label in UNCERTAINTY_TERMS
+             if getattr(u, t) is not None]
+    grown = (f" (statistical x{u.consistency_factor:.2f} for consistency)"
+             if u.consistency_factor > 1.0 else "")
+    return [f"sigma of {p.symbol}{which} ({unit}, largest axis): {', '.join(parts)}{grown}"]
 
 
 def diagnose_table(report) -> str:
