@@ -17,4 +17,4 @@ def test_unexplained_signature_prints_plain_numbers() -> None:
                                       "largest_jump_sigmas": np.float64(2.0)}}
     text = "\n".join(unexplained_lines(u))
     assert "np.float64" not in text and "array(" not in text, text
-    assert "[4.123, 1.5, 0.9]" in text and "[4, 4.2]" in text, text
+    assert "[4.12, 1.5, 0.9]" in text and "[4, 4.2]" in text, text
