@@ -53,6 +53,9 @@ RECORDINGS = {
                                       "data.csv", mocap=DATA /
                                       "broad_27_disturbed_phone_vibration_B" / "data.csv",
                                       columns="broad")),
+    **{f"cf_{name}": (f"Crazyflie {name}", InputSpec(
+        imu=(DATA / "crazyflie_util" / name,), mocap=(DATA / "crazyflie_util" / name,)))
+       for name in ("cfBolt-log00", "0425-traj1", "0422-log00")},
 }
 
 

@@ -272,19 +272,20 @@ def unexplained_lines(u: dict | None) -> list[str]:
         axes = ", ".join(sg.get("axes_over_floor") or []) or "none"
         corr = sg.get("correlation") or {}
         best = max(corr.items(), key=lambda kv: abs(kv[1]["max_abs_corr"]), default=None)
-        line = (f"  {sensor}: residual/floor per axis {sg.get('ratio_per_axis')} (axes over: "
-                f"{axes}), most in {sg.get('band_most_over_floor')}")
+        line = (f"  {sensor}: residual/floor per axis {_fmt(sg.get('ratio_per_axis'), digits=3)}"
+                f" (axes over: {axes}), most in {sg.get('band_most_over_floor')}")
         if best is not None:
             name, c = best
             line += (f"; correlates with {name.replace('_', ' ')} ({c['max_abs_corr']:+.2f}, "
                      f"residual {c['residual_axis']} vs {c['signal_axis']})")
         out.append(line)
         out.append(f"  {sensor}: RMS per time segment (of the whole) "
-                   f"{sg.get('rms_per_time_segment')}")
+                   f"{_fmt(sg.get('rms_per_time_segment'), digits=3)}")
     clock = u.get("clock_offset_per_segment") or {}
     if "t_d_ms" in clock:
-        out.append(f"  clock offset per segment (ms): {clock['t_d_ms']} (slope "
-                   f"{clock['slope_ppm']} ppm, largest jump {clock['largest_jump_sigmas']} sigma)")
+        out.append(f"  clock offset per segment (ms): {_fmt(clock['t_d_ms'], digits=4)} (slope "
+                   f"{_fmt(clock['slope_ppm'], digits=3)} ppm, largest jump "
+                   f"{_fmt(clock['largest_jump_sigmas'], digits=3)} sigma)")
     elif clock.get("note"):
         out.append(f"  clock offset per segment: {clock['note']}")
     return out
