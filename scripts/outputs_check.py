@@ -21,6 +21,7 @@ import hashlib
 import pickle
 import re
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -113,6 +114,7 @@ def write(solved: Path, out: Path) -> None:
         run = getattr(module, run_name)
         setattr(module, run_name, lambda request, progress=None, s=saved: s["solution"])
         name = pkl.stem
+        t0 = time.perf_counter()
         try:
             code = main([command, *saved["args"], "--out", str(out / f"{name}.yaml"),
                          "--rrd", str(out / f"{name}.rrd"), "--html", str(out / f"{name}.html"),
@@ -120,7 +122,7 @@ def write(solved: Path, out: Path) -> None:
         finally:
             setattr(module, run_name, run)
         assert code == 0, (name, code)
-        print(f"{name}: written", flush=True)
+        print(f"{name}: written in {time.perf_counter() - t0:.2f} s", flush=True)
 
 
 def _values(column: Any) -> str:
