@@ -30,7 +30,7 @@ __all__ = ["ClockCurve", "DeadReckoning", "ImuPrediction", "OutputSeries", "Repo
            "TakeSeries"]
 
 
-@dataclass
+@dataclass(frozen=True)
 class ImuPrediction:
     """Measured and predicted IMU samples where the mocap supports a prediction.
 
@@ -52,7 +52,7 @@ class ImuPrediction:
     f: Array
 
 
-@dataclass
+@dataclass(frozen=True)
 class ResidualAnalysis:
     """Measured minus predicted, in time (low-passed) and frequency, with the noise floor.
 
