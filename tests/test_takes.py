@@ -136,6 +136,7 @@ def test_every_take_is_drawn_with_its_own_clock_and_biases(joint_and_alone,
     """The recording and the HTML report show each take, each through its own clock offset and
     biases: the gyro's measured-minus-predicted mean is that take's bias error, near zero,
     not the other take's bias difference."""
+    from mocap_calib.core.diagnosis.outputs import output_series
     from mocap_calib.viz.recording import write_calibration_recording
     from mocap_calib.workflows.html.provenance import RunClock
     from mocap_calib.workflows.html.report import write_calibration_html
@@ -146,7 +147,8 @@ def test_every_take_is_drawn_with_its_own_clock_and_biases(joint_and_alone,
     for d, sim in zip(takes, sims, strict=True):
         st, s = d.trace.model_state, d.trace.session
         assert abs(st.delta - s.clock_shift - sim.truth["time_offset"]) < 0.3e-3
-    rrd = write_calibration_recording(tmp_path / "c.rrd", joint, sims[0].imu, sims[0].mocap)
+    series = output_series(joint, recording=True, report=True)
+    rrd = write_calibration_recording(tmp_path / "c.rrd", joint, series)
     first, second = _scalar_means(rrd, "imu/gyro/difference/"), _scalar_means(
         rrd, "takes/2/imu/gyro/difference/")
     gap = np.abs(joint.takes[1].value(GYRO_BIAS) - joint.takes[0].value(GYRO_BIAS))
@@ -156,7 +158,7 @@ def test_every_take_is_drawn_with_its_own_clock_and_biases(joint_and_alone,
     assert max(gap) > 1e-4  # the takes' biases differ enough for the check to bite
     with_second = _scalar_means(rrd, "takes/2/residuals/position/after/")
     assert len(with_second) == 3
-    html = write_calibration_html(tmp_path / "c.html", joint, [], RunClock()).read_text()
+    html = write_calibration_html(tmp_path / "c.html", joint, series, [], RunClock()).read_text()
     for sec in ("take2-sec-residuals", "take2-sec-trajectory"):
         assert f'id="{sec}"' in html
     assert "Take 1: " in html and "Take 2: " in html
