@@ -63,10 +63,13 @@ from mocap_calib.core.pipeline.calibrate import Recording, calibrate_takes
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import (
+    Keep,
     PositionResult,
+    PositionSolver,
+    Rounds,
+    Weighting,
     block_value,
     effect_estimate,
-    run_position_stage,
 )
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.sections import Degradation
@@ -197,11 +200,11 @@ class _Session:
                     st.delta = float(d)
         init = PositionInit(base.R_MI, base.p_MI, base.g_dir, base.g_mag, starts,
                             {**base.effects, **{k: v[:1] for k, v in (extra or {}).items()}})
-        return run_position_stage(self.takes, m, nz, init, robust=False,
-                                  adapt_noise=adapt, weights=self.weights,
-                                  max_iterations=self.opts.calibration.max_iterations,
-                                  covariance=covariance, window_blocks=False,
-                                  axis_scale=base.axis_scale)
+        return PositionSolver(self.takes, m, nz).solve(
+            init, Rounds(robust=False, adapt_noise=adapt,
+                         max_iterations=self.opts.calibration.max_iterations),
+            Weighting(self.weights, base.axis_scale),
+            Keep(covariance=covariance, window_blocks=False))
 
     def correlated(self, pos: PositionResult, m: Model) -> NoiseModel:
         """The mocap noise model (AR(1) and level) the windows' likelihood prefers at ``pos``:
@@ -377,8 +380,8 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
     # inflates it, so it is redone after each effect is added): its level, then its
     # correlation (the diagnosis models it; calibrate keeps it as a check only); the
     # candidates of the step are then fitted with it frozen.
-    white = run_position_stage(ds.takes, model, tr.noise_used, init0,
-                               robust=False, adapt_noise=True, weights=ds.weights)
+    white = PositionSolver(ds.takes, model, tr.noise_used).solve(
+        init0, Rounds(robust=False, adapt_noise=True), Weighting(ds.weights))
     current = ds.fit(model, white, ds.correlated(white, model), adapt=True)
     return ds, model, current
 
