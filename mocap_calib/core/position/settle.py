@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core import interrupt
-from mocap_calib.core.graph import (
+from mocap_calib.core.gtsam_tools import (
     PREDICTED_TOL,
     RELATIVE_TOL,
     huber_weight,
