@@ -21,10 +21,10 @@ from refusal_more import ALL_CASES as CASES
 from mocap_calib.cli.main import _is_indeterminate
 from mocap_calib.core.checks.conventions import check_conventions
 from mocap_calib.core.gtsam_tools import marginals
-from mocap_calib.core.model.faults import frozen, imu_faults
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.prepare.fault_detection import frozen, imu_faults
 from mocap_calib.core.prepare.session import prepare
 from mocap_calib.errors import InputError, ObservabilityError
 

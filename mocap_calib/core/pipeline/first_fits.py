@@ -20,7 +20,7 @@ from mocap_calib.core.model.imu_model import Intrinsics, correct
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.position.windows import Windows, make_windows
-from mocap_calib.core.prepare.imu_faults import leave_out_imu_faults
+from mocap_calib.core.prepare.fault_spans import leave_out_imu_faults
 from mocap_calib.core.prepare.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.stages.attitude import AttitudeResult, run_attitude_stage
 from mocap_calib.core.stages.velocity import VelocityResult, run_velocity_stage

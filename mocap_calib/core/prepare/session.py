@@ -16,9 +16,14 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.jit import kernel
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, refuse_dead
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.policy import MIN_SESSION_S, gap_threshold
+from mocap_calib.core.prepare.fault_detection import (
+    ImuFaults,
+    frozen_mocap,
+    imu_faults,
+    refuse_dead,
+)
 from mocap_calib.core.prepare.gaps import ImuGaps, find_imu_gaps
 from mocap_calib.core.prepare.noise_band import noise_band
 from mocap_calib.core.prepare.pose_flips import refuse_flips
