@@ -13,10 +13,10 @@ import pytest
 from refusal_corpus import run_cli, session
 
 from mocap_calib.io import registry
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.loader import load_imu_file, load_inputs, sniff_format
 from mocap_calib.io.reading import Format, ReadOptions
 from mocap_calib.io.streams import ImuTable, PoseTable
+from mocap_calib.io.validate import Lines
 
 MAGIC = b'{"toy":'
 

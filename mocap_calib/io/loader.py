@@ -8,7 +8,7 @@ the registry
 (:mod:`mocap_calib.io.registry`) says which format a path holds and reads it into a table
 (:mod:`mocap_calib.io.streams`); the options the format cannot use are refused or noted
 (:func:`~mocap_calib.io.reading.screen`); the table is cropped, and only then checked
-(:mod:`mocap_calib.io.checks`), so no refusal is about rows the user cropped away.
+(:mod:`mocap_calib.io.validate`), so no refusal is about rows the user cropped away.
 
 Column maps are parsed (and a malformed one refused) before any file is read: ``--columns``
 covers both files, ``--imu-columns`` and ``--mocap-columns`` one each (they exclude
@@ -29,7 +29,6 @@ from pathlib import Path
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
 from mocap_calib.io import registry
-from mocap_calib.io.checks import check_mocap_rate
 from mocap_calib.io.formats.columns import COLUMNS_FIX, ColumnMap, parse_columns
 from mocap_calib.io.formats.imu_tk import imu_tk_pair_table
 from mocap_calib.io.merge import merge_split_rows
@@ -48,6 +47,7 @@ from mocap_calib.io.streams import (
     crop_imu_table,
     crop_pose_table,
 )
+from mocap_calib.io.validate import check_mocap_rate
 
 
 def sniff_format(path: Path | str) -> str:
