@@ -20,9 +20,9 @@ from mocap_calib.batch.manifest import Manifest, SessionEntry, load_manifest
 from mocap_calib.batch.session import SessionJob, run_session
 from mocap_calib.batch.store import Digests, batch_id, finished_hash, input_hash
 from mocap_calib.core import interrupt
-from mocap_calib.core.model.versioned import header
 from mocap_calib.core.params import param
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.versioned import header
 from mocap_calib.errors import ConvergenceError, InputError
 from mocap_calib.io.atomic import remove_leftovers
 from mocap_calib.io.yaml_io import load_result, save_result, save_yaml

@@ -24,8 +24,8 @@ from scipy.signal import lfilter
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.model.versioned import header
 from mocap_calib.core.policy import GRAVITY
+from mocap_calib.core.versioned import header
 from mocap_calib.errors import InputError
 from mocap_calib.sim.injected import (
     OWN_QUANTITY,

@@ -11,9 +11,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.params import ParamInfo, check_value, group, param, param_info
+from mocap_calib.core.plausible import PlausibleLimits
 from mocap_calib.core.result.priors import prior_problems, priors_from_results
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.euroc import find_mav0

@@ -13,7 +13,7 @@ honestly that the cause is none of the effects it knows.
    counts, against ``chi2_k``, Bonferroni-corrected over the candidates tried.
 4. The most significant candidate must also *show* in the measurement domain (lower the
    low-band residual of its sensor) and be *plausible* (its magnitude within the range a MEMS
-   IMU has, :mod:`mocap_calib.core.model.plausible`): an implausible one is listed under
+   IMU has, :mod:`mocap_calib.core.plausible`): an implausible one is listed under
    ``implausible`` and the next candidate is considered. The first that passes is added; the
    loop repeats until none passes.
 5. If the residual then still exceeds the floor, the report says so under ``unexplained``, with
@@ -54,12 +54,12 @@ from mocap_calib.core.diagnosis.takes import (
     take_state,
 )
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, CLOCK_OFFSET, EFFECTS, Model
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.stats import chi2_logsf
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import Recording, calibrate_takes
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import (

@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.parameters import PARAMETERS, PER_TAKE
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.trend import extrapolate_trend
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.stage import Prior
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError

@@ -38,8 +38,8 @@ from mocap_calib.core.model.parameters import (
     TRANSLATION,
     Parameter,
 )
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import Prior
 from mocap_calib.core.position.stage import PositionResult, effect_estimate

@@ -23,9 +23,9 @@ from mocap_calib.core.intrinsics.multipos.result import VERSION as INTRINSICS_VE
 from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.core.model.versioned import KindError, check_kind
 from mocap_calib.core.params import group, param
 from mocap_calib.core.policy import GAP_FACTOR, gap_threshold
+from mocap_calib.core.versioned import KindError, check_kind
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.bags import RecordingOptions
 from mocap_calib.io.formats.mocap_exports import ExportOptions
