@@ -19,7 +19,7 @@ from refusal_corpus import Case, clean, run_case, session
 from refusal_more import ALL_CASES as CASES
 
 from mocap_calib.cli.main import _is_indeterminate
-from mocap_calib.core.checks.conventions import check_conventions
+from mocap_calib.core.clock.conventions import check_conventions
 from mocap_calib.core.gtsam_tools import marginals
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.options import CalibrationOptions
