@@ -284,7 +284,8 @@ def test_no_matplotlib_without_html() -> None:
     """matplotlib is imported only when a page is drawn."""
     code = ("import mocap_calib.cli.main as m\n"
             "m._register_commands()\n"
-            "import mocap_calib.workflows.html.report, mocap_calib.workflows.html.intrinsics\n"
+            "import mocap_calib.workflows.report_files.pages\n"
+            "import mocap_calib.workflows.report_files.intrinsics\n"
             "import mocap_calib.report.html\n")
     assert loaded_by(code, ["matplotlib"]) == []
 
@@ -412,12 +413,12 @@ def test_allan_page_with_the_fitted_lines(tmp_path: Path) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# batch (the page the batch command writes through workflows.html_report.write_batch_report)
+# batch (the page the batch command writes: workflows.report_files.pages.write_batch_report)
 # --------------------------------------------------------------------------------------------
 
 def test_batch_page_lists_every_session_with_its_result(
         calibrated: tuple[dict[str, Any], str, Path], session: Path, tmp_path: Path) -> None:
-    from mocap_calib.workflows.html.report import write_batch_report
+    from mocap_calib.workflows.report_files.pages import write_batch_report
 
     d, _, _ = calibrated
     calib = session.parent / "calib.yaml"

@@ -110,8 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     _one_malloc_arena()
     _names_as_given()
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
-    from mocap_calib.workflows.html.provenance import record_command_line
     from mocap_calib.workflows.interrupts import stop_on_signals
+    from mocap_calib.workflows.report_files.provenance import record_command_line
 
     record_command_line(list(sys.argv[1:] if argv is None else argv))  # for the HTML reports
     try:
