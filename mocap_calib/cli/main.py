@@ -12,9 +12,11 @@ import sys
 
 import typer
 
+from mocap_calib.cli.common import Group
 from mocap_calib.errors import CalibrationError, InputError, ObservabilityError
 
 app = typer.Typer(
+    cls=Group,
     name="mocap-calib",
     help="Calibrate an IMU from motion-capture sessions (EuRoC/ASL CSVs, TUM, generic CSV, ROS "
     "bags, MCAP, PX4 ULog, Motive and Vicon exports).",
