@@ -202,8 +202,8 @@ def test_raw_prior_and_drift(work: Path, raw_run: tuple[Path, str],
     iv = np.asarray(other_truth["simulation"]["static_intervals_s"])
     t1 = float(np.mean(iv[np.argmin(np.abs(iv.mean(axis=1) - 100.0))]))
     drift = work / "drift_raw.yaml"
-    out_text = ok(run(["drift", "--imu", other, "--calibration", raw_run[0], "--start", 35,
-                       "--end", t1, "--out", drift], capsys))
+    out_text = ok(run(["drift", "--imu", other, "--calibration", raw_run[0],
+                       "--segment-start", 35, "--segment-end", t1, "--out", drift], capsys))
     r = load(drift)
     print("drift with raw intrinsics:", {k: r[k] for k in ("tilt_drift_raw_deg",
                                                            "tilt_drift_cal_deg")})
