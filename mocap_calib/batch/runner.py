@@ -216,7 +216,7 @@ class _Batch:
             self.results[i] = result
             st.status, st.error = "ok", ""
         else:
-            # A result for other inputs or options would now be wrong: it goes (a file that
+            # A result for other inputs or options would be wrong: it goes (a file that
             # is not a batch's result for this session is not the batch's to remove).
             if finished_hash(path) is not None and batch_id(path) == st.id:
                 path.unlink(missing_ok=True)

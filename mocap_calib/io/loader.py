@@ -79,7 +79,7 @@ class ColumnMaps:
 
 def column_maps(columns: str | None, imu_columns: str | None = None,
                 mocap_columns: str | None = None) -> ColumnMaps:
-    """The per-file maps from the three options, refused now if malformed, if ``--columns``
+    """The per-file maps from the three options, refused here if malformed, if ``--columns``
     is combined with a per-file map, or if a per-file map names the other stream's columns."""
     if columns is not None and (imu_columns is not None or mocap_columns is not None):
         given = " and ".join(f for f, v in (("--imu-columns", imu_columns),
@@ -101,7 +101,7 @@ def column_maps(columns: str | None, imu_columns: str | None = None,
 
 
 def _column_map(columns: str, flag: str) -> ColumnMap:
-    """A map, refused now if malformed or if it names no stream."""
+    """A map, refused here if malformed or if it names no stream."""
     cmap = parse_columns(columns, flag)
     if not (cmap.has_imu or cmap.has_mocap):
         raise input_error("names neither IMU (gyro=, accel=) nor mocap (quat=, pos=) columns",

@@ -229,7 +229,7 @@ def local_derivative(t: Array, y: Array, half: int,
 def _local_quadratic(t, y, half, seg, value, deriv, valid):  # pragma: no cover  (compiled)
     """Per sample, least squares of ``y = a + b dt + c dt^2`` over the samples within
     ``half`` of it (indices clipped at the ends; a fit at the ends or across a gap is marked
-    invalid and solved with identity normal equations, as before it was compiled)."""
+    invalid and solved with identity normal equations)."""
     M, d = y.shape
     A = np.zeros((3, 3))
     B = np.zeros((3, d))
