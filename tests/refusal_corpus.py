@@ -57,7 +57,7 @@ class Expect:
 @dataclass(frozen=True)
 class Case:
     name: str
-    kind: str  # the row of the table it belongs to
+    kind: str  # its group in docs/refusals.md's table
     what: str  # what the user did
     build: Callable[[Path], list[str]]  # writes the inputs, returns the command line
     expect: Expect

@@ -537,7 +537,7 @@ def test_allan_allow_unresolved_writes_null_random_walk(work: Path, bad_files: d
 
 def test_imu_commands_import_only_workflows() -> None:
     """The multipos, allan and drift commands parse options and call one workflow: their
-    modules import nothing of io, core, viz or report (issue 16)."""
+    modules import nothing of io, core, viz or report."""
     import ast
 
     import mocap_calib.cli.commands as commands

@@ -1,5 +1,5 @@
 """``multipos --raw``, imu_tk's two-file input and ``export --to imu_tk``, end to end through the
-CLI on simulated 16-bit counts (issue 12)."""
+CLI on simulated 16-bit counts."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def test_raw_counts_calibration(raw_run: tuple[Path, str],
 def test_counts_without_raw_are_named_as_counts(counts_session: tuple[Path, dict],
                                                 work: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
-    """The issue's first problem: counts were taken for deg/s."""
+    """Raw counts are not taken for deg/s."""
     imu = counts_session[0]
     for extra in ([], ["--gyro-unit", "deg/s"], ["--gyro-unit", "deg/s", "--accel-unit", "g"]):
         code, out, err = run(["multipos", "--imu", imu, "--out", work / "no.yaml", "-q",
@@ -220,7 +220,7 @@ def test_raw_prior_and_drift(work: Path, raw_run: tuple[Path, str],
 def test_initial_rest_message_names_the_length(work: Path,
                                                counts_session: tuple[Path, dict[str, Any]],
                                                capsys: pytest.CaptureFixture[str]) -> None:
-    """The issue's '50-50 s' message."""
+    """The message names the initial rest's length once, not as a '50-50 s' range."""
     out = work / "flight"
     ok(run(["simulate", out, "--seed", 9, "--duration", 80], capsys))
     code, o, err = run(["multipos", "--imu", out / "mav0" / "imu0" / "data.csv",

@@ -1,7 +1,7 @@
 """``--html`` reports of calibrate, diagnose, multipos and allan, read back as a browser would.
 
 Every page must parse (balanced tags), reference nothing outside itself (inline PNGs, in-page
-links only), hold the figures the issue lists (by id), and show the numbers of the YAML that
+links only), hold the figures each report has (by id), and show the numbers of the YAML that
 the same run wrote: every cell tied to a key (``data-key``) holds that key's value, and its
 text shows it (to the precision printed). The simulator's truth gives figures the report must
 reproduce independently (mocap gaps), and the multi-position per-pose residuals must give the

@@ -10,6 +10,7 @@ import pytest
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
+from mocap_calib.io.formats.columns import BROAD, ColumnMap, parse_columns
 from mocap_calib.io.formats.euroc import (
     IMU_HEADER,
     POSE_HEADER,
@@ -20,7 +21,7 @@ from mocap_calib.io.formats.euroc import (
     write_euroc_poses,
     write_mav0,
 )
-from mocap_calib.io.formats.generic import BROAD, ColumnMap, parse_columns, read_generic
+from mocap_calib.io.formats.generic import read_generic
 from mocap_calib.io.formats.tum import read_tum, write_tum
 from mocap_calib.io.loader import load_inputs, sniff_format
 from mocap_calib.io.validate import check_overlap

@@ -1,4 +1,4 @@
-"""Refuse what cannot be right and name the mistake (issue 17).
+"""Refuse what cannot be right and name the mistake.
 
 The corpus (``tests/refusal_corpus.py``): a clean 30 s simulated session corrupted one way at a
 time, run through the CLI as a user would. No case may exit 0 with a wrong answer (numbers are
