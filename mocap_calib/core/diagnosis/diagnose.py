@@ -80,7 +80,7 @@ from mocap_calib.errors import CalibrationError, InputError, Interrupted
 Array = NDArray[np.float64]
 
 __all__ = ["DiagnoseOptions", "DiagnoseReport", "DiagnoseStep", "CandidateScore", "Residuals",
-           "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes", "plausibility"]
+           "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes"]
 
 
 def _effect_names(text: str) -> tuple[str, ...]:
@@ -120,11 +120,6 @@ class DiagnoseOptions:
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
     unexplained_ratio: float = 1.5
     typical_mocap_noise: tuple[float, float] = (1.5e-3, float(np.radians(0.2)))
-
-
-def plausibility(effect: str, value: object) -> str | None:
-    """A one-line warning when an effect's estimate is outside its plausible range."""
-    return effect_problem(effect, value, PlausibleLimits())
 
 
 def _log10_sf(t: float, k: int) -> float:
