@@ -207,10 +207,10 @@ class PositionResult:
 def block_value(pos: PositionResult, name: str, clock_shift: float) -> Array:
     """The parameter vector of an effect at a position-stage solution (the clock offset as
     ``t_d`` on the raw stamps, ``|g|`` as a 1-vector, the rest from the effect vectors)."""
-    kind = EFFECTS[name].acts_on
-    if kind == "clock":
+    eff = EFFECTS[name]
+    if eff.acts_on == "clock":
         return np.array([pos.delta - clock_shift])
-    if kind == "gravity":
+    if eff.acts_on == "gravity":
         return np.array([pos.g_mag])
     return np.asarray(pos.effects[name], dtype=float)
 
