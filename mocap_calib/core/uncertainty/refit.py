@@ -4,8 +4,8 @@ them (largest pairwise |difference| / combined sigma)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,7 +45,8 @@ def init_from(pos: PositionResult, which: list[IntArray]) -> PositionInit:
 def refit(pos: PositionResult, model: Model, which: list[IntArray], *,
           noise: NoiseModel | None = None, adapt_noise: bool = False, reweight: bool = False,
           priors: list[Prior] | None = None, max_iterations: int = 30,
-          one_step: bool | int = True, settled: Any = None) -> PositionResult:
+          one_step: bool | int = True,
+          settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
     """The solution refitted on the windows ``which`` of every take, with its robust weights
     (and with ``noise`` instead of its noise model): ``one_step`` Gauss-Newton steps (``True``:
     one), or with ``one_step`` false LM rounds to convergence."""
