@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 
 def _modules_after(args: list[str]) -> set[str]:
     code = ("import sys\nfrom mocap_calib.cli.main import main\n"
@@ -48,3 +50,31 @@ def test_reading_a_csv_loads_neither_pandas_nor_pyarrow(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     n, pandas, pyarrow = proc.stdout.split()
     assert int(n) > 900 and pandas == "False" and pyarrow == "False"
+
+
+_ENDING = """
+import atexit, sys
+atexit.register(lambda: print("exit handler ran", file=sys.stderr))
+sys.argv = ["mocap-calib", *sys.argv[1:]]
+from mocap_calib.cli.main import main
+main()
+print("not reached")
+"""
+
+
+@pytest.mark.parametrize("args,code", [(["--help"], 0),
+                                       (["calibrate", "--imu", "missing.csv", "--mocap",
+                                         "missing.csv", "--out", "x.yaml"], 2)])
+def test_the_process_ends_with_its_code_its_output_and_its_exit_handlers(
+        args: list[str], code: int, tmp_path: Path) -> None:
+    """The console entry ends the process without the interpreter's teardown: the exit code,
+    everything printed (also into a pipe) and the exit handlers are kept."""
+    proc = subprocess.run([sys.executable, "-c", _ENDING, *args], capture_output=True,
+                          text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == code, proc.stderr
+    assert "exit handler ran" in proc.stderr
+    assert "not reached" not in proc.stdout
+    if code == 0:
+        assert "Usage:" in proc.stdout and "calibrate" in proc.stdout
+    else:
+        assert "error: " in proc.stderr and "missing.csv" in proc.stderr

@@ -109,6 +109,11 @@ def loaded_in_process() -> list[str]:
     return [kernel_name(d) for d in KERNELS if sum(d.stats.cache_hits.values())]
 
 
+def uncached_kernels() -> list[str]:
+    """The kernels without a writable cache folder (compiled in every process)."""
+    return [kernel_name(d) for d in KERNELS if not isinstance(d._cache, _TolerantCache)]
+
+
 def release_compiler_pages() -> int:
     """Hand the resident pages of the compiler library's read-only mappings back to the system
     (Linux; elsewhere nothing happens). Only mappings that hold no page of their own
