@@ -15,7 +15,8 @@ and the command line's own cost against ``calibrate()`` in-process, side by side
 Every run is its own process: wall time, CPU time of all its threads and peak RSS (``wait4``).
 Each kind of run is repeated ``--runs`` times (not the first runs, which are first only once);
 the table gives the minimum and median wall time, the median CPU time and the largest peak
-RSS. The machine's other load moves wall times; CPU times move less.
+RSS (MiB: ``ru_maxrss`` / 1024, the peer's too). The machine's other load moves wall times; CPU
+times move less. Runs see the environment without ``PYTHONDONTWRITEBYTECODE``, as a user's.
 
 Prints the table of docs/validation.md; ``--write-doc`` rewrites its section there.
 
@@ -41,6 +42,8 @@ from _doc_section import add_doc_options, check, provenance, table, write
 
 SECTIONS = ("bench_speed",)
 HEADER = ["run", "wall (min / median)", "CPU (median)", "peak RSS (largest)"]
+#: The environment of every run: a user's (bytecode caches written and read).
+ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 
 @dataclass(frozen=True)
@@ -56,7 +59,7 @@ def measure(cmd: list[str], env: dict[str, str] | None = None) -> Run:
     """Run ``cmd`` (its output discarded); exit with its error if it fails."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            env={**os.environ, **(env or {})})
+                            env={**ENV, **(env or {})})
     _, status, ru = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
@@ -73,7 +76,7 @@ def cli(*args: str) -> list[str]:
 def in_process(session: Path, env: dict[str, str]) -> Run:
     """``calibrate()`` on a session read beforehand, in a fresh process (see :func:`_inproc`)."""
     out = subprocess.run([sys.executable, __file__, "--inproc", str(session)],
-                         capture_output=True, text=True, env={**os.environ, **env})
+                         capture_output=True, text=True, env={**ENV, **env})
     if out.returncode != 0:
         sys.exit(f"error: the in-process run failed:\n{out.stderr}")
     r = json.loads(out.stdout.strip().splitlines()[-1])
@@ -107,7 +110,7 @@ def cells(label: str, runs: list[Run]) -> list[str]:
     wall = (f"{min(walls):.2f} / {statistics.median(walls):.2f} s (of {len(runs)})"
             if len(runs) > 1 else f"{walls[0]:.2f} s")
     return [label, wall, f"{statistics.median(r.cpu for r in runs):.2f} s",
-            f"{max(r.rss for r in runs):.0f} MB"]
+            f"{max(r.rss for r in runs):.0f} MiB"]
 
 
 def show(row: list[str]) -> None:
@@ -147,8 +150,8 @@ def real_rows(a: argparse.Namespace, cache: Path, tmp: Path) -> tuple[list[list[
         rows.append(cells(f"{name}: mocap2gt (`{' '.join([Path(a.peer).name, a.peer_args])}`)",
                           peer))
         show(rows[-1])
-        notes.append(f"{name}: peak RSS {max(r.rss for r in warm):.0f} MB (largest of the later "
-                     f"runs) against mocap2gt's {max(r.rss for r in peer):.0f} MB")
+        notes.append(f"{name}: peak RSS {max(r.rss for r in warm):.0f} MiB (largest of the later "
+                     f"runs) against mocap2gt's {max(r.rss for r in peer):.0f} MiB")
     return rows, notes, mid
 
 
