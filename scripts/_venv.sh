@@ -16,6 +16,7 @@ if ! { "$ROOT/.venv/bin/python" -m pip install --quiet --upgrade pip \
   echo "error: installing mocap-calib failed (log above, also in $LOG)" >&2
   exit 1
 fi
+echo "compiling mocap-calib's numerical kernels (once after installing) ..."
 if ! OUT="$("$ROOT/.venv/bin/mocap-calib" compile 2>&1)"; then
   echo "$OUT" >&2
   echo "error: compiling mocap-calib's kernels failed (output above)" >&2
