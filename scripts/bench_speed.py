@@ -4,9 +4,13 @@ and the command line's own cost against ``calibrate()`` in-process, side by side
 - A recorded session (``--real IMU.csv,MOCAP.csv``): the install step (``mocap-calib compile``
   into an empty kernel cache), the first ``calibrate`` after it, later (warm) runs, and the first
   run into an empty cache without the install step (it compiles the kernels).
-- ``--peer WRAPPER``: mocap2gt on the same session through its wrapper (``WRAPPER --imu ..
-  --mocap .. --out .. [--peer-args]``, e.g. /work/peer/run_mocap2gt.sh), its peak memory and
-  time.
+- ``--peer WRAPPER`` (or ``MOCAP2GT_WRAPPER``): mocap2gt on the same session through its
+  wrapper (``WRAPPER --imu .. --mocap .. --out .. PEER_ARGS``), its estimator's peak memory and
+  time as the wrapper's result file records them (``run:``; the conversions around it are not
+  counted). ``--peer-args`` (or ``MOCAP2GT_ARGS``) passes the noise model and settings, e.g.
+  mocap2gt's shipped configuration: ``--noise noise.yaml --gravity 9.8 --relin 1
+  --variable-toff --imu-freq 200 --stock``. Without a wrapper the row is skipped, with a line
+  saying so.
 - Simulated sessions (``--minutes``, default 10 and 30; ``mocap-calib simulate --seed 7``):
   ``calibrate DIR`` as a user runs it (start-up, reading, writing) against ``calibrate()`` on
   the same arrays in a process that has read them already (the command line's own cost is the
@@ -18,7 +22,12 @@ the table gives the minimum and median wall time, the median CPU time and the la
 RSS (MiB: ``ru_maxrss`` / 1024, the peer's too). The machine's other load moves wall times; CPU
 times move less. Runs see the environment without ``PYTHONDONTWRITEBYTECODE``, as a user's.
 
-Prints the table of docs/validation.md; ``--write-doc`` rewrites its section there.
+Below the table, each figure against its bound: the first run after the install step within
+1.5x of a later one (wall), the recorded session's peak RSS at or below mocap2gt's, the command
+line on 10 and 30 simulated minutes within 5 and 12 s (median wall). The load average before and
+after is printed with them: the machine's other work moves wall times.
+
+Prints the tables of docs/validation.md; ``--write-doc`` rewrites its section there.
 
 Usage: python scripts/bench_speed.py [--real IMU.csv,MOCAP.csv] [--peer WRAPPER]
        [--peer-args "..."] [--minutes 10 30] [--runs 3] [--write-doc] [--doc PATH]
@@ -38,21 +47,45 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import yaml
 from _doc_section import add_doc_options, check, provenance, table, write
 
 SECTIONS = ("bench_speed",)
 HEADER = ["run", "wall (min / median)", "CPU (median)", "peak RSS (largest)"]
+BOUND_HEADER = ["figure", "measured", "bound", "within"]
+#: The first ``calibrate`` after the install step: at most this many times a later run's wall.
+FIRST_RUN_RATIO = 1.5
+#: The command line on a simulated session of this many minutes: at most these seconds (wall).
+CLI_SECONDS = {10.0: 5.0, 30.0: 12.0}
 #: The environment of every run: a user's (bytecode caches written and read).
 ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 
 @dataclass(frozen=True)
 class Run:
-    """One process: wall and CPU seconds, peak RSS (MB)."""
+    """One process: wall and CPU seconds, peak RSS (MiB)."""
 
     wall: float
     cpu: float
     rss: float
+
+
+@dataclass
+class Table:
+    """The runs' rows, the notes under them and each figure against its bound."""
+
+    rows: list[list[str]]
+    notes: list[str]
+    bounds: list[list[str]]
+
+    def add(self, label: str, runs: list[Run]) -> None:
+        self.rows.append(cells(label, runs))
+        show(self.rows[-1])
+
+    def bound(self, figure: str, measured: float, limit: float, fmt: str) -> None:
+        self.bounds.append([figure, fmt.format(measured), fmt.format(limit),
+                            "yes" if measured <= limit else "**no**"])
+        print(f"  bound: {figure}: {fmt.format(measured)} against {fmt.format(limit)}", flush=True)
 
 
 def measure(cmd: list[str], env: dict[str, str] | None = None) -> Run:
@@ -117,63 +150,95 @@ def show(row: list[str]) -> None:
     print(f"  {row[0]:<62} {row[1]:>24} wall {row[2]:>9} CPU {row[3]:>8}", flush=True)
 
 
-def real_rows(a: argparse.Namespace, cache: Path, tmp: Path) -> tuple[list[list[str]],
-                                                                      list[str], Run]:
-    """Rows of the recorded session; the notes; its warm median run."""
+def median_wall(runs: list[Run]) -> float:
+    return statistics.median(r.wall for r in runs)
+
+
+def peer_wrapper(a: argparse.Namespace) -> str | None:
+    """mocap2gt's wrapper (``--peer`` or ``MOCAP2GT_WRAPPER``), or None (a line says why)."""
+    wrapper = a.peer or os.environ.get("MOCAP2GT_WRAPPER")
+    if not wrapper:
+        print("  mocap2gt: skipped (no wrapper given: --peer or MOCAP2GT_WRAPPER)", flush=True)
+        return None
+    if not (Path(wrapper).is_file() and os.access(wrapper, os.X_OK)):
+        print(f"  mocap2gt: skipped ({wrapper} is not an executable file)", flush=True)
+        return None
+    return wrapper
+
+
+def peer_run(cmd: list[str], out: Path) -> Run:
+    """The wrapper's run; mocap2gt's own wall, CPU and peak RSS from its result file."""
+    measure(cmd)
+    try:
+        run = yaml.safe_load(out.read_text())["run"]
+        return Run(float(run["wall_s"]), float(run["cpu_s"]), float(run["peak_rss_kb"]) / 1024)
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
+        sys.exit(f"error: {out}: no run.wall_s/cpu_s/peak_rss_kb in the wrapper's result "
+                 f"({exc!r}); give the wrapper that writes them (see --help)")
+
+
+def real_rows(a: argparse.Namespace, t: Table, cache: Path, tmp: Path) -> None:
+    """The recorded session's rows, notes and bounds."""
     imu, mocap = a.real.split(",")
-    out = str(tmp / "real.yaml")
-    args = ["calibrate", "--imu", imu, "--mocap", mocap, "--out", out, "--quiet"]
+    args = ["calibrate", "--imu", imu, "--mocap", mocap, "--out", str(tmp / "real.yaml"),
+            "--quiet"]
     env = {"NUMBA_CACHE_DIR": str(cache)}
     name = a.real_label
-    rows = []
-    install = measure(cli("compile"), env)
-    rows.append(cells("install step: `mocap-calib compile` into an empty kernel cache",
-                      [install]))
-    show(rows[-1])
+    t.add("install step: `mocap-calib compile` into an empty kernel cache",
+          [measure(cli("compile"), env)])
     first = measure(cli(*args), env)
-    rows.append(cells(f"{name}: first `calibrate` after the install step", [first]))
-    show(rows[-1])
+    t.add(f"{name}: first `calibrate` after the install step", [first])
     warm = [measure(cli(*args), env) for _ in range(a.runs)]
-    rows.append(cells(f"{name}: later runs", warm))
-    show(rows[-1])
-    bare = measure(cli(*args), {"NUMBA_CACHE_DIR": str(tmp / "empty")})
-    rows.append(cells(f"{name}: first run without the install step (compiles)", [bare]))
-    show(rows[-1])
-    mid = sorted(warm, key=lambda r: r.wall)[len(warm) // 2]
-    notes = [f"{name}: first run after the install step / median later run: wall "
-             f"x{first.wall / statistics.median(r.wall for r in warm):.2f}, CPU "
-             f"x{first.cpu / statistics.median(r.cpu for r in warm):.2f}"]
-    if a.peer:
-        peer = [measure([a.peer, "--imu", imu, "--mocap", mocap, "--out",
-                         str(tmp / "peer.yaml"), *shlex.split(a.peer_args)])
-                for _ in range(a.peer_runs)]
-        rows.append(cells(f"{name}: mocap2gt (`{' '.join([Path(a.peer).name, a.peer_args])}`)",
-                          peer))
-        show(rows[-1])
-        notes.append(f"{name}: peak RSS {max(r.rss for r in warm):.0f} MiB (largest of the later "
-                     f"runs) against mocap2gt's {max(r.rss for r in peer):.0f} MiB")
-    return rows, notes, mid
+    t.add(f"{name}: later runs", warm)
+    t.add(f"{name}: first run without the install step (compiles)",
+          [measure(cli(*args), {"NUMBA_CACHE_DIR": str(tmp / "empty")})])
+    ratio = first.wall / median_wall(warm)
+    t.notes.append(f"{name}: first run after the install step / median later run: wall "
+                   f"x{ratio:.2f}, CPU "
+                   f"x{first.cpu / statistics.median(r.cpu for r in warm):.2f}")
+    t.bound(f"{name}: first `calibrate` after the install step / later run (wall)", ratio,
+            FIRST_RUN_RATIO, "x{:.2f}")
+    wrapper = peer_wrapper(a)
+    ours = max(r.rss for r in [first, *warm])
+    if wrapper is None:
+        t.notes.append(f"{name}: peak RSS {ours:.0f} MiB (mocap2gt not run)")
+        return
+    peer_args = a.peer_args if a.peer_args is not None else os.environ.get("MOCAP2GT_ARGS", "")
+    peer = [peer_run([wrapper, "--imu", imu, "--mocap", mocap, "--out", str(out),
+                      *shlex.split(peer_args)], out)
+            for out in (tmp / f"peer{k}.yaml" for k in range(a.peer_runs))]
+    t.add(f"{name}: mocap2gt (`{' '.join([Path(wrapper).name, peer_args])}`; estimator only)",
+          peer)
+    theirs = max(r.rss for r in peer)
+    t.notes.append(f"{name}: peak RSS {ours:.0f} MiB (largest of the first and later runs) "
+                   f"against mocap2gt's {theirs:.0f} MiB")
+    t.bound(f"{name}: peak RSS of `calibrate` (MiB; bound: mocap2gt's)", ours, theirs,
+            "{:.0f}")
 
 
-def simulated_rows(a: argparse.Namespace, cache: Path, tmp: Path) -> tuple[list[list[str]],
-                                                                           list[str]]:
+def simulated_rows(a: argparse.Namespace, t: Table, cache: Path, tmp: Path) -> None:
     env = {"NUMBA_CACHE_DIR": str(cache)}
-    rows, notes = [], []
     for m in a.minutes:
         session = tmp / f"sim{m:g}"
         measure(cli("simulate", str(session), "--duration", f"{60 * m:g}", "--seed", "7"))
         line = [measure(cli("calibrate", str(session), "--out", str(tmp / "sim.yaml"),
                             "--quiet"), env) for _ in range(a.runs)]
-        rows.append(cells(f"{m:g} min simulated: `calibrate DIR` (command line)", line))
-        show(rows[-1])
+        t.add(f"{m:g} min simulated: `calibrate DIR` (command line)", line)
         inner = [in_process(session, env) for _ in range(a.runs)]
-        rows.append(cells(f"{m:g} min simulated: `calibrate()` on its arrays (in-process)",
-                          inner))
-        show(rows[-1])
-        notes.append(f"{m:g} min: the command line's own cost (median wall difference) "
-                     f"{statistics.median(r.wall for r in line) - statistics.median(r.wall for r in inner):.2f} s, "  # noqa: E501
-                     f"CPU {statistics.median(r.cpu for r in line) - statistics.median(r.cpu for r in inner):.2f} s")  # noqa: E501
-    return rows, notes
+        t.add(f"{m:g} min simulated: `calibrate()` on its arrays (in-process)", inner)
+        cpu = statistics.median(r.cpu for r in line) - statistics.median(r.cpu for r in inner)
+        t.notes.append(f"{m:g} min: the command line's own cost (median wall difference) "
+                       f"{median_wall(line) - median_wall(inner):.2f} s, CPU {cpu:.2f} s")
+        if m in CLI_SECONDS:
+            t.bound(f"{m:g} min simulated: `calibrate DIR` (median wall, s)", median_wall(line),
+                    CLI_SECONDS[m], "{:.2f}")
+
+
+def load_line(start: tuple[float, float, float]) -> str:
+    end = os.getloadavg()
+    return (f"Load average (1 / 5 / 15 min) on {os.cpu_count()} cores: "
+            f"{' / '.join(f'{x:.1f}' for x in start)} before, "
+            f"{' / '.join(f'{x:.1f}' for x in end)} after.")
 
 
 def main() -> int:
@@ -181,8 +246,10 @@ def main() -> int:
     ap.add_argument("--real", help="a recorded session: IMU.csv,MOCAP.csv (EuRoC CSVs)")
     ap.add_argument("--real-label", default="real session",
                     help="how the table names the recorded session")
-    ap.add_argument("--peer", help="mocap2gt's wrapper script (run on --real)")
-    ap.add_argument("--peer-args", default="", help="more arguments for the wrapper")
+    ap.add_argument("--peer", help="mocap2gt's wrapper script, run on --real (default: "
+                    "$MOCAP2GT_WRAPPER; none: the row is skipped)")
+    ap.add_argument("--peer-args", help="more arguments for the wrapper (default: "
+                    "$MOCAP2GT_ARGS)")
     ap.add_argument("--peer-runs", type=int, default=1)
     ap.add_argument("--minutes", type=float, nargs="*", default=[10.0, 30.0],
                     help="simulated session lengths (none: skip them)")
@@ -202,21 +269,22 @@ def main() -> int:
     if a.peer and not a.real:
         print("error: --peer runs on the --real session: give --real too", file=sys.stderr)
         return 2
-    rows, notes = [], []
+    load = os.getloadavg()
+    t = Table([], [], [])
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         cache = tmp / "kernels"
         if a.real:
-            got, more, _ = real_rows(a, cache, tmp)
-            rows += got
-            notes += more
+            real_rows(a, t, cache, tmp)
         else:
+            print("  recorded session: skipped (no --real): no first-run or memory figures",
+                  flush=True)
             measure(cli("compile"), {"NUMBA_CACHE_DIR": str(cache)})
-        got, more = simulated_rows(a, cache, tmp)
-        rows += got
-        notes += more
-    text = (provenance("bench_speed.py") + "\n" + table(HEADER, rows) + "\n"
-            + "\n".join(f"- {n}" for n in notes) + "\n")
+        simulated_rows(a, t, cache, tmp)
+    text = (provenance("bench_speed.py").rstrip("\n") + " " + load_line(load) + "\n\n"
+            + table(HEADER, t.rows) + "\n" + "\n".join(f"- {n}" for n in t.notes) + "\n")
+    if t.bounds:
+        text += "\n" + table(BOUND_HEADER, t.bounds)
     print(text)
     write(a, {"bench_speed": text})
     return 0
