@@ -55,13 +55,14 @@ class CompileReport:
 
 def compile_kernels(request: CompileRequest | None = None) -> CompileReport:
     """Run a short simulated calibration, which compiles (or loads) every kernel it uses."""
+    from mocap_calib.core.model.effects import CLOCK_OFFSET
     from mocap_calib.core.options import CalibrationOptions
     from mocap_calib.core.pipeline.calibrate import calibrate
     from mocap_calib.sim.flight import SimConfig, simulate_flight
 
     t0 = time.perf_counter()
     sim = simulate_flight(SimConfig(seed=0, duration=SESSION_S,
-                                    effects={"time_offset": [0.004]}))
+                                    effects={CLOCK_OFFSET.name: [0.004]}))
     calibrate(sim.imu, sim.mocap, CalibrationOptions())
     compiled = jit.compiled_in_process()
     return CompileReport(compiled, jit.loaded_in_process(),
