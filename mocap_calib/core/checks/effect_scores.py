@@ -16,7 +16,7 @@ candidates) and plausible.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -62,6 +62,11 @@ class EffectScore:
     problem: str | None  # why it is implausible (None: plausible)
     significant: bool
     failures: tuple[str, ...] = ()
+    #: The one-step estimate in the effect's own coordinates (a clock offset: every take's
+    #: shift) and its model-based covariance (the Schur complement's inverse).
+    step: Array = field(default_factory=lambda: np.zeros(0), repr=False, compare=False)
+    step_cov: Array = field(default_factory=lambda: np.zeros((0, 0)), repr=False,
+                            compare=False)
 
     @property
     def shown(self) -> bool:
@@ -76,13 +81,57 @@ class EffectScore:
 
 def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | None = None,
                   candidates: tuple[str, ...] | None = None,
-                  alpha: float = ALPHA) -> list[EffectScore]:
+                  alpha: float = ALPHA, sequential: bool = True,
+                  parts: bool = False) -> list[EffectScore]:
     """Score tests of every canonical effect the model lacks (or ``candidates``): the
     effects shown in order of evidence (each tested with those before it free), then the
-    rest (tested with the shown ones free)."""
+    rest (tested with the shown ones free). Without ``sequential``: every candidate tested
+    against the model as it is, in order of evidence (the diagnosis adds one at a time and
+    tests again). With ``parts``, the sandwich's blocks are the windows' one-second parts
+    instead of the windows (Hotelling's statistic on a few windows has little power for an
+    effect of several parameters: 12 windows, 9 parameters, F(9, 3)); the diagnosis, which
+    confirms what it adds by a refit, tests so."""
     cands = [c for c in (candidates or CANONICAL_EFFECTS) if not model.has(c)]
     if not cands:
         return []
+    # One linearisation per solution and candidate set: the calibration's tests and the
+    # diagnosis' first step share it.
+    key = f"_effect_scores {'+'.join(cands)}"
+    if key not in pos.solver:
+        pos.solver[key] = _linearise(pos, model, cands)
+    H, d, by_window, by_part, rows_of = pos.solver[key]
+    rows = by_part if parts else by_window
+    n = H.shape[0]
+    alpha_each = alpha / len(cands)
+    # In order of evidence, as the diagnosis adds effects: the strongest significant one is
+    # then free (a nuisance) while the rest are tested again, so that a candidate that only
+    # stands in for a stronger one is not listed.
+    out: list[EffectScore] = []
+    free: list[str] = []
+    todo = list(cands)
+    while todo:
+        tests = []
+        for c in todo:
+            fixed = np.concatenate([rows_of[o] for o in todo])
+            keep = np.setdiff1d(np.arange(n), np.setdiff1d(fixed, rows_of[c]))
+            keep = np.setdiff1d(keep, rows_of[c])
+            tests.append(_test(c, rows_of[c], keep, H, d, rows, alpha_each, limits))
+        tests.sort(key=lambda t: t.log10_p)
+        best = next((t for t in tests if t.shown), None) if sequential else None
+        if best is None:
+            out += tests
+            break
+        out.append(best)
+        free.append(best.effect)
+        todo.remove(best.effect)
+    return out
+
+
+def _linearise(pos: PositionResult, model: Model, cands: list[str]
+               ) -> tuple[Array, Array, Array, Array, dict[str, NDArray[np.int64]]]:
+    """The information, gradient and scores (per window, and per one-second part of a window)
+    at the solution with the candidates added at zero, the windows' bias knots eliminated;
+    and each candidate's rows."""
     ext = Model((*model.effects, *cands))
     which = _spread(pos)
     takes = [Take(t.s, t.windows.subset(w)) for t, w in zip(pos.takes, which, strict=True)]
@@ -106,36 +155,15 @@ def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | N
     for key, o in offsets.items():
         v = np.asarray(grad.at(key), dtype=float)
         d[o:o + len(v)] = -v  # gradientAtZero is that of 0.5 |A x - b|^2 at x = 0: -A^T b
-    rows = _window_scores(pg, offsets, n)
+    by_window, by_part = _window_scores(pg, offsets, n)
     # The windows' bias knots are nuisance in every test: eliminate them once (exact block
     # elimination with a sparse factor), so that each test solves a system of the shared
     # parameters only instead of a dense one over every knot (at 60 min, 4000+ of them).
-    H, d, rows, index = _without_knots(H, d, rows, _knot_rows(pg, offsets))
-    n = int(np.count_nonzero(index >= 0))
-    rows_of = {c: index[_rows(pg, offsets, c)] for c in cands}
-    alpha_each = alpha / len(cands)
-    # In order of evidence, as the diagnosis adds effects: the strongest significant one is
-    # then free (a nuisance) while the rest are tested again, so that a candidate that only
-    # stands in for a stronger one is not listed.
-    out: list[EffectScore] = []
-    free: list[str] = []
-    todo = list(cands)
-    while todo:
-        tests = []
-        for c in todo:
-            fixed = np.concatenate([rows_of[o] for o in todo])
-            keep = np.setdiff1d(np.arange(n), np.setdiff1d(fixed, rows_of[c]))
-            keep = np.setdiff1d(keep, rows_of[c])
-            tests.append(_test(c, rows_of[c], keep, H, d, rows, alpha_each, limits))
-        tests.sort(key=lambda t: t.log10_p)
-        best = next((t for t in tests if t.shown), None)
-        if best is None:
-            out += tests
-            break
-        out.append(best)
-        free.append(best.effect)
-        todo.remove(best.effect)
-    return out
+    H, d, rows, index = _without_knots(H, d, np.vstack([by_window, by_part]),
+                                       _knot_rows(pg, offsets))
+    by_window, by_part = rows[:len(by_window)], rows[len(by_window):]
+    by_part = by_part[np.any(by_part != 0.0, axis=1)]  # padding parts hold no samples
+    return H, d, by_window, by_part, {c: index[_rows(pg, offsets, c)] for c in cands}
 
 
 def windows_tested(pos: PositionResult) -> int:
@@ -192,20 +220,25 @@ def _without_knots(H: Any, d: Array, rows: Array, knots: NDArray[np.int64]
             rows[:, keep] - rows[:, knots] @ X[:, :-1], index)
 
 
-def _window_scores(pg: Any, offsets: dict[int, int], n: int) -> Array:
-    """Every window's whitened score ``J^T r`` in the graph's coordinates (W, n)."""
+def _window_scores(pg: Any, offsets: dict[int, int], n: int) -> tuple[Array, Array]:
+    """Every window's whitened score ``J^T r`` in the graph's coordinates (W, n), and every
+    one-second part's (W x B, n; their sum over a window is the window's)."""
     layout = pg.problem.layout
-    rows = []
+    rows, parts = [], []
     for k, out in enumerate(pg.evals[-1]):
         keys = pg.block_keys(k)
         glob = np.concatenate([offsets[keys[name]] + np.arange(dim)
                                for name, dim in layout.blocks if name != "knot"])
-        for w, s in enumerate(out.scores.sum(axis=1)):
-            row = np.zeros(n)
+        for w, s in enumerate(out.scores):
             idx = np.concatenate([glob, offsets[key_knot(pg.knot0[k] + w)] + np.arange(6)])
-            np.add.at(row, idx, s)
+            row = np.zeros(n)
+            np.add.at(row, idx, s.sum(axis=0))
             rows.append(row)
-    return np.array(rows)
+            part = np.zeros((s.shape[0], n))
+            for b in range(s.shape[0]):
+                np.add.at(part[b], idx, s[b])
+            parts.append(part)
+    return np.array(rows), np.concatenate(parts)
 
 
 def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d: Array,
@@ -239,7 +272,8 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     value = eff.report_value(step[:eff.dim] if eff.acts_on == "clock" else step)
     problem = effect_problem(name, value, limits or PlausibleLimits())
     return EffectScore(name, float(T), k, float(log10_p), _plain(value), problem,
-                       bool(log10_p < np.log10(alpha)), tuple(failures))
+                       bool(log10_p < np.log10(alpha)), tuple(failures), step,
+                       np.linalg.inv(V_model))
 
 
 def _plain(value: object) -> object:
