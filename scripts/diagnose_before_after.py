@@ -11,6 +11,7 @@ largest |difference| / sigma of the final estimates (the "after" sigma, as
 
 Usage:
     python scripts/diagnose_before_after.py run OUT [--repo DIR] [--only euroc,sim_delay]
+        [--commands diagnose,auto]
     python scripts/diagnose_before_after.py compare BEFORE AFTER [--limit 0.1]
 """
 
@@ -74,7 +75,8 @@ def _cli(repo: Path, args: list[str]) -> tuple[int, float, float, str]:
             ru.ru_utime + ru.ru_stime, err)
 
 
-def run(out: Path, repo: Path, sim_dir: Path, only: list[str] | None) -> None:
+def run(out: Path, repo: Path, sim_dir: Path, only: list[str] | None,
+        commands: list[str]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     for name, args in SIMULATED.items():
         if not (sim_dir / name / "truth.yaml").exists():
@@ -86,6 +88,8 @@ def run(out: Path, repo: Path, sim_dir: Path, only: list[str] | None) -> None:
         if only and name not in only:
             continue
         for cmd, extra in (("diagnose", ["diagnose"]), ("auto", ["calibrate"])):
+            if cmd not in commands:
+                continue
             target = out / f"{name}.{cmd}.yaml"
             more = ["--model", "auto"] if cmd == "auto" else []
             code, wall, cpu, err = _cli(repo, [*extra, *args, *more, "--out", str(target),
@@ -171,13 +175,15 @@ def main() -> int:
     r.add_argument("--repo", type=Path, default=REPO, help="the checkout whose code runs")
     r.add_argument("--sessions", type=Path, default=Path("/tmp/mocap_calib_diag_sessions"))
     r.add_argument("--only", type=lambda s: s.split(","), default=None)
+    r.add_argument("--commands", type=lambda s: s.split(","), default=["diagnose", "auto"],
+                   help="diagnose,auto (default both)")
     c = sub.add_parser("compare")
     c.add_argument("before", type=Path)
     c.add_argument("after", type=Path)
     c.add_argument("--limit", type=float, default=0.1)
     args = ap.parse_args()
     if args.cmd == "run":
-        run(args.out, args.repo.resolve(), args.sessions, args.only)
+        run(args.out, args.repo.resolve(), args.sessions, args.only, args.commands)
         return 0
     return compare(args.before, args.after, args.limit)
 

@@ -40,7 +40,7 @@ from scipy import special
 from mocap_calib.core import interrupt
 from mocap_calib.core.checks.effect_scores import effect_scores
 from mocap_calib.core.clock.search import search_clock
-from mocap_calib.core.diagnosis.predict import analyse_residuals
+from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
 from mocap_calib.core.diagnosis.report import (
     REPORT_KIND,
     REPORT_VERSION,
@@ -78,6 +78,10 @@ from mocap_calib.core.result.sections import Degradation
 from mocap_calib.errors import CalibrationError, InputError, Interrupted
 
 Array = NDArray[np.float64]
+
+#: The IMU's part of a noise model (densities, random walks, the accelerometer's axis shape).
+IMU_NOISE = ("gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_noise_density",
+             "accelerometer_random_walk", "accelerometer_axis_scale")
 
 __all__ = ["DiagnoseOptions", "DiagnoseReport", "DiagnoseStep", "CandidateScore", "Residuals",
            "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes", "plausibility"]
@@ -172,6 +176,9 @@ class _Session:
     notes: list[str] = field(default_factory=list)
     degraded: list[Degradation] = field(default_factory=list)
     coarse_deltas: list[float] | None = None
+    #: Every take's analysis at the start: its noise floor serves every refit (one noise
+    #: model throughout the search).
+    floors: list[ResidualAnalysis] | None = None
 
     @property
     def s(self) -> PreparedSession:
@@ -200,12 +207,25 @@ class _Session:
                                   covariance=covariance, window_blocks=False,
                                   axis_scale=base.axis_scale)
 
-    def residuals(self, pos: PositionResult, m: Model, nz: NoiseModel) -> Residuals:
+    def floor_noise(self, identified: NoiseModel) -> NoiseModel:
+        """The noise model of the measurement-domain floor: the mocap's as identified (levels
+        and correlation), the IMU's as given. An identified IMU density takes up what the
+        model misses (a missing accelerometer lag passes for accelerometer noise 15 times
+        its density), and the floor is what that gap is measured against."""
+        given = self.opts.calibration.noise
+        return replace(identified, **{k: getattr(given, k) for k in IMU_NOISE})
+
+    def residuals(self, pos: PositionResult, m: Model, nz: NoiseModel,
+                  same_floor: bool = False) -> Residuals:
         """Low-band residuals against the floor (several takes: together; the first take's
-        series kept for plots)."""
+        series kept for plots). ``same_floor``: the start's floor (a refit under its noise
+        model), else one of their own."""
+        floors = self.floors if same_floor and self.floors else [None] * len(pos.takes)
         ras = [analyse_residuals(tf.s, take_state(pos, k, m, self.t_mids[k]), nz,
-                                 cutoff_hz=self.opts.cutoff_hz)
-               for k, tf in enumerate(pos.takes)]
+                                 cutoff_hz=self.opts.cutoff_hz, floor_of=fl)
+               for k, (tf, fl) in enumerate(zip(pos.takes, floors, strict=True))]
+        if self.floors is None:
+            self.floors = ras
         if len(ras) == 1:
             return Residuals.of(ras[0])
         return Residuals(*combine_rms(ras), analysis=ras[0])
@@ -291,8 +311,7 @@ def diagnose_takes(recordings: list[Recording], options: DiagnoseOptions | None 
     ds, model, start = _start(recordings, opts, say)
     current = start.diagnostics.trace.position
     assert current is not None  # every calibration keeps its position stage in the trace
-    noise = current.noise
-    cur_res = ds.residuals(current, model, noise)
+    cur_res = ds.residuals(current, model, ds.floor_noise(current.noise))
     start_res = cur_res
     found: list[str] = []
     implausible: list[dict] = []
@@ -337,6 +356,10 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
     look implausible (that is what the diagnosis is for)."""
     model = opts.start_model
     notes: list[str] = []
+    why = "the raw stamps do not overlap: time_offset added before the diagnosis"
+    if not model.timed and _disjoint(recordings, opts.calibration.time_offset or 0.0):
+        model = model.with_effect(CLOCK_OFFSET.name)
+        notes.append(why)
     cal_opts = replace(opts.calibration, model=model, accept_implausible=True)
     say(f"fitting the starting model {model}")
     try:
@@ -345,7 +368,7 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
         if model.timed:
             raise
         model = model.with_effect(CLOCK_OFFSET.name)
-        notes.append("the raw stamps do not overlap: time_offset added before the diagnosis")
+        notes.append(why)
         start = calibrate_takes(recordings, replace(cal_opts, model=model))
     tr = start.diagnostics.trace
     pos = tr.position
@@ -354,6 +377,18 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
                   [float(tr.model_state.t_mid), *(tf.take.t_mid for tf in pos.takes[1:])],
                   opts, notes)
     return ds, model, start
+
+
+def _disjoint(recordings: list[Recording], t_d: float) -> bool:
+    """Whether some take's raw IMU and mocap stamps (the IMU's shifted by ``t_d``) share no
+    instant: a model without the clock offset cannot be calibrated then."""
+    for r in recordings:
+        shift = (r.mocap.time_origin_ns - r.imu.time_origin_ns) * 1e-9  # mocap t on IMU clock
+        lo = max(r.imu.t[0] + t_d, r.mocap.t[0] + shift)
+        hi = min(r.imu.t[-1] + t_d, r.mocap.t[-1] + shift)
+        if hi <= lo:
+            return True
+    return False
 
 
 def _confirm(ds: _Session, scores: list[CandidateScore], model: Model,
@@ -383,7 +418,7 @@ def _confirm(ds: _Session, scores: list[CandidateScore], model: Model,
         f = _refit_test(ds, c, f, current, threshold, nested_start=not extra)
         if not c.significant:
             continue
-        res = ds.residuals(f, m, current.noise)
+        res = ds.residuals(f, m, ds.floor_noise(current.noise), same_floor=True)
         c.residual_drop = float(_drop(cur_res, res, _sensor_of(c.effect)))
         if c.residual_drop <= 0.0:
             c.significant = False
@@ -407,13 +442,17 @@ def _refit_test(ds: _Session, c: CandidateScore, f: PositionResult, current: Pos
     """The refit's confirmation of a candidate, recorded in ``c``: the smaller of the
     noise-scaled likelihood ratio and the robust Wald statistic of its parameters against the
     nested values (the Wald only where the likelihood ratio alone would pass: it can only
-    lower the statistic). The nested model's cost is the refit's at its start when that is the
-    nested model's solution (``nested_start``: the same whitening), else the current one's.
+    lower the statistic). Both costs are the refit's own, at its start and at its end, when
+    it starts at the nested model's solution (``nested_start``: one whitening of the windows,
+    frozen at the start); else the current solution's and the refit's.
     Returns the refit, with its covariance when confirmed."""
     k = c.dof
-    nested = 2.0 * float(f.history[0]["cost"]) if nested_start else current.cost
-    d = nested - f.cost
-    scale = max(1.0, f.cost / max(f.dof, 1))
+    if nested_start:
+        nested, ext = (2.0 * float(f.history[i]["cost"]) for i in (0, -1))
+    else:
+        nested, ext = current.cost, f.cost
+    d = nested - ext
+    scale = max(1.0, ext / max(f.dof, 1))
     lr = max(d, 0.0) / scale
     c.delta_chi2, c.scale, c.confirm_statistic = float(d), float(scale), float(lr)
     c.confirm_log10_p = _log10_sf(lr, k)
@@ -453,7 +492,7 @@ def _finish(recordings: list[Recording], ds: _Session, model: Model,
     assert pos is not None
     if final is not start:
         # The floor under the final calibration's own noise model (identified from the data).
-        final_res = ds.residuals(pos, model, pos.noise)
+        final_res = ds.residuals(pos, model, ds.floor_noise(pos.noise))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
     unexplained = None

@@ -14,7 +14,9 @@ floor is computed by Monte Carlo with a fixed seed (deterministic).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -251,8 +253,11 @@ def _welch(x: Array, rate: float, segments: list[NDArray[np.int64]]) -> tuple[Ar
 
 def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
                       pred: ImuPrediction | None = None, cutoff_hz: float = 2.0,
-                      bias_knot_spacing: float | None = None, seed: int = 0) -> ResidualAnalysis:
-    """Residuals of the calibrated model against the measurements, with their noise floor."""
+                      bias_knot_spacing: float | None = None, seed: int = 0,
+                      floor_of: ResidualAnalysis | None = None) -> ResidualAnalysis:
+    """Residuals of the calibrated model against the measurements, with their noise floor
+    (``floor_of``: that analysis' floor, for a nearby model under the same noise model,
+    instead of a Monte Carlo of its own)."""
     pred = pred or predict_imu(s, st)
     rate = s.imu_rate
     cutoff = min(cutoff_hz, 0.45 * min(rate, s.mocap_rate))
@@ -260,10 +265,6 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
     ra = pred.accel_meas - pred.accel_pred
     rg_lp = lowpass(rg, rate, cutoff, pred.segments)
     ra_lp = lowpass(ra, rate, cutoff, pred.segments)
-
-    # Noise floor: push synthetic noise through the same processing, averaged over a few
-    # draws so that the floor's own Monte Carlo scatter stays near 2 %.
-    rng = np.random.default_rng(seed)
     n = len(pred.u)
     keep = interior(n, pred.segments, rate, cutoff)
     if len(s.removed_tau):
@@ -277,11 +278,34 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
     def rms(x: Array) -> Array:
         return np.sqrt(np.mean(x[keep] ** 2, axis=0))
 
-    spacing = bias_knot_spacing or (float(np.median(np.diff(st.bias_t))) if len(st.bias_t) > 1
-                                    else pred.u[-1] - pred.u[0])
+    if floor_of is None:
+        spacing = bias_knot_spacing or (float(np.median(np.diff(st.bias_t)))
+                                        if len(st.bias_t) > 1 else pred.u[-1] - pred.u[0])
+        floor2, parts, psd_floor = _noise_floor(s, st, pred, noise, (rate, cutoff, spacing),
+                                                rms, np.random.default_rng(seed))
+    else:
+        floor2 = np.r_[floor_of.gyro_floor, floor_of.accel_floor] ** 2
+        parts = dict(floor_of.floor_parts)
+        psd_floor = np.hstack([floor_of.gyro_psd_floor, floor_of.accel_psd_floor])
+    freq, pg = _welch(rg, rate, pred.segments)
+    _, pa = _welch(ra, rate, pred.segments)
+    pgf, paf = psd_floor[:, 0:3], psd_floor[:, 3:6]
+    return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
+                            np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
+                            parts, pred.u + st.delta, keep)
+
+
+def _noise_floor(s: PreparedSession, st: ModelState, pred: ImuPrediction, noise: NoiseModel,
+                 bands: tuple[float, float, float], rms: Callable[[Array], Array],
+                 rng: np.random.Generator) -> tuple[Array, dict[str, Array], Array]:
+    """Noise alone through the same processing, averaged over a few draws so that the floor's
+    own Monte Carlo scatter stays near 2 %: its mean square per axis (gyro then accel), per
+    source (RMS), and its Welch PSD. ``bands``: IMU rate, low-pass cutoff, knot spacing."""
+    rate, cutoff, spacing = bands
+    n = len(pred.u)
     parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
     floor2 = np.zeros(6)
-    psd_floor = 0.0
+    psd_floor: Any = 0.0
     draws = 4
     for _ in range(draws):
         white = np.concatenate([
@@ -305,12 +329,7 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
             total = total + lp
         floor2 += rms(total) ** 2 / draws
         psd_floor = psd_floor + _welch(white + walk + moc, rate, pred.segments)[1] / draws
-    freq, pg = _welch(rg, rate, pred.segments)
-    _, pa = _welch(ra, rate, pred.segments)
-    pgf, paf = psd_floor[:, 0:3], psd_floor[:, 3:6]
-    return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
-                            np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
-                            {k: np.sqrt(v) for k, v in parts.items()}, pred.u + st.delta, keep)
+    return floor2, {k: np.sqrt(v) for k, v in parts.items()}, psd_floor
 
 
 def mocap_noise(rng: np.random.Generator, tau: Array, sigma: float,
