@@ -141,9 +141,14 @@ def _linearise(pos: PositionResult, model: Model, cands: list[str]
                         [TakeStart(t.delta, t.gyro_bias_mean, t.accel_bias_mean, t.knots[w])
                          for t, w in zip(pos.takes, which, strict=True)], effects0)
     # Under the correlated mocap noise the session prefers (when it does): a white model would
-    # count correlated residuals as independent evidence for whatever can absorb them.
-    corr = correlated_mocap_model(pos, model)
-    pg = build_position_graph(takes, ext, pos.noise if corr is None else corr[0], init)
+    # count correlated residuals as independent evidence for whatever can absorb them. The
+    # solution's own noise model when it has a correlated part (identified from the data with
+    # the IMU densities, or given); else the AR(1) model the windows' likelihood prefers.
+    noise = pos.noise
+    if not noise.mocap_correlated:
+        corr = correlated_mocap_model(pos, model)
+        noise = noise if corr is None else corr[0]
+    pg = build_position_graph(takes, ext, noise, init)
     pg.set_weights([t.weights[w] for t, w in zip(pos.takes, which, strict=True)])
     for pp in pg.problems:
         pp.mocap_axis_scale = pos.axis_scale.copy()
