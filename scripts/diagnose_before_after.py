@@ -25,9 +25,8 @@ import sys
 import time
 from pathlib import Path
 
-import yaml
-
 import numpy as np
+import yaml
 from _shared_data import DATA
 from before_after import _flat as flat
 

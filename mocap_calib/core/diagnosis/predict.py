@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 from scipy.interpolate import CubicSpline
 
+from mocap_calib.core.diagnosis.filters import ar1, butter_lowpass, sosfiltfilt, welch
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.imu_model import Intrinsics, accel_lag, forward, imu_times
 from mocap_calib.core.model.types import NoiseModel
@@ -64,9 +64,9 @@ def _pose_splines(tau: Array, R_WI: Array, p_WI: Array,
     p = p_WI
     rate = 1.0 / float(np.median(np.diff(tau)))
     if smooth_hz < 0.45 * rate and len(tau) > 30:
-        sos = signal.butter(4, smooth_hz, fs=rate, output="sos")
-        q = signal.sosfiltfilt(sos, q, axis=0)
-        p = signal.sosfiltfilt(sos, p_WI, axis=0)
+        sos = butter_lowpass(4, smooth_hz, rate)
+        q = sosfiltfilt(sos, q)
+        p = sosfiltfilt(sos, p_WI)
     return CubicSpline(tau, q, axis=0), CubicSpline(tau, p, axis=0)
 
 
@@ -161,10 +161,10 @@ def model_forward(st: ModelState, w: Array, f: Array, u: Array,
 
 def lowpass(x: Array, rate: float, cutoff: float, segments: list[NDArray[np.int64]]) -> Array:
     """Zero-phase Butterworth low-pass, applied within each segment."""
-    sos = signal.butter(4, cutoff, fs=rate, output="sos")
+    sos = butter_lowpass(4, cutoff, rate)
     y = np.zeros_like(x)
     for seg in segments:
-        y[seg] = signal.sosfiltfilt(sos, x[seg], axis=0)
+        y[seg] = sosfiltfilt(sos, x[seg])
     return y
 
 
@@ -243,7 +243,7 @@ def _welch(x: Array, rate: float, segments: list[NDArray[np.int64]]) -> tuple[Ar
     for seg in segments:
         if len(seg) < nper:
             continue
-        freq, p = signal.welch(x[seg], fs=rate, nperseg=nper, axis=0)
+        freq, p = welch(x[seg], rate, nper)
         psds.append(p)
         weights.append(len(seg))
     if not psds:
@@ -342,7 +342,7 @@ def mocap_noise(rng: np.random.Generator, tau: Array, sigma: float,
     rho = noise.mocap_noise_corr_fraction
     a = float(np.exp(-np.median(np.diff(tau)) / noise.mocap_noise_corr_time))
     e = rng.normal(0.0, sigma, (len(tau), 3))
-    ar = signal.lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], e, axis=0)
+    ar = ar1(e, a, float(np.sqrt(1.0 - a * a)))
     ar += np.outer(a ** np.arange(len(tau)), e[0] * (1.0 - np.sqrt(1.0 - a * a)))  # stationary
     return np.sqrt(1.0 - rho) * white + np.sqrt(rho) * ar
 
