@@ -67,6 +67,9 @@ class EffectScore:
     step: Array = field(default_factory=lambda: np.zeros(0), repr=False, compare=False)
     step_cov: Array = field(default_factory=lambda: np.zeros((0, 0)), repr=False,
                             compare=False)
+    #: The model-based statistic's log10 p alone (0: not computed): its ranking of strong
+    #: effects follows their size, where the windows' (Hotelling's) tails flatten.
+    model_log10_p: float = 0.0
 
     @property
     def shown(self) -> bool:
@@ -258,8 +261,10 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     n_w, k = len(s), len(e)
     log10_ps = []
     failures = []
+    model_log10_p = 0.0
     try:  # model-based: chi-square
         log10_ps.append(float(chi2_logsf(float(g @ np.linalg.solve(V_model, g)), k)))
+        model_log10_p = log10_ps[-1] / np.log(10.0)
     except np.linalg.LinAlgError as err:
         failures.append(f"the model-based statistic could not be computed ({err})")
     if n_w > k + 1:  # the windows' own spread: Hotelling's T^2 (few windows, F tails)
@@ -278,7 +283,7 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     problem = effect_problem(name, value, limits or PlausibleLimits())
     return EffectScore(name, float(T), k, float(log10_p), _plain(value), problem,
                        bool(log10_p < np.log10(alpha)), tuple(failures), step,
-                       np.linalg.inv(V_model))
+                       np.linalg.inv(V_model), float(model_log10_p))
 
 
 def _plain(value: object) -> object:

@@ -251,6 +251,11 @@ class _Session:
             for why in t.failures:
                 self.degraded.append(Degradation(f"diagnosis step {step}", f"{t.effect}: {why}",
                                                  "its evidence rests on the other statistic"))
+        # The significant ones in the order they are refitted: by the model-based evidence,
+        # which keeps growing with an effect's size where the windows' spread (the weaker,
+        # which decides significance) levels off.
+        tests.sort(key=lambda t: (not t.significant, t.model_log10_p if t.significant
+                                  else t.log10_p))
         return [CandidateScore(t.effect, t.dof, float("nan"), float("nan"), t.statistic,
                                t.log10_p, t.significant, float("nan"), t.estimate)
                 for t in tests]
@@ -399,7 +404,7 @@ def _confirm(ds: _Session, scores: list[CandidateScore], model: Model,
     """The strongest candidate whose refit confirms it, lowers the residual of its sensor, is
     plausible and holds across the takes: it, its refit and residuals (None: no such one).
     Only candidates the score test finds significant are refitted."""
-    for c in (c for c in scores if c.log10_p < threshold):
+    for c in (c for c in scores if c.significant):
         interrupt.check()
         say(f"step {step}: refitting {c.effect}")
         m = model.with_effect(c.effect)
