@@ -55,6 +55,7 @@ from mocap_calib.core.diagnosis.takes import (
     evidence_row,
     homogeneity,
     shared,
+    stamps_disjoint,
     take_result,
     take_state,
 )
@@ -84,7 +85,7 @@ IMU_NOISE = ("gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_
              "accelerometer_random_walk", "accelerometer_axis_scale")
 
 __all__ = ["DiagnoseOptions", "DiagnoseReport", "DiagnoseStep", "CandidateScore", "Residuals",
-           "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes", "plausibility"]
+           "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes"]
 
 
 def _effect_names(text: str) -> tuple[str, ...]:
@@ -124,11 +125,6 @@ class DiagnoseOptions:
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
     unexplained_ratio: float = 1.5
     typical_mocap_noise: tuple[float, float] = (1.5e-3, float(np.radians(0.2)))
-
-
-def plausibility(effect: str, value: object) -> str | None:
-    """A one-line warning when an effect's estimate is outside its plausible range."""
-    return effect_problem(effect, value, PlausibleLimits())
 
 
 def _log10_sf(t: float, k: int) -> float:
@@ -362,7 +358,7 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
     model = opts.start_model
     notes: list[str] = []
     why = "the raw stamps do not overlap: time_offset added before the diagnosis"
-    if not model.timed and _disjoint(recordings, opts.calibration.time_offset or 0.0):
+    if not model.timed and stamps_disjoint(recordings, opts.calibration.time_offset or 0.0):
         model = model.with_effect(CLOCK_OFFSET.name)
         notes.append(why)
     cal_opts = replace(opts.calibration, model=model, accept_implausible=True)
@@ -382,18 +378,6 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
                   [float(tr.model_state.t_mid), *(tf.take.t_mid for tf in pos.takes[1:])],
                   opts, notes)
     return ds, model, start
-
-
-def _disjoint(recordings: list[Recording], t_d: float) -> bool:
-    """Whether some take's raw IMU and mocap stamps (the IMU's shifted by ``t_d``) share no
-    instant: a model without the clock offset cannot be calibrated then."""
-    for r in recordings:
-        shift = (r.mocap.time_origin_ns - r.imu.time_origin_ns) * 1e-9  # mocap t on IMU clock
-        lo = max(r.imu.t[0] + t_d, r.mocap.t[0] + shift)
-        hi = min(r.imu.t[-1] + t_d, r.mocap.t[-1] + shift)
-        if hi <= lo:
-            return True
-    return False
 
 
 def _confirm(ds: _Session, scores: list[CandidateScore], model: Model,

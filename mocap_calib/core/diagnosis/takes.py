@@ -72,3 +72,15 @@ def evidence_row(k: int, log10_p: float, threshold: float, params: Any,
 def shared(effect: str) -> bool:
     """Whether the takes share the effect's value (the clock offset is each take's own)."""
     return EFFECTS[effect].acts_on != "clock"
+
+
+def stamps_disjoint(recordings: list[Any], t_d: float) -> bool:
+    """Whether some take's (a recording's) raw IMU and mocap stamps, the IMU's shifted by
+    ``t_d``, share no instant: a model without the clock offset cannot be calibrated then."""
+    for r in recordings:
+        shift = (r.mocap.time_origin_ns - r.imu.time_origin_ns) * 1e-9  # mocap t on IMU clock
+        lo = max(r.imu.t[0] + t_d, r.mocap.t[0] + shift)
+        hi = min(r.imu.t[-1] + t_d, r.mocap.t[-1] + shift)
+        if hi <= lo:
+            return True
+    return False
