@@ -35,11 +35,11 @@ from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import special
 
 from mocap_calib.core import interrupt
 from mocap_calib.core.checks.effect_scores import effect_scores
 from mocap_calib.core.clock.search import search_clock
+from mocap_calib.core.diagnosis.evidence import log10_sf, residual_drop, sensor_of
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis, analyse_residuals
 from mocap_calib.core.diagnosis.report import (
     REPORT_KIND,
@@ -61,7 +61,6 @@ from mocap_calib.core.diagnosis.takes import (
 )
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, CLOCK_OFFSET, EFFECTS, Model
 from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
-from mocap_calib.core.model.stats import chi2_logsf
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
@@ -125,39 +124,6 @@ class DiagnoseOptions:
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
     unexplained_ratio: float = 1.5
     typical_mocap_noise: tuple[float, float] = (1.5e-3, float(np.radians(0.2)))
-
-
-def _log10_sf(t: float, k: int) -> float:
-    """log10 P(chi2_k > t), finite far into the tail.
-
-    Where scipy underflows (t beyond about 1400) the upper incomplete gamma's asymptotic series
-    takes over: Q(a, x) = x^(a-1) e^-x / Gamma(a) * (1 + (a-1)/x + (a-1)(a-2)/x^2 + ...), with
-    a = k/2 << x = t/2, so a few terms are exact to double precision. (Wilson-Hilferty, used
-    before, is off by hundreds of decades there for 1 dof and ranked a 1-dof effect with
-    T = 4562 below one with T = 1142.)"""
-    lp = float(chi2_logsf(t, k))
-    if np.isfinite(lp):
-        return lp / np.log(10.0)
-    a, x = 0.5 * k, 0.5 * t
-    series, term = 1.0, 1.0
-    for n in range(1, 8):
-        term *= (a - n) / x
-        series += term
-    return float(((a - 1.0) * np.log(x) - x - special.gammaln(a)
-                  + np.log(series)) / np.log(10.0))
-
-
-def _sensor_of(effect: str) -> str:
-    e = EFFECTS[effect]
-    if e.sensor in ("gyro", "accel"):
-        return e.sensor
-    return "accel" if e.acts_on == "gravity" else "both"
-
-
-def _drop(before: Residuals, after: Residuals, sensor: str) -> float:
-    if sensor == "both":
-        return max(_drop(before, after, "gyro"), _drop(before, after, "accel"))
-    return 1.0 - after.ratio(sensor) / before.ratio(sensor)
 
 
 @dataclass
@@ -279,7 +245,7 @@ class _Session:
         if not shared(c.effect):
             return None
         q, dof = homogeneity([t.step for t in tests], [t.step_cov for t in tests])
-        lp = _log10_sf(q, dof)
+        lp = log10_sf(q, dof)
         if lp < np.log10(self.opts.alpha):
             return (f"the takes disagree on {c.effect} (chi2 {q:.1f} on {dof} dof, log10 p "
                     f"{lp:.1f}): it does not hold across the takes")
@@ -387,28 +353,27 @@ def _confirm(ds: _Session, scores: list[CandidateScore], model: Model,
              ) -> tuple[CandidateScore, PositionResult, Residuals] | None:
     """The strongest candidate whose refit confirms it, lowers the residual of its sensor, is
     plausible and holds across the takes: it, its refit and residuals (None: no such one).
-    Only candidates the score test finds significant are refitted."""
-    for c in (c for c in scores if c.significant):
-        interrupt.check()
-        say(f"step {step}: refitting {c.effect}")
+    Only candidates the score test finds significant are refitted, in the order of their
+    scores; a significant clock offset is refitted with the first and the two are taken in
+    the order of their refits' evidence (a clock offset a model holds at zero can be far from
+    it, where the first-order score undervalues it)."""
+    order = [c for c in scores if c.significant]
+    fits: dict[str, PositionResult | None] = {}
+    clock = next((c for c in order if EFFECTS[c.effect].acts_on == "clock"), None)
+    if clock is not None and order[0] is not clock:
+        pair = [order[0], clock]
+        for c in pair:
+            fits[c.effect] = _refit(ds, c, model, current, threshold, step, say)
+        pair.sort(key=lambda c: c.confirm_log10_p if fits[c.effect] is not None else 0.0)
+        order = pair + [c for c in order if c not in pair]
+    for c in order:
+        f = fits[c.effect] if c.effect in fits else _refit(ds, c, model, current, threshold,
+                                                           step, say)
+        if f is None or not c.significant:
+            continue
         m = model.with_effect(c.effect)
-        try:
-            extra = ds.start_values(c.effect)
-            f = ds.fit(m, current, current.noise, extra, covariance=False)
-        except Interrupted:
-            raise
-        except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
-            # A candidate that cannot be fitted (GTSAM: RuntimeError) is not the answer.
-            ds.notes.append(f"step {step}: {c.effect} could not be fitted ({err})")
-            ds.degraded.append(Degradation(f"diagnosis step {step}", f"{c.effect} could not "
-                                           f"be fitted ({err})", "it is no candidate of the step"))
-            c.significant = False
-            continue
-        f = _refit_test(ds, c, f, current, threshold, nested_start=not extra)
-        if not c.significant:
-            continue
         res = ds.residuals(f, m, ds.floor_noise(current.noise), same_floor=True)
-        c.residual_drop = float(_drop(cur_res, res, _sensor_of(c.effect)))
+        c.residual_drop = float(residual_drop(cur_res, res, sensor_of(c.effect)))
         if c.residual_drop <= 0.0:
             c.significant = False
             c.refuted = "its refit does not lower the low-band residual of its sensor"
@@ -424,6 +389,28 @@ def _confirm(ds: _Session, scores: list[CandidateScore], model: Model,
                             "reason": c.implausible,
                             **({"takes_disagree": True} if disagree else {})})
     return None
+
+
+def _refit(ds: _Session, c: CandidateScore, model: Model, current: PositionResult,
+           threshold: float, step: int, say: Callable[[str], None]) -> PositionResult | None:
+    """The model with ``c`` refitted from ``current`` and tested (:func:`_refit_test`); None
+    when it cannot be fitted (recorded as a degradation)."""
+    interrupt.check()
+    say(f"step {step}: refitting {c.effect}")
+    try:
+        extra = ds.start_values(c.effect)
+        f = ds.fit(model.with_effect(c.effect), current, current.noise, extra,
+                   covariance=False)
+    except Interrupted:
+        raise
+    except (CalibrationError, np.linalg.LinAlgError, RuntimeError) as err:
+        # A candidate that cannot be fitted (GTSAM: RuntimeError) is not the answer.
+        ds.notes.append(f"step {step}: {c.effect} could not be fitted ({err})")
+        ds.degraded.append(Degradation(f"diagnosis step {step}", f"{c.effect} could not "
+                                       f"be fitted ({err})", "it is no candidate of the step"))
+        c.significant = False
+        return None
+    return _refit_test(ds, c, f, current, threshold, nested_start=not extra)
 
 
 def _refit_test(ds: _Session, c: CandidateScore, f: PositionResult, current: PositionResult,
@@ -444,7 +431,7 @@ def _refit_test(ds: _Session, c: CandidateScore, f: PositionResult, current: Pos
     scale = max(1.0, ext / max(f.dof, 1))
     lr = max(d, 0.0) / scale
     c.delta_chi2, c.scale, c.confirm_statistic = float(d), float(scale), float(lr)
-    c.confirm_log10_p = _log10_sf(lr, k)
+    c.confirm_log10_p = log10_sf(lr, k)
     if c.confirm_log10_p < threshold:
         f = f.with_covariance()
         shift = block_value(f, c.effect, 0.0) - (block_value(current, c.effect, 0.0)
@@ -454,7 +441,7 @@ def _refit_test(ds: _Session, c: CandidateScore, f: PositionResult, current: Pos
         cov = f.cov.get(c.effect)
         c.wald = float(shift @ np.linalg.solve(cov, shift)) if cov is not None else lr
         c.confirm_statistic = min(lr, c.wald)
-        c.confirm_log10_p = _log10_sf(c.confirm_statistic, k)
+        c.confirm_log10_p = log10_sf(c.confirm_statistic, k)
     c.params, c.sigma = effect_estimate(f, c.effect, ds.s.clock_shift)
     if c.confirm_log10_p >= threshold:
         c.significant = False
