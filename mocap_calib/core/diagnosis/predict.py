@@ -283,12 +283,16 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
                                         if len(st.bias_t) > 1 else pred.u[-1] - pred.u[0])
         floor2, parts, psd_floor = _noise_floor(s, st, pred, noise, (rate, cutoff, spacing),
                                                 rms, np.random.default_rng(seed))
-    else:
+    freq, pg = _welch(rg, rate, pred.segments)
+    _, pa = _welch(ra, rate, pred.segments)
+    if floor_of is not None:
         floor2 = np.r_[floor_of.gyro_floor, floor_of.accel_floor] ** 2
         parts = dict(floor_of.floor_parts)
         psd_floor = np.hstack([floor_of.gyro_psd_floor, floor_of.accel_psd_floor])
-    freq, pg = _welch(rg, rate, pred.segments)
-    _, pa = _welch(ra, rate, pred.segments)
+        if len(floor_of.freq) != len(freq) or not np.allclose(floor_of.freq, freq):
+            # Other segments (another clock offset): the floor's spectrum at these frequencies.
+            psd_floor = np.column_stack([np.interp(freq, floor_of.freq, c)
+                                         for c in psd_floor.T])
     pgf, paf = psd_floor[:, 0:3], psd_floor[:, 3:6]
     return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
                             np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
