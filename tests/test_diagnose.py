@@ -55,8 +55,12 @@ def test_no_hidden_effect_says_none() -> None:
     rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions())
     assert rep.found == [] and rep.verdict == "none"
     _check_floor(rep)
-    # Every candidate was tried and none passed.
-    assert {c.effect for c in rep.steps[0].candidates} == set(CANONICAL_EFFECTS)
+    # Every candidate was scored and none passed; only those the score test finds
+    # significant are refitted.
+    cands = rep.steps[0].candidates
+    assert {c.effect for c in cands} == set(CANONICAL_EFFECTS)
+    refitted = {c.effect for c in cands if not np.isnan(c.confirm_statistic)}
+    assert refitted <= {c.effect for c in cands if c.log10_p < rep.threshold_log10_p}
 
 
 def test_two_hidden_effects_are_both_found() -> None:
@@ -65,6 +69,10 @@ def test_two_hidden_effects_are_both_found() -> None:
     rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions())
     assert set(rep.found) == set(pair), f"found {rep.found}"
     _check_floor(rep)
+    # One refit per effect added (two when a clock offset is weighed against the first), not
+    # one per candidate.
+    for step in rep.steps[:-1]:
+        assert sum(not np.isnan(c.confirm_statistic) for c in step.candidates) <= 2
 
 
 def test_report_round_trips_through_yaml(tmp_path) -> None:
