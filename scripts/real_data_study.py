@@ -53,6 +53,9 @@ RECORDINGS = {
                                       "data.csv", mocap=DATA /
                                       "broad_27_disturbed_phone_vibration_B" / "data.csv",
                                       columns="broad")),
+    **{f"cf_{name}": (f"Crazyflie {name}", InputSpec(
+        imu=(DATA / "crazyflie_util" / name,), mocap=(DATA / "crazyflie_util" / name,)))
+       for name in ("cfBolt-log00", "0425-traj1", "0422-log00")},
 }
 
 
@@ -140,8 +143,9 @@ def run(session, opts: CalibrationOptions, start: float | None = None,
 
 def reference(key: str) -> tuple[np.ndarray, np.ndarray | None]:
     """R_MI (and p_MI) to compare with: what EuRoC's own ground truth implies
-    (scripts/euroc_reference.py); identity for BROAD, whose optical data were rotated into the
-    IMU frame by the dataset's authors (no lever-arm reference)."""
+    (scripts/euroc_reference.py); identity elsewhere: BROAD's optical data were rotated into
+    the IMU frame by the dataset's authors, and the Crazyflie's firmware reports its IMU in the
+    body frame (no lever-arm reference for either)."""
     if key != "euroc":
         return np.eye(3), None
     import sys
@@ -180,7 +184,7 @@ def moved(base: dict, other: dict) -> dict[str, float]:
 
 def describe(key: str, r: dict, ref: tuple[np.ndarray, np.ndarray | None]) -> dict:
     if r["exit"] != 0:
-        return {"exit": r["exit"], "error": r["error"]}
+        return {"exit": r["exit"], "error": r["error"], "seconds": round(r["seconds"], 1)}
     R_ref, p_ref = ref
     out = {"exit": 0, "seconds": round(r["seconds"], 1)}
     if r["R"] is not None:
@@ -198,10 +202,11 @@ def describe(key: str, r: dict, ref: tuple[np.ndarray, np.ndarray | None]) -> di
         out["tilt_deg"] = float(np.degrees(np.arccos(min(1.0, abs(r["g"][2])))))
     if r["ba"] is not None:
         out["accel_bias"] = np.round(r["ba"], 4).tolist()
-    res = r["result"]
-    for section in ("consistency", "sensitivity", "plausibility", "clock"):
-        if getattr(res, section, None):
-            out[section] = getattr(res, section)
+    d = r["result"].to_dict()  # the result file's form
+    for section in ("consistency", "sensitivity", "plausibility", "clock",
+                    "noise_identification"):
+        if d.get(section):
+            out[section] = d[section]
     out.get("consistency", {}).pop("segments", None)
     return out
 
@@ -290,7 +295,8 @@ def _row(rep: dict) -> list[str]:
     """One recording's row of the table."""
     f = rep["full"]
     if f["exit"] != 0:
-        return [rep["recording"], f"exit {f['exit']}: {f['error']}", *["-"] * 6]
+        return [rep["recording"], f"exit {f['exit']}: {f['error']}", *["-"] * 6,
+                f"{f['seconds']:.1f}"]
     sR = f["sigma_R_deg"]
     d = f.get("p_MI_vs_ref_mm")
     own = rep.get("own", {})
@@ -304,7 +310,7 @@ def _row(rep: dict) -> list[str]:
             f"{_three(f['p_MI_mm'])} +- {_three(f['sigma_p_mm'])}",
             "-" if d is None else f"{_three(d)} ({float(np.linalg.norm(d)):.1f})",
             f"{f['t_d_ms']:.2f} +- {f['sigma_t_d_ms']:.2f}", own_z, thirds,
-            ", ".join(own.get("effects_shown") or []) or "none"]
+            ", ".join(own.get("effects_shown") or []) or "none", f"{f['seconds']:.1f}"]
 
 
 def _noise_line(reports: list[dict], limit: float = 1.0) -> str:
@@ -327,7 +333,7 @@ def markdown(reports: list[dict], pairs: dict[str, dict[str, float]]) -> str:
            + table(["recording", "`R_MI` vs reference", "`p_MI` (mm) +- sigma",
                     "`p_MI` vs reference (mm)", "`t_d` (ms)", "own check: thirds z (R, p, t_d)",
                     "independent thirds: max z (R, p, t_d); max difference",
-                    "effects the data show"], [_row(r) for r in recs])
+                    "effects the data show", "calibration (s)"], [_row(r) for r in recs])
            + "\n" + _noise_line(recs))
     if pairs:
         out += "\n" + table(["BROAD trials", "`R_MI`: max \\|difference\\| / combined sigma",

@@ -13,6 +13,7 @@ import pytest
 from test_html_report import Page
 from test_viz import Recording
 
+from mocap_calib.core.diagnosis.outputs import output_series
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.core.policy import IMU_BRIDGE_MAX_S, IMU_TRIM_START_S
@@ -29,8 +30,9 @@ def gappy(tmp_path_factory: pytest.TempPathFactory):
         "time_offset": [T_D], "imu_dropouts": [10], "imu_stalls": [0.8]}))
     result = calibrate(sim.imu, sim.mocap, CalibrationOptions(segments=0, sensitivity=False))
     out = tmp_path_factory.mktemp("gapsviz")
-    rrd = write_calibration_recording(out / "c.rrd", result, sim.imu, sim.mocap)
-    html = write_calibration_html(out / "c.html", result, [], RunClock())
+    series = output_series(result, recording=True, report=True)
+    rrd = write_calibration_recording(out / "c.rrd", result, series)
+    html = write_calibration_html(out / "c.html", result, series, [], RunClock())
     return sim, result, rrd, html
 
 

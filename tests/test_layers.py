@@ -197,3 +197,80 @@ def test_importing_the_core_loads_no_outer_layer() -> None:
     loaded = json.loads(proc.stdout.strip().splitlines()[-1])
     assert "mocap_calib.core.pipeline.calibrate" in modules
     assert loaded == [], f"importing the core loaded {loaded}"
+
+
+# --------------------------------------------------------------------------------------------
+# Writers draw, they do not compute
+# --------------------------------------------------------------------------------------------
+#: The writers: the rerun recordings and the reports (text and HTML).
+WRITERS = ("viz", "report")
+#: What the writers may import of the core: the result and model types (the series they draw
+#: are in ``core/result/series.py``, computed with the result), the policy's constants, and the
+#: intrinsics commands' result records (``attitude_drift`` keeps its record beside its check).
+#: No estimator module: the writers never call back into the solver.
+WRITER_CORE = ("mocap_calib.core.model", "mocap_calib.core.result", "mocap_calib.core.policy",
+               "mocap_calib.core.intrinsics.noise_result",
+               "mocap_calib.core.intrinsics.multipos.result",
+               "mocap_calib.core.intrinsics.attitude_drift")
+WRITER_FILES = [p for p in ALL_FILES if layer_of(p) in WRITERS]
+
+
+def writer_violations(path: Path) -> list[str]:
+    """Imports of core modules outside :data:`WRITER_CORE`, and reads of a result's solver
+    diagnostics (``.diagnostics``, ``.trace``): a writer gets its series handed over."""
+    bad = [f"{line}: {mod}" for line, mod in imported_modules(path)
+           if matches(mod, "mocap_calib.core")
+           and not any(matches(mod, ok) for ok in WRITER_CORE)]
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Attribute) and node.attr in ("diagnostics", "trace"):
+            bad.append(f"{node.lineno}: .{node.attr}")
+    return bad
+
+
+def test_writer_files_found() -> None:
+    names = {p.name for p in WRITER_FILES}
+    assert {"recording.py", "residuals.py", "calibration.py", "text.py"} <= names
+
+
+@pytest.mark.parametrize("path", WRITER_FILES, ids=lambda p: str(p.relative_to(PACKAGE_DIR)))
+def test_writers_import_no_estimator(path: Path) -> None:
+    bad = writer_violations(path)
+    assert not bad, f"{path.relative_to(PACKAGE_DIR)} (a writer) uses {bad}"
+
+
+def test_writer_rule_can_fail() -> None:
+    """A writer importing the prediction, the session's preparation or the position stage
+    (also lazily, or for type hints), or reading a result's diagnostics: all caught."""
+    for layer, src in (("viz", "from mocap_calib.core.diagnosis.predict import predict_imu\n"),
+                       ("report", "def f():\n    from mocap_calib.core.prepare import session\n"),
+                       ("report", "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                  "    from mocap_calib.core.position.stage import X\n"),
+                       ("viz", "def f(r):\n    return r.diagnostics.residuals\n")):
+        fake = PACKAGE_DIR / layer / "_probe_writers.py"
+        try:
+            fake.write_text(src)
+            assert writer_violations(fake), (layer, src)
+        finally:
+            fake.unlink()
+
+
+def test_importing_the_writers_loads_no_estimator() -> None:
+    """Every writer module imported in a fresh interpreter loads none of the calibration's
+    estimator packages."""
+    modules = sorted(module_name(p) for p in WRITER_FILES)
+    estimators = [f"mocap_calib.core.{p}" for p in ("prepare", "clock", "position",
+                                                    "uncertainty", "checks", "pipeline",
+                                                    "diagnosis", "groundtruth")]
+    estimators += ["mocap_calib.core.graph", "mocap_calib.core.stages.attitude",
+                   "mocap_calib.core.stages.velocity"]
+    code = ("import importlib, json, sys\n"
+            f"for m in {modules!r}:\n"
+            "    importlib.import_module(m)\n"
+            f"print(json.dumps(sorted(m for m in sys.modules if any(m == e or m.startswith(e + '.')"
+            f" for e in {estimators!r}))))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, cwd=PACKAGE_DIR.parent)
+    assert proc.returncode == 0, proc.stderr
+    assert "mocap_calib.viz.recording" in modules
+    loaded = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert loaded == [], f"importing the writers loaded {loaded}"

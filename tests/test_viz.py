@@ -18,6 +18,7 @@ import pytest
 
 from mocap_calib.cli.main import main
 from mocap_calib.core.diagnosis.dead_reckoning import dead_reckoning
+from mocap_calib.core.diagnosis.outputs import output_series
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
@@ -80,7 +81,8 @@ def rrd(calibrated: tuple[SimulatedSession, CalibrationResult],
     sim, result = calibrated
     steps = [("base model", result.diagnostics.residuals)]
     path = tmp_path_factory.mktemp("viz") / "sub" / "calib.rrd"
-    written = write_calibration_recording(path, result, sim.imu, sim.mocap, diagnose_steps=steps)
+    series = output_series(result, recording=True, steps=steps)
+    written = write_calibration_recording(path, result, series)
     assert written == path and path.stat().st_size > 0
     return path
 
@@ -199,11 +201,12 @@ def test_without_diagnostics(calibrated: tuple[SimulatedSession, CalibrationResu
     """A result read back from YAML has no diagnostics: 3D, IMU and summary only."""
     sim, result = calibrated
     bare = dataclasses.replace(result, diagnostics=None)
-    rec = Recording(write_calibration_recording(tmp_path / "bare.rrd", bare, sim.imu, sim.mocap))
+    series = output_series(bare, recording=True, imu=sim.imu, mocap=sim.mocap)
+    rec = Recording(write_calibration_recording(tmp_path / "bare.rrd", bare, series))
     assert "world/imu" in rec.batches and "imu/accel/difference/z" in rec.batches
     assert not any(e.startswith(("residuals", "solver")) for e in rec.batches)
     with pytest.raises(InputError):
-        write_calibration_recording(tmp_path, result, sim.imu, sim.mocap)
+        write_calibration_recording(tmp_path, result, series)
 
 
 def test_view_without_display_prints_instruction(rrd: Path, monkeypatch: pytest.MonkeyPatch,

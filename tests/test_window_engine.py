@@ -11,11 +11,13 @@ import pytest
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.preint import hermite
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta, compress, make_windows
 from mocap_calib.core.position.threads import MIN_CHUNK_WINDOWS, set_chunk_threads
 from mocap_calib.core.prepare.session import local_derivative, prepare
 from mocap_calib.sim.flight import SimConfig, simulate_flight
+from mocap_calib.sim.presets import preset_config
 
 pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
 
@@ -43,10 +45,14 @@ def _theta(sim, s, W, rng, R=None, p=None, g=None, gm=9.81, delta=None, eff=None
 
 
 def test_jacobians_match_numerical_derivatives(short_session):
+    """Every column against the residuals' numerical derivative; the timing columns (clock
+    offset, drift, accelerometer lag) are built from the motion's signal, here the samples
+    themselves (the next test checks the smoothing)."""
     sim, s, v = short_session
     model = Model.parse(ALL_IMU_EFFECTS)
     win = make_windows(s, s.clock_shift + 0.003, 2.0, 200.0, v)
     pp = PositionProblem(s, model, NoiseModel(), win)
+    pp._motion = (s.gyro, s.accel)
     rng = np.random.default_rng(0)
     eff = {e.name: rng.normal(0, 1e-3, e.dim) for e in model.units if e.in_effects}
     tr = sim.truth
@@ -85,6 +91,84 @@ def test_jacobians_match_numerical_derivatives(short_session):
             scale = np.abs(ana[m]).max()
             err = np.abs(num[m] - ana[m]).max()
             assert err < 2e-3 * scale + 1e-6, f"{name}[{i}]: error {err:.3g} vs scale {scale:.3g}"
+
+
+def _shift_information(sim) -> tuple[float, float]:
+    """The clock offset's sigma (ms) from the window factors' information at the true
+    parameters (every window's knot and the other shared parameters eliminated), with the
+    timing column built from the raw samples and from the motion's signal."""
+    s = prepare(sim.imu, sim.mocap)
+    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
+    tr = sim.truth
+    delta = s.clock_shift + tr["time_offset"]
+    win = make_windows(s, delta, 5.0, 120.0, v)
+    iu = np.searchsorted(s.u, win.start)
+    th = Theta(so3.quat_to_rotmat(np.array(tr["T_marker_imu"]["rotation_wxyz"])),
+               np.array(tr["T_marker_imu"]["translation"]), np.array(tr["gravity_in_mocap"]),
+               np.eye(3)[:, :2], 9.81, delta, {},
+               np.c_[sim.gyro_bias_true[iu], sim.accel_bias_true[iu]], 15.0)
+    noise = NoiseModel(accelerometer_noise_density=0.025, mocap_position_sigma=5e-4,
+                       mocap_rotation_sigma=float(np.radians(0.2)), mocap_noise_corr_time=0.3,
+                       mocap_noise_corr_fraction=0.99)
+    sig = []
+    for raw in (True, False):
+        pp = PositionProblem(s, Model.parse("base+time_offset"), noise, win)
+        if raw:
+            pp._motion = (s.gyro, s.accel)
+        G = pp.evaluate(th).gram[:, :-1, :-1]
+        k = pp.layout.slice("knot")
+        g = slice(0, k.start)
+        S = sum(Gw[g, g] - Gw[g, k] @ np.linalg.solve(Gw[k, k], Gw[k, g]) for Gw in G)
+        t = pp.layout.slice("time_offset").start
+        sig.append(1e3 * float(np.sqrt(np.linalg.inv(S)[t, t])))
+    return sig[0], sig[1]
+
+
+@pytest.mark.parametrize("seed", [5, 7])
+def test_rotor_vibration_adds_no_clock_information(seed):
+    """Rotor vibration is noise of the samples: it must not sharpen the clock offset. A flight
+    with the ``flying`` preset's vibration against its twin without it (every other draw the
+    same): from the raw samples the vibration's rate of change counts as information (its
+    sigma a third smaller than the twin's), from the motion's signal it does not."""
+    vib = simulate_flight(preset_config("flying", seed=seed, duration=30.0))
+    twin = simulate_flight(preset_config("flying", seed=seed, duration=30.0,
+                                         vibration={"accel_rms": 0.0, "gyro_rms": 0.0}))
+    raw_vib, motion_vib = _shift_information(vib)
+    raw_twin, motion_twin = _shift_information(twin)
+    assert raw_vib < 0.8 * raw_twin  # the raw samples' column: the effect is there
+    assert motion_vib > 0.95 * motion_twin
+    assert motion_twin == pytest.approx(raw_twin, rel=0.05)  # without vibration: as before
+
+
+def test_timing_columns_follow_the_motion_not_the_samples():
+    """The clock offset's column is the residuals' derivative when only the motion's signal
+    moves in time (the samples plus the motion's signal shifted, minus it unshifted), not
+    when the samples do (rotor vibration: the ``flying`` preset)."""
+    sim = simulate_flight(preset_config("flying", seed=3, duration=12.0))
+    s = prepare(sim.imu, sim.mocap)
+    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
+    model = Model.parse("base+time_offset")
+    win = make_windows(s, s.clock_shift + 0.005, 2.0, 200.0, v)
+    pp = PositionProblem(s, model, NoiseModel(), win)
+    tr = sim.truth
+    knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1))
+    th = _theta(sim, s, win.count, None, eff={}, knots=knots, delta=s.clock_shift + 0.005)
+    out = pp.evaluate(th, store=True)
+    g_m, a_m = pp.motion_samples()
+    eps = 1e-6
+    at = hermite(s.u, s.u - eps)  # reading at u - eps: the clock offset grown by eps
+    moved = replace(s, gyro=s.gyro + at(g_m) - hermite(s.u, s.u)(g_m),
+                    accel=s.accel + at(a_m) - hermite(s.u, s.u)(a_m))
+    shifted = PositionProblem(moved, model, NoiseModel(), win)
+    shifted._motion = pp.motion_samples()
+    num = (shifted.evaluate(th, store=True).raw_r - out.raw_r) / eps
+    col = out.raw_J[..., pp.layout.slice("time_offset").start]
+    m = win.mask
+    m[:, 0] = False
+    scale = np.abs(col[m]).max()
+    assert np.abs(num[m] - col[m]).max() < 5e-3 * scale  # (the raw samples: 0.19)
+    raw = pp.evaluate(replace(th, delta=th.delta + eps), store=True).raw_r
+    assert np.abs((raw - out.raw_r) / eps - col)[m].max() > 0.1 * scale  # not the samples'
 
 
 def _mocap_noise(n: int, noise: NoiseModel, axes: np.ndarray) -> np.ndarray:

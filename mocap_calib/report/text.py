@@ -16,6 +16,7 @@ from mocap_calib.core.model.parameters import (
     Parameter,
 )
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.estimate import SigmaTerms
 
 Array = NDArray[np.float64]
 
@@ -190,20 +191,26 @@ UNCERTAINTY_TERMS = (("statistical", "statistical"), ("imu_noise_shift", "IMU no
 
 
 def uncertainty_lines(r: CalibrationResult) -> list[str]:
-    """Per compared parameter, the largest axis of each term of its sigma (which one
-    dominates), in the unit its sigma prints in."""
+    """Per compared parameter (with several takes, per take for its own), the largest axis of
+    each term of its sigma (which one dominates), in the unit its sigma prints in."""
     out = []
     for p in COMPARED:
-        u = r.estimate(p).terms
-        if u is None:
-            continue
-        unit, k = p.printed.sigma_unit, p.printed.sigma_scale
-        parts = [f"{label} {k * max(getattr(u, t)):.3g}" for t, label in UNCERTAINTY_TERMS
-                 if getattr(u, t) is not None]
-        grown = (f" (statistical x{u.consistency_factor:.2f} for consistency)"
-                 if u.consistency_factor > 1.0 else "")
-        out.append(f"sigma of {p.symbol} ({unit}, largest axis): {', '.join(parts)}{grown}")
+        out += _terms_line(p, r.estimate(p).terms, "")
+        for t in r.takes:
+            e = t.estimates.get(p)
+            out += _terms_line(p, None if e is None else e.terms, f" take {t.take}")
     return out
+
+
+def _terms_line(p: Parameter, u: SigmaTerms | None, which: str) -> list[str]:
+    if u is None:
+        return []
+    unit, k = p.printed.sigma_unit, p.printed.sigma_scale
+    parts = [f"{label} {k * max(getattr(u, t)):.3g}" for t, label in UNCERTAINTY_TERMS
+             if getattr(u, t) is not None]
+    grown = (f" (statistical x{u.consistency_factor:.2f} for consistency)"
+             if u.consistency_factor > 1.0 else "")
+    return [f"sigma of {p.symbol}{which} ({unit}, largest axis): {', '.join(parts)}{grown}"]
 
 
 def diagnose_table(report) -> str:
@@ -269,19 +276,20 @@ def unexplained_lines(u: dict | None) -> list[str]:
         axes = ", ".join(sg.get("axes_over_floor") or []) or "none"
         corr = sg.get("correlation") or {}
         best = max(corr.items(), key=lambda kv: abs(kv[1]["max_abs_corr"]), default=None)
-        line = (f"  {sensor}: residual/floor per axis {sg.get('ratio_per_axis')} (axes over: "
-                f"{axes}), most in {sg.get('band_most_over_floor')}")
+        line = (f"  {sensor}: residual/floor per axis {_fmt(sg.get('ratio_per_axis'), digits=3)}"
+                f" (axes over: {axes}), most in {sg.get('band_most_over_floor')}")
         if best is not None:
             name, c = best
             line += (f"; correlates with {name.replace('_', ' ')} ({c['max_abs_corr']:+.2f}, "
                      f"residual {c['residual_axis']} vs {c['signal_axis']})")
         out.append(line)
         out.append(f"  {sensor}: RMS per time segment (of the whole) "
-                   f"{sg.get('rms_per_time_segment')}")
+                   f"{_fmt(sg.get('rms_per_time_segment'), digits=3)}")
     clock = u.get("clock_offset_per_segment") or {}
     if "t_d_ms" in clock:
-        out.append(f"  clock offset per segment (ms): {clock['t_d_ms']} (slope "
-                   f"{clock['slope_ppm']} ppm, largest jump {clock['largest_jump_sigmas']} sigma)")
+        out.append(f"  clock offset per segment (ms): {_fmt(clock['t_d_ms'], digits=4)} (slope "
+                   f"{_fmt(clock['slope_ppm'], digits=3)} ppm, largest jump "
+                   f"{_fmt(clock['largest_jump_sigmas'], digits=3)} sigma)")
     elif clock.get("note"):
         out.append(f"  clock offset per segment: {clock['note']}")
     return out

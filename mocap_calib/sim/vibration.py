@@ -197,10 +197,10 @@ def effective_density(rotors: Rotors, amp: Array, t: Array, imu_rate: float,
     accelerometer noise of the levels seen in flight (0.02-0.15 m/s^2/sqrt(Hz) cross over
     at 3-9 Hz), below it the accelerometer's noise is what the position windows see. A
     harmonic aliased near 0 Hz (a rotor near half the IMU rate) counts fully, lines aliased
-    to 50-100 Hz not at all. Checked against the calibration's ``--accel-noise-from-data``
-    on vibration-only flights (2 m/s^2, 60 s): it found 0.015 for a 95-145 Hz band (this
-    definition: 0.014-0.015), 0.15 for 97-100 Hz (0.16) and the data sheet's 0.002 for
-    130-131 Hz (0).
+    to 50-100 Hz not at all. Checked against the accelerometer level the calibration's
+    windows' likelihood prefers on vibration-only flights (2 m/s^2, 60 s): it found 0.015 for
+    a 95-145 Hz band (this definition: 0.014-0.015), 0.15 for 97-100 Hz (0.16) and the data
+    sheet's 0.002 for 130-131 Hz (0).
     """
     speed = rotors.speed(t)
     power = np.zeros(3)

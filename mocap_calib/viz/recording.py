@@ -1,7 +1,10 @@
 """A rerun recording (``.rrd``) of a calibration, for judging it by eye.
 
-Everything is on the timeline ``t``: mocap time in seconds since the mocap origin (``tau`` in
-:mod:`mocap_calib.core.prepare.session`; an IMU sample at IMU time ``u`` is shown at ``u + delta``).
+It draws a result and the series computed with it
+(:class:`~mocap_calib.core.result.series.OutputSeries`); it computes none of them.
+
+Everything is on the timeline ``t``: mocap time in seconds since the mocap origin (``tau``; an
+IMU sample at IMU time ``u`` is shown at ``u + delta``).
 Solver iterations are on the sequence timeline ``iteration``. Entity paths:
 
 - ``world/mocap/trajectory``: marker path ``p_WM`` (static strips, split at mocap gaps).
@@ -42,19 +45,18 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.diagnosis.dead_reckoning import (
-    DR_LENGTH_S,
-    DeadReckoning,
-    dead_reckoning,
-)
-from mocap_calib.core.diagnosis.predict import predict_imu
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.policy import IMU_BRIDGE_MAX_S
-from mocap_calib.core.prepare.session import PreparedSession, prepare
 from mocap_calib.core.result.calibration import CalibrationResult
-from mocap_calib.core.result.state import ModelState
-from mocap_calib.core.stages.figures import ResidualSeries
+from mocap_calib.core.result.series import (
+    DeadReckoning,
+    ImuPrediction,
+    OutputSeries,
+    ResidualSeries,
+    Scene,
+    SolverHistory,
+    TakeSeries,
+)
 from mocap_calib.errors import InputError
 from mocap_calib.report.text import checks_lines, summary_table
 from mocap_calib.viz._rerun import (
@@ -78,9 +80,6 @@ IMU_RATE_HZ = 25.0
 MAX_GAP_SPANS = 200
 #: Colours of the gap spans: bridged, split.
 GAP_RGB = ((250, 150, 30), (150, 40, 160))
-
-#: ``(label, {stage: ResidualSeries})`` per diagnose step (see ``diagnose_steps``).
-DiagnoseSteps = Sequence[tuple[str, Mapping[str, ResidualSeries]]]
 
 _GUIDE = """\
 # How to read this recording
@@ -106,52 +105,43 @@ _GUIDE = """\
 
 
 # ---------------------------------------------------------------------------- public API
-def write_calibration_recording(path: str | Path, result: CalibrationResult, imu: ImuSamples,
-                                mocap: MocapPoses, *,
-                                diagnose_steps: DiagnoseSteps | None = None) -> Path:
+def write_calibration_recording(path: str | Path, result: CalibrationResult,
+                                series: OutputSeries) -> Path:
     """Write a rerun recording of a calibration (see the module docstring for its contents).
 
     Args:
         path: the ``.rrd`` file to write (parent folders are created), directly: to replace a
             file whole, write a temporary one and rename it (``io.atomic.write_with``).
-        result: the calibration; with ``result.diagnostics`` (as :func:`calibrate` returns it)
-            the recording shows exactly the session, model state and residuals the solver
-            used. Without diagnostics (e.g. a result read from YAML) the session is prepared
-            again from ``imu``/``mocap`` with constant biases, and residual and solver series
-            are left out.
-        imu: the raw IMU samples the calibration read.
-        mocap: the mocap poses the calibration read.
-        diagnose_steps: optional extra residual series, ``[(label, {stage: ResidualSeries})]``,
-            logged under ``diagnose/<label>/<stage>/...`` like ``residuals/`` (labels are
-            reduced to ``[A-Za-z0-9_.-]``; a repeated label gets a ``_2``... suffix).
+        result: the calibration (its summary and checks).
+        series: what the recording draws, computed for it
+            (``core.diagnosis.outputs.output_series(result, recording=True, ...)``): each
+            take's scene, IMU prediction, dead reckoning and residuals, the solver's iterates,
+            and the diagnosis steps' series, logged under ``diagnose/<label>/<stage>/...``
+            like ``residuals/`` (labels are reduced to ``[A-Za-z0-9_.-]``; a repeated label
+            gets a ``_2``... suffix).
 
     Returns:
         The written path.
 
     Raises:
-        InputError: ``path`` is a folder, or (without diagnostics) the result lacks a value.
+        InputError: ``path`` is a folder.
         OSError: the file cannot be written (``io.atomic.write_with`` makes it one line).
     """
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: is a folder; give a file name for the recording, e.g. "
                          "calib.rrd")
-    s, st = _session_and_state(result, imu, mocap)
-    diag = result.diagnostics
-    residuals = dict(diag.residuals) if diag is not None else {}
-    history = list(diag.iterations) if diag is not None else []
-    steps = _named_steps(diagnose_steps or [])
+    first = series.first or TakeSeries()
+    residuals = first.residuals
+    steps = _named_steps(series.steps)
     pos = residuals.get("position")
-    spans = imu_gap_spans(s, st.delta)
-    # With several takes, the second on: their own session, state and residuals.
-    others = [(k, d.trace, d.residuals)
-              for k, d in enumerate(diag.takes[1:] if diag is not None else [], start=2)
-              if d.trace is not None]
-    other_spans = {k: imu_gap_spans(tr.session, tr.model_state.delta) for k, tr, _ in others}
+    spans = _imu_gaps(first)
+    # With several takes, the second on: their own scene, series and residuals.
+    others = [(k, t) for k, t in enumerate(series.takes[1:], start=2) if t.scene is not None]
     blueprint = default_blueprint(list(residuals), pos is not None and pos.rotation_after
-                                  is not None, [(n, list(x)) for n, x in steps], bool(history),
-                                  has_imu_gaps=len(spans) > 0,
-                                  other_takes=[(k, len(other_spans[k]) > 0) for k, _, _ in others])
+                                  is not None, [(n, list(x)) for n, x in steps],
+                                  series.solver is not None, has_imu_gaps=len(spans) > 0,
+                                  other_takes=[(k, len(_imu_gaps(t)) > 0) for k, t in others])
 
     # rerun's writer writes ``path`` itself: the workflows give it a temporary file that
     # mocap_calib.io.atomic renames into place (no half-written recording).
@@ -162,35 +152,35 @@ def write_calibration_recording(path: str | Path, result: CalibrationResult, imu
         log.text("summary", summary_table(result))
         log.text("checks", "\n".join(checks_lines(result)) or "no checks were run")
         log.text("guide", _GUIDE, markdown=True)
-        _log_take(log, s, st, residuals, spans)
-        _log_solver(log, history, s.clock_shift)
-        for k, tr, res in others:
-            _log_take(log.at(f"takes/{k}"), tr.session, tr.model_state, res, other_spans[k])
+        _log_take(log, first)
+        _log_solver(log, series.solver)
+        for k, take in others:
+            _log_take(log.at(f"takes/{k}"), take)
         for name, series_by_stage in steps:
-            for stage, series in series_by_stage.items():
-                _log_residuals(log, f"diagnose/{name}/{stage}", series)
+            for stage, res in series_by_stage.items():
+                _log_residuals(log, f"diagnose/{name}/{stage}", res)
     finally:
         log.close()
     return path
 
 
-def _log_take(log: Logger, s: PreparedSession, st: ModelState,
-              residuals: Mapping[str, ResidualSeries], spans: Array) -> None:
+def _log_take(log: Logger, take: TakeSeries) -> None:
     """One take's scene, dead reckoning, residuals, IMU series and gaps."""
     if log.prefix:
         log.log("world", log.rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    _log_world(log, s, st)
-    _log_dead_reckoning(log, dead_reckoning(s, st))
-    for stage, series in residuals.items():
+    if take.scene is not None:
+        _log_world(log, take.scene)
+    _log_dead_reckoning(log, take.dead_reckoning)
+    for stage, series in take.residuals.items():
         _log_residuals(log, f"residuals/{stage}", series)
-    _log_imu(log, s, st)
-    _log_imu_gaps(log, spans)
+    if take.scene is not None and take.imu is not None:
+        _log_imu(log, take.imu, take.scene)
+    _log_imu_gaps(log, _imu_gaps(take))
 
 
-def imu_gap_spans(s: PreparedSession, delta: float) -> Array:
-    """(G, 2) mocap-time start and end of the session's IMU gaps: the last sample before each
-    and the first after it, moved to the mocap clock by ``delta`` (mocap minus IMU time)."""
-    return np.zeros((0, 2)) if s.imu_gaps is None else s.imu_gaps.spans(delta)
+def _imu_gaps(take: TakeSeries) -> Array:
+    """(G, 2) the take's IMU gaps on the mocap clock (none without a scene)."""
+    return take.scene.imu_gaps if take.scene is not None else np.zeros((0, 2))
 
 
 def _stride(rate: float, max_rate: float) -> int:
@@ -208,17 +198,8 @@ def _block_means(x: Array, segments: Sequence[NDArray[np.int64]], k: int) -> Arr
     return np.concatenate(out) if out else np.zeros((0, *x.shape[1:]))
 
 
-def _session_and_state(result: CalibrationResult, imu: ImuSamples,
-                       mocap: MocapPoses) -> tuple[PreparedSession, ModelState]:
-    """The session and model state the solver used, or rebuilt from the result's values."""
-    diag = result.diagnostics
-    if diag is not None and diag.trace is not None:
-        return diag.trace.session, diag.trace.model_state
-    s = prepare(imu, mocap, noise=result.noise)
-    return s, result.model_state(s)
-
-
-def _named_steps(steps: DiagnoseSteps) -> list[tuple[str, Mapping[str, ResidualSeries]]]:
+def _named_steps(steps: Sequence[tuple[str, Mapping[str, ResidualSeries]]]
+                 ) -> list[tuple[str, Mapping[str, ResidualSeries]]]:
     """Entity-safe, unique step names."""
     out: list[tuple[str, Mapping[str, ResidualSeries]]] = []
     seen: set[str] = set()
@@ -238,17 +219,18 @@ def _quat_xyzw(R: Array) -> Array:
     return so3.rotmat_to_quat(R)[:, [1, 2, 3, 0]]
 
 
-def _log_world(log: Logger, s: PreparedSession, st: ModelState) -> None:
+def _log_world(log: Logger, s: Scene) -> None:
     """Marker path, marker and IMU frames over time, lever arm, gravity."""
     rr = log.rr
     k = _stride(s.mocap_rate, POSE_RATE_HZ)
     idx = np.arange(0, len(s.tau), k)
     tau, R_WM, p_WM = s.tau[idx], s.R_WM[idx], s.p_WM[idx]
-    R_WI = R_WM @ st.R_MI
-    p_WI = p_WM + R_WM @ st.p_MI
+    R_WI = R_WM @ s.R_MI
+    p_WI = p_WM + R_WM @ s.p_MI
 
-    # Path, split at mocap gaps (a gap between two kept samples breaks the strip).
-    gaps = np.concatenate([[0], np.cumsum(np.diff(s.tau) > s.gap)])[idx]
+    # Path, split at mocap gaps (a gap between two kept samples breaks the strip): the
+    # number of gaps before each kept sample.
+    gaps = np.searchsorted(s.gap_index, idx, side="left")
     strips = [p_WM[gaps == g] for g in np.unique(gaps)]
     strips = [x for x in strips if len(x) > 1]
     extent = float(np.max(np.ptp(s.p_WM, axis=0))) if len(s.p_WM) else 1.0
@@ -266,13 +248,13 @@ def _log_world(log: Logger, s: PreparedSession, st: ModelState) -> None:
                                                     quaternion=_quat_xyzw(R_WI)))
     log.log("world/marker", rr.TransformAxes3D(axis_len), static=True)
     log.log("world/imu", rr.TransformAxes3D(0.6 * axis_len), static=True)
-    p_IM = -st.R_MI.T @ st.p_MI  # marker origin in the IMU frame
+    p_IM = -s.R_MI.T @ s.p_MI  # marker origin in the IMU frame
     log.log("world/imu/lever",
             rr.LineStrips3D([[np.zeros(3), p_IM]], colors=[(255, 200, 0)],
-                            labels=[f"T_MI lever {1e3 * np.linalg.norm(st.p_MI):.1f} mm"]),
+                            labels=[f"T_MI lever {1e3 * np.linalg.norm(s.p_MI):.1f} mm"]),
             static=True)
 
-    g_dir = st.g_W / np.linalg.norm(st.g_W)
+    g_dir = s.g_W / np.linalg.norm(s.g_W)
     tilt = float(np.degrees(np.arccos(np.clip(-g_dir[2], -1.0, 1.0))))
     L = max(0.3 * extent, 0.2)
     centre = np.mean(s.p_WM, axis=0)
@@ -302,10 +284,10 @@ def _log_dead_reckoning(log: Logger, dr: DeadReckoning | None) -> None:
                                         radii=[rr.components.Radius.ui_points(2.0)] * n))
     for which, color in (("before", AXIS_RGB[0]), ("after", AXIS_RGB[2])):
         path = f"dead_reckoning/{which}/position_error"
-        log.style(path, f"{which}: position error after {DR_LENGTH_S:g} s [m]", color)
+        log.style(path, f"{which}: position error after {dr.length_s:g} s [m]", color)
         log.scalars(path, t0, dr.position_error(which))
         path = f"dead_reckoning/{which}/attitude_error"
-        log.style(path, f"{which}: attitude error after {DR_LENGTH_S:g} s [deg]", color)
+        log.style(path, f"{which}: attitude error after {dr.length_s:g} s [deg]", color)
         log.scalars(path, t0, dr.attitude_error(which))
 
 
@@ -323,13 +305,12 @@ def _log_residuals(log: Logger, prefix: str, series: ResidualSeries) -> None:
         log.xyz(f"{prefix}/rotation/after", series.t, series.rotation_after, "after", "deg")
 
 
-def _log_imu(log: Logger, s: PreparedSession, st: ModelState) -> None:
+def _log_imu(log: Logger, pred: ImuPrediction, s: Scene) -> None:
     """Measured vs predicted raw IMU signals and their difference, as block means."""
-    pred = predict_imu(s, st)
     if len(pred.u) == 0:
         return
     k = _stride(s.imu_rate, IMU_RATE_HZ)
-    tau = _block_means(pred.u, pred.segments, k) + st.delta
+    tau = _block_means(pred.u, pred.segments, k) + s.delta
     for sensor, meas, model, unit in (("gyro", pred.gyro_meas, pred.gyro_pred, "rad/s"),
                                       ("accel", pred.accel_meas, pred.accel_pred, "m/s^2")):
         mm = _block_means(meas, pred.segments, k)
@@ -350,20 +331,15 @@ def _log_imu_gaps(log: Logger, spans: Array) -> None:
         log.scalars(path, np.array([a, b]), np.zeros(2))
 
 
-def _log_solver(log: Logger, history: Sequence[Mapping], clock_shift: float) -> None:
+def _log_solver(log: Logger, h: SolverHistory | None) -> None:
     """Position-stage iterates on the ``iteration`` timeline."""
-    if not history:
+    if h is None:
         return
-    it = np.array([h["iteration"] for h in history], dtype=np.int64)
-
-    def col(key: str) -> Array:
-        return np.array([np.asarray(h[key], dtype=float) for h in history])
-
-    g = col("g_dir")
-    g = g / np.linalg.norm(g, axis=1, keepdims=True)
+    it = h.iteration
+    g = h.g_dir / np.linalg.norm(h.g_dir, axis=1, keepdims=True)
     scalars = {
-        "cost": (col("cost"), "cost (LM error)"),
-        "time_offset": (1e3 * (col("delta") - clock_shift), "time offset [ms]"),
+        "cost": (h.cost, "cost (LM error)"),
+        "time_offset": (1e3 * (h.delta - h.clock_shift), "time offset [ms]"),
         "gravity_tilt": (np.degrees(np.arccos(np.clip(-g[:, 2], -1.0, 1.0))),
                          "gravity tilt from mocap -z [deg]"),
     }
@@ -371,10 +347,10 @@ def _log_solver(log: Logger, history: Sequence[Mapping], clock_shift: float) -> 
         log.style(f"solver/{key}", name, (200, 120, 0))
         log.scalars(f"solver/{key}", it, values, timeline=ITERATION, sequence=True)
     vectors = {
-        "p_MI": (1e3 * col("p_MI"), "p_MI", "mm"),
-        "R_MI": (np.degrees(so3.log(col("R_MI"))), "R_MI rotation vector", "deg"),
-        "gyro_bias": (col("gyro_bias"), "gyro bias (mean)", "rad/s"),
-        "accel_bias": (col("accel_bias"), "accel bias (mean)", "m/s^2"),
+        "p_MI": (1e3 * h.p_MI, "p_MI", "mm"),
+        "R_MI": (np.degrees(so3.log(h.R_MI)), "R_MI rotation vector", "deg"),
+        "gyro_bias": (h.gyro_bias, "gyro bias (mean)", "rad/s"),
+        "accel_bias": (h.accel_bias, "accel bias (mean)", "m/s^2"),
     }
     for key, (values, label, unit) in vectors.items():
         log.xyz(f"solver/{key}", it, values, label, unit, timeline=ITERATION, sequence=True)

@@ -134,18 +134,27 @@ def calibrate_to_files(request: CalibrateRequest,
     request.plan().check()
     result, session = run_calibration(request, progress)
     table = summary_table(result)
+    from functools import cache
+
+    @cache
+    def series():
+        """What --rrd and --html draw, computed once, by the first of them to be written."""
+        from mocap_calib.core.diagnosis.outputs import output_series
+
+        return output_series(result, recording=outputs.rrd is not None,
+                             report=outputs.html is not None, imu=session.imu,
+                             mocap=session.mocap)
 
     def recording() -> None:
         from mocap_calib.viz.recording import write_calibration_recording
 
-        write_with(outputs.rrd, lambda tmp: write_calibration_recording(
-            tmp, result, session.imu, session.mocap))
+        write_with(outputs.rrd, lambda tmp: write_calibration_recording(tmp, result, series()))
 
     def html() -> None:
         from mocap_calib.workflows.html.report import write_calibration_html
 
-        write_calibration_html(outputs.html, result, [*request.inputs.sources(),
-                                                      request.noise.noise, *request.prior], clock)
+        write_calibration_html(outputs.html, result, series(), [
+            *request.inputs.sources(), request.noise.noise, *request.prior], clock)
 
     written = write_products([
         Product("--out", outputs.out, lambda: save_result(outputs.out, result)),

@@ -84,26 +84,6 @@ def _names(spec: InputSpec) -> tuple[str, str]:
     return str(spec.imu[0]), str(spec.mocap[0])
 
 
-def diagnose_series(report) -> list[tuple[str, dict]]:
-    """Residual series of every diagnosis step, for the rerun recording: the low-band
-    measured-minus-predicted gyro and accel, and the position-factor innovations."""
-    from mocap_calib.core.stages.figures import ResidualSeries
-
-    out = []
-    for i, step in enumerate(report.steps):
-        series: dict = {}
-        ra = step.residuals.analysis
-        if ra is not None and len(ra.t):
-            w = ra.keep.astype(float)
-            series["gyro_lowpass"] = ResidualSeries(ra.t, ra.gyro_lp, ra.gyro_lp, w, "rad/s")
-            series["accel_lowpass"] = ResidualSeries(ra.t, ra.accel_lp, ra.accel_lp, w, "m/s^2")
-        if "position" in step.series:
-            series["position"] = step.series["position"]
-        label = f"{i}_{step.model}" if i < len(report.steps) - 1 else f"{i}_final_{step.model}"
-        out.append((label, series))
-    return out
-
-
 @dataclass
 class DiagnoseRun:
     report: DiagnoseReport
@@ -120,17 +100,26 @@ def diagnose_to_files(request: DiagnoseRequest,
     request.plan().check()
     report, session = run_diagnosis(request, progress)
 
+    from functools import cache
+
+    @cache
+    def series():
+        """What --rrd and --html draw, computed once, by the first of them to be written."""
+        from mocap_calib.core.diagnosis.outputs import diagnosis_series
+
+        return diagnosis_series(report, recording=rrd is not None, html=html is not None,
+                                imu=session.imu, mocap=session.mocap)
+
     def recording() -> None:
         from mocap_calib.viz.recording import write_calibration_recording
 
-        write_with(rrd, lambda tmp: write_calibration_recording(
-            tmp, report.final, session.imu, session.mocap, diagnose_steps=diagnose_series(report)))
+        write_with(rrd, lambda tmp: write_calibration_recording(tmp, report.final, series()))
 
     def page() -> None:
         from mocap_calib.workflows.html.report import write_diagnosis_html
 
-        write_diagnosis_html(html, report, [*request.inputs.sources(), request.noise.noise],
-                             clock)
+        write_diagnosis_html(html, report, series(), [*request.inputs.sources(),
+                                                      request.noise.noise], clock)
 
     written = write_products([
         Product("--out", out, lambda: save_yaml(

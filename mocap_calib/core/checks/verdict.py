@@ -146,29 +146,40 @@ def plausibility_gate(r: CalibrationResult, opts: CalibrationOptions, clock: Clo
 
 def _apply_rule(r: CalibrationResult, cons: Consistency, takes: Consistency,
                 sens: Sensitivity) -> CalibrationResult:
-    """``r`` with the reported sigmas by the module's rule, each with its terms."""
+    """``r`` with the reported sigmas by the module's rule, each with its terms; with several
+    takes, each take's own clock offset and biases by the same rule (the alternatives' shifts
+    of that take's values)."""
     judged: dict[Parameter, Estimate] = {}
-    imu = tuple(k for k in sens.shift if k not in (MOCAP_AR1, EFFECTS_SHOWN))
     for p in UNCERTAINTY_ORDER:
         e = r.estimate(p)
-        if e.sigma is None:
-            continue
-        stat = np.atleast_1d(np.asarray(e.sigma, dtype=float))
-        c = max(cons.factor(p), takes.factor(p))
-        d_imu = sens.systematic(p, imu)
-        d_moc = sens.systematic(p, (MOCAP_AR1,))
-        d_eff = sens.systematic(p, (EFFECTS_SHOWN,))
-        move = sens.largest_move(p)
-        var = (c * stat) ** 2
-        for d in (d_imu, d_moc, d_eff):
-            if d is not None and d.shape == stat.shape:
-                var = var + d**2
-        sig = np.sqrt(var)
-        if move is not None and move.shape == sig.shape:
-            sig = np.maximum(sig, move)
-        terms = SigmaTerms(stat, round(float(c), 3), d_imu, d_moc, d_eff, move, sig)
-        judged[p] = replace(e, sigma=sig, terms=terms)
-    return r.with_estimates(judged)
+        if e.sigma is not None:
+            judged[p] = _judged(e, p, max(cons.factor(p), takes.factor(p)), sens)
+    own = []
+    for k, t in enumerate(r.takes):
+        sk = sens.of_take(k)
+        own.append(replace(t, estimates={
+            p: e if e.sigma is None else _judged(e, p, max(cons.factor(p), takes.factor(p)), sk)
+            for p, e in t.estimates.items()}))
+    return replace(r.with_estimates(judged), takes=tuple(own))
+
+
+def _judged(e: Estimate, p: Parameter, c: float, sens: Sensitivity) -> Estimate:
+    """One estimate with its sigma by the rule and the rule's terms."""
+    stat = np.atleast_1d(np.asarray(e.sigma, dtype=float))
+    imu = tuple(k for k in sens.shift if k not in (MOCAP_AR1, EFFECTS_SHOWN))
+    d_imu = sens.systematic(p, imu)
+    d_moc = sens.systematic(p, (MOCAP_AR1,))
+    d_eff = sens.systematic(p, (EFFECTS_SHOWN,))
+    move = sens.largest_move(p)
+    var = (c * stat) ** 2
+    for d in (d_imu, d_moc, d_eff):
+        if d is not None and d.shape == stat.shape:
+            var = var + d**2
+    sig = np.sqrt(var)
+    if move is not None and move.shape == sig.shape:
+        sig = np.maximum(sig, move)
+    terms = SigmaTerms(stat, round(float(c), 3), d_imu, d_moc, d_eff, move, sig)
+    return replace(e, sigma=sig, terms=terms)
 
 
 def _notes(r: CalibrationResult, cons: Consistency, takes: Consistency,

@@ -7,15 +7,13 @@ mocap shows what the calibration bought.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.model import so3
 from mocap_calib.core.model.imu_model import Intrinsics, correct, imu_times
 from mocap_calib.core.model.preint import compose, integrate_pieces, pieces
 from mocap_calib.core.prepare.session import PreparedSession, local_derivative
+from mocap_calib.core.result.series import DeadReckoning
 from mocap_calib.core.result.state import ModelState
 
 Array = NDArray[np.float64]
@@ -23,36 +21,6 @@ Array = NDArray[np.float64]
 #: Length (s) of one dead-reckoning segment, and spacing (s) of their starts.
 DR_LENGTH_S = 2.0
 DR_EVERY_S = 10.0
-
-
-@dataclass(frozen=True)
-class DeadReckoning:
-    """IMU dead-reckoning segments started from the mocap state.
-
-    Attributes:
-        tau: (S, m+1) mocap times of the segment samples.
-        R_ref, p_ref: (S, m+1, 3, 3), (S, m+1, 3) IMU pose from the mocap (``T_WM T_MI``).
-        R_before, p_before: integrated from the raw IMU (zero biases, no effects).
-        R_after, p_after: integrated through the calibrated model (knot biases, effects).
-    """
-
-    tau: Array
-    R_ref: Array
-    p_ref: Array
-    R_before: Array
-    p_before: Array
-    R_after: Array
-    p_after: Array
-
-    def position_error(self, which: str) -> Array:
-        """(S,) position error at the segment ends (m), ``which`` = before / after."""
-        p = self.p_before if which == "before" else self.p_after
-        return np.linalg.norm(p[:, -1] - self.p_ref[:, -1], axis=1)
-
-    def attitude_error(self, which: str) -> Array:
-        """(S,) attitude error at the segment ends (deg)."""
-        R = self.R_before if which == "before" else self.R_after
-        return so3.angle_deg(np.einsum("sji,sjk->sik", R[:, -1], self.R_ref[:, -1]))
 
 
 def dead_reckoning(s: PreparedSession, st: ModelState, length: float = DR_LENGTH_S,
@@ -99,4 +67,4 @@ def dead_reckoning(s: PreparedSession, st: ModelState, length: float = DR_LENGTH
     start = (R_WI[i0], p_WI[i0], v_WI[i0])
     R_b, p_b, _ = compose(integrate_pieces(gyro, accel, pc.hs), h, *start, st.g_W)
     R_a, p_a, _ = compose(integrate_pieces(corr.w, corr.f, pc.hs), h, *start, st.g_W)
-    return DeadReckoning(tau, R_WI[idx], p_WI[idx], R_b, p_b, R_a, p_a)
+    return DeadReckoning(tau, R_WI[idx], p_WI[idx], R_b, p_b, R_a, p_a, length)

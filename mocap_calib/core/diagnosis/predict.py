@@ -15,7 +15,6 @@ floor is computed by Monte Carlo with a fixed seed (deterministic).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,31 +27,10 @@ from mocap_calib.core.model.imu_model import Intrinsics, accel_lag, forward, imu
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.policy import gap_threshold
 from mocap_calib.core.prepare.session import PreparedSession
+from mocap_calib.core.result.series import ImuPrediction, ResidualAnalysis
 from mocap_calib.core.result.state import ModelState
 
 Array = NDArray[np.float64]
-
-
-@dataclass
-class ImuPrediction:
-    """Measured and predicted IMU samples where the mocap supports a prediction.
-
-    Attributes:
-        u: (n,) IMU times (s since the IMU origin) of the compared samples.
-        segments: list of index arrays into ``u``: gap-free stretches.
-        gyro_meas, accel_meas: (n, 3) measured.
-        gyro_pred, accel_pred: (n, 3) predicted through the calibrated model.
-        w, f: (n, 3) true rate and specific force derived from the mocap.
-    """
-
-    u: Array
-    segments: list[NDArray[np.int64]]
-    gyro_meas: Array
-    accel_meas: Array
-    gyro_pred: Array
-    accel_pred: Array
-    w: Array
-    f: Array
 
 
 def _pose_splines(tau: Array, R_WI: Array, p_WI: Array,
@@ -178,61 +156,6 @@ def interior(n: int, segments: list[NDArray[np.int64]], rate: float,
         if len(seg) > 2 * margin:
             keep[seg[margin:-margin]] = True
     return keep
-
-
-@dataclass
-class ResidualAnalysis:
-    """Measured minus predicted, in time (low-passed) and frequency, with the noise floor.
-
-    Attributes:
-        cutoff_hz: low-pass cutoff of the time-domain comparison.
-        gyro_rms, accel_rms: (3,) RMS of the low-passed residual per axis.
-        gyro_floor, accel_floor: (3,) what noise alone gives through the same processing.
-        freq: (F,) Welch frequencies; gyro_psd, accel_psd: (F, 3) residual PSDs;
-        gyro_psd_floor, accel_psd_floor: (F, 3) PSD of the noise-only residual.
-        gyro_lp, accel_lp: (n, 3) low-passed residual series (for plots).
-        floor_parts: floor per source (white noise, bias walk, mocap), gyro then accel axes.
-        t: (n,) mocap-clock times of the series; keep: (n,) samples the RMS uses (away
-            from segment ends).
-    """
-
-    cutoff_hz: float
-    gyro_rms: Array
-    accel_rms: Array
-    gyro_floor: Array
-    accel_floor: Array
-    freq: Array
-    gyro_psd: Array
-    accel_psd: Array
-    gyro_psd_floor: Array
-    accel_psd_floor: Array
-    gyro_lp: Array = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
-    accel_lp: Array = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
-    floor_parts: dict[str, Array] = field(default_factory=dict)
-    t: Array = field(repr=False, default_factory=lambda: np.zeros(0))  # mocap-clock times
-    keep: NDArray[np.bool_] = field(repr=False, default_factory=lambda: np.zeros(0, bool))
-
-    def to_dict(self) -> dict[str, object]:
-        return {"cutoff_hz": self.cutoff_hz,
-                "gyro_rms": self.gyro_rms.tolist(), "gyro_floor": self.gyro_floor.tolist(),
-                "accel_rms": self.accel_rms.tolist(), "accel_floor": self.accel_floor.tolist(),
-                "bands": self.band_ratios()}
-
-    def band_ratios(self, edges: tuple[float, ...] = (0.0, 0.5, 2.0, 5.0, 10.0, 20.0, 50.0),
-                    ) -> dict[str, object]:
-        """Residual over noise-floor power per frequency band, per sensor and axis (Welch)."""
-        out: dict[str, object] = {}
-        for sensor, psd, floor in (("gyro", self.gyro_psd, self.gyro_psd_floor),
-                                   ("accel", self.accel_psd, self.accel_psd_floor)):
-            rows = {}
-            for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-                sel = (self.freq > lo) & (self.freq <= hi)
-                if not np.any(sel):
-                    continue
-                ratio = psd[sel].sum(axis=0) / np.maximum(floor[sel].sum(axis=0), 1e-300)
-                rows[f"{lo:g}-{hi:g} Hz"] = [round(float(x), 3) for x in ratio]
-            out[sensor] = rows
-        return out
 
 
 def _welch(x: Array, rate: float, segments: list[NDArray[np.int64]]) -> tuple[Array, Array]:

@@ -153,8 +153,8 @@ def _session_notes(s: PreparedSession) -> list[str]:
     if s.dropped_mocap_rows:
         notes.append(f"{s.dropped_mocap_rows} mocap rows with NaN (occlusions) were dropped")
     if s.spikes_removed:
-        notes.append(f"{s.spikes_removed} mocap samples with implausible jumps (marker swaps) "
-                     "were removed")
+        notes.append(f"{s.spikes_removed} mocap samples far off their neighbours (at least 1 cm "
+                     "or 3 deg: marker swaps or mis-solved frames) were removed")
     return notes
 
 

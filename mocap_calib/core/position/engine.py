@@ -64,6 +64,7 @@ from mocap_calib.core.position.kalman import (
     signals_at,
     step_mean,
 )
+from mocap_calib.core.position.motion import motion_signals
 from mocap_calib.core.position.threads import chunk_pool, split_windows
 from mocap_calib.core.position.windows import (  # noqa: F401  (re-exported)
     EvalOut,
@@ -122,6 +123,8 @@ class PositionProblem:
         # x, y, z (world frame), on top of the noise model's two levels.
         self.mocap_axis_scale = np.ones(6)
         self._ops: dict[int, Whitening] = {}
+        self._motion: tuple[Array, Array] | None = None  # see motion_samples
+        self._motion_lock = threading.Lock()
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
@@ -199,6 +202,7 @@ class PositionProblem:
         sub = PositionProblem(self.s, self.model, self.noise,
                               self.win.subset(which).decimate(every), split=False)
         sub.mocap_axis_scale = self.mocap_axis_scale.copy()
+        sub._motion = self._motion
         sub.weights = self.weights[which][:, ::every].copy() if every > 1 else self.weights[which]
         return sub, replace(th, knots=th.knots[which])
 
@@ -243,10 +247,9 @@ class PositionProblem:
         lag = accel_lag(model, timing)
         # The lagging accelerometer is resampled at the gyro's sample times (a smooth function
         # of the lag), so the pieces stay aligned with the samples and the cost smooth in it.
-        accel, accel_dot = s.accel, None
-        if any(e.acts_on == "accel_lag" for e in model.units):
-            at = hermite(ut, ut + lag)
-            accel, accel_dot = at(s.accel), at.derivative(s.accel)
+        accel = s.accel
+        if model.has_kind("accel_lag"):
+            accel = hermite(ut, ut + lag)(s.accel)
         rates = any(e.acts_on == "size" for e in model.units)  # terms in w and dw/dt
         # IMU signals on pieces between IMU samples (see preint.Pieces), corrected with each
         # window's knot biases.
@@ -266,10 +269,14 @@ class PositionProblem:
         dwf = self._buffer("dwf", (W, m, 6, p))  # d(w, f)/dtheta at each step
         dw, df = dwf[:, :, 0:3, :], dwf[:, :, 3:6, :]
         # Signals read at shifted times: d/dt of the signal, averaged over a step, is
-        # (end - start) / h exactly (it telescopes, so the signal's noise does not add up).
+        # (end - start) / h exactly (it telescopes); of the motion's signal, not the samples'
+        # (see motion.py).
         hinv = np.where(h > 0, 1.0 / np.where(h > 0, h, 1.0), 0.0)[..., None, None]
-        w_rate = (corr.w[:, :, -1] - corr.w[:, :, 0])[..., None] * hinv
-        f_rate = (corr.f[:, :, -1] - corr.f[:, :, 0])[..., None] * hinv
+        w_rate = f_rate = np.zeros((W, m, 3, 1))
+        if model.has_kind("clock") or model.has_kind("clock_rate"):
+            w_end, f_end = self._motion_at(th, c, tau - th.delta, ut, lag, rates)
+            w_rate = np.diff(w_end, axis=1)[..., None] * hinv
+            f_rate = np.diff(f_end, axis=1)[..., None] * hinv
         for name, _ in L.blocks:
             sl = L.slice(name)
             kind = EFFECTS[name].acts_on if name in EFFECTS else name
@@ -287,7 +294,8 @@ class PositionProblem:
                 df[:, :, :, sl] = -f_rate * lever
             elif kind == "accel_lag":  # accel resampled at x + lag: its step mean, exactly
                 # A raw accel change acts like an accel bias of the opposite sign.
-                a_mean = step_mean(pc(accel_dot), pc.hs, h)[..., None]
+                a_dot = hermite(ut, ut + lag).derivative(self.motion_samples()[1])
+                a_mean = step_mean(pc(a_dot), pc.hs, h)[..., None]
                 dw[:, :, :, sl] = -cm.dw["accel_bias"] @ a_mean
                 df[:, :, :, sl] = -cm.df["accel_bias"] @ a_mean
             elif kind == "size":  # terms in w and dw/dt, which vary within a step: its mean
@@ -303,6 +311,29 @@ class PositionProblem:
                 dw[:, :, :, sl] = cm.dw[name]
                 df[:, :, :, sl] = cm.df[name]
         return inc, corr, dwf
+
+    def motion_samples(self) -> tuple[Array, Array]:
+        """The session's gyro and accelerometer samples smoothed to the motion's signal
+        (:func:`~mocap_calib.core.position.motion.motion_signals`, band-limited below the
+        Nyquist frequency of the windows' samples), computed once."""
+        with self._motion_lock:
+            if self._motion is None:
+                s = self.s
+                rate = min(s.imu_rate, self.win.rate) if self.win.count else s.imu_rate
+                self._motion = motion_signals(s.u, s.gyro, s.accel, 0.5 * rate)
+            return self._motion
+
+    def _motion_at(self, th: Theta, c: NDArray[np.int64], x: Array, ut: Array, lag: float,
+                   rates: bool) -> tuple[Array, Array]:
+        """The motion's corrected rate and specific force (the accelerometer resampled at the
+        gyro's stamps with its lag) at IMU-clock times ``x`` (W, m+1) of windows ``c``."""
+        gyro, accel = self.motion_samples()
+        if self.model.has_kind("accel_lag"):
+            accel = hermite(ut, ut + lag)(accel)
+        intr = Intrinsics(th.knots[c, None, 0:3], th.knots[c, None, 3:6], th.effects, th.t_mid)
+        cm = correct(self.model, intr, *signals_at(gyro, accel, hermite(ut, x), x, rates),
+                     sensitivities=False)
+        return cm.w, cm.f
 
     @staticmethod
     def _residuals(th: Theta, R_WM: Array, p_WM: Array, Rbar: Array, pbar: Array) -> Rows:

@@ -58,6 +58,11 @@ class Windows:
                        self.p_source, self.v0[which])
 
     @property
+    def rate(self) -> float:
+        """The samples' rate (Hz): the first window's median step."""
+        return 1.0 / float(np.median(np.diff(self.tau[0][self.mask[0]])))
+
+    @property
     def steps(self) -> int:
         return self.idx.shape[1] - 1
 

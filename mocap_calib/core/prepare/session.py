@@ -21,6 +21,7 @@ from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.policy import MIN_SESSION_S, gap_threshold
 from mocap_calib.core.prepare.gaps import ImuGaps, find_imu_gaps
 from mocap_calib.core.prepare.noise_band import noise_band
+from mocap_calib.core.prepare.pose_flips import refuse_flips
 from mocap_calib.core.prepare.pose_screen import PoseScreen, screen_poses
 from mocap_calib.core.prepare.pose_stream import arrived_together, describe_stream, stream_note
 from mocap_calib.errors import InputError, ObservabilityError
@@ -111,7 +112,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSIO
     earlier of each pair that arrived together and those delivered late (one note says so).
 
     Raises:
-        InputError: too few samples, rates the method cannot use.
+        InputError: too few samples, rates the method cannot use, a flipped marker set.
         ObservabilityError: session too short or static.
     """
     if len(imu) >= 100:  # (fewer: refused below)
@@ -155,6 +156,7 @@ def prepare(imu: ImuSamples, mocap: MocapPoses, min_duration: float = MIN_SESSIO
     bad = screen.jumps | screen.late
     keep = ~bad
     R = mocap.rotation
+    refuse_flips(mocap.t[keep], R[keep], mocap.source)
     band = noise_band(imu.t, imu.gyro, imu.accel, mocap.t[keep], R[keep], mocap.position[keep])
     return PreparedSession(
         u=imu.t, gyro=imu.gyro, accel=imu.accel, tau=mocap.t[keep], R_WM=R[keep],

@@ -18,7 +18,13 @@ import numpy as np
 
 from mocap_calib.core.model.parameters import ACCEL_BIAS, GYRO_BIAS, TIME_OFFSET, Parameter
 from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.core.result.estimate import Estimate, plain, read_sigma, read_value
+from mocap_calib.core.result.estimate import (
+    Estimate,
+    SigmaTerms,
+    plain,
+    read_sigma,
+    read_value,
+)
 
 if TYPE_CHECKING:
     from mocap_calib.core.clock.search import ClockSearch
@@ -175,7 +181,8 @@ TAKE_PARAMETERS: tuple[Parameter, ...] = (TIME_OFFSET, GYRO_BIAS, ACCEL_BIAS)
 @dataclass(frozen=True)
 class TakeResult:
     """One take of several calibrated together: its inputs as given, its own clock offset
-    and biases (:data:`TAKE_PARAMETERS`), its session, gaps and clock search, counted from 1."""
+    and biases (:data:`TAKE_PARAMETERS`, with the terms of their sigmas once judged), its
+    session, gaps and clock search, counted from 1."""
 
     imu: str
     mocap: str
@@ -198,6 +205,9 @@ class TakeResult:
         return {"imu": self.imu, "mocap": self.mocap,
                 **{p.value_key[-1]: plain(p, e.value) for p, e in ests},
                 "sigma": {p.sigma_key: plain(p, e.sigma) for p, e in ests},
+                **({"uncertainty": {p.symbol: e.terms.to_dict() for p, e in ests
+                                    if e.terms is not None}}
+                   if any(e.terms is not None for _, e in ests) else {}),
                 "session": self.session,
                 **({"imu_gaps": self.imu_gaps.to_dict()} if self.imu_gaps else {}),
                 **({"clock": self.clock.to_dict()} if self.clock else {}),
@@ -206,9 +216,12 @@ class TakeResult:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> TakeResult:
         sig = d.get("sigma") or {}
+        unc = d.get("uncertainty") or {}
         return cls(str(d.get("imu", "")), str(d.get("mocap", "")),
                    {p: Estimate(read_value(p, d.get(p.value_key[-1]), p.value_key[-1]),
-                                read_sigma(p, sig.get(p.sigma_key), f"sigma.{p.sigma_key}"))
+                                read_sigma(p, sig.get(p.sigma_key), f"sigma.{p.sigma_key}"),
+                                SigmaTerms.from_dict(unc[p.symbol]) if p.symbol in unc
+                                else None)
                     for p in TAKE_PARAMETERS},
                    dict(d.get("session") or {}), ImuGapsSummary.from_dict(d.get("imu_gaps")),
                    ClockSummary.from_dict(d.get("clock") or {}), int(d.get("take", 0)))

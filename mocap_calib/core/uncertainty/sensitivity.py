@@ -86,6 +86,9 @@ class Sensitivity:
     moved: dict[str, dict[Parameter, float]] = field(default_factory=dict)
     mocap_model: dict[str, float] = field(default_factory=dict)
     implausible: str = ""
+    #: With several takes, per alternative and take, the shifts of the take's own parameters.
+    take_shift: dict[str, list[dict[Parameter, Array]]] = field(default_factory=dict)
+    take_raw: dict[str, list[dict[Parameter, Array]]] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -107,6 +110,12 @@ class Sensitivity:
         """Per component, the largest plain |change| over the alternatives."""
         moves = [d[p] for d in self.raw.values() if p in d]
         return np.max(np.stack(moves), axis=0) if moves else None
+
+    def of_take(self, k: int) -> Sensitivity:
+        """The same for take ``k``'s own parameters (clock offset, biases): each alternative's
+        shift of that take's values, so that they carry the terms a single run's do."""
+        return Sensitivity({a: d[k] for a, d in self.take_shift.items() if k < len(d)},
+                           {a: d[k] for a, d in self.take_raw.items() if k < len(d)})
 
 
 def gyro_frame(pos: PositionResult) -> Array:
@@ -137,13 +146,35 @@ def _shifts(alt: PositionResult, pos: PositionResult
            GRAVITY_DIRECTION: GRAVITY_DIRECTION.difference(pos.g_dir, alt.g_dir)}
     if TIME_OFFSET.name in pos.cov:
         raw[TIME_OFFSET] = TIME_OFFSET.difference(pos.delta, alt.delta)
+    return _beyond_chance(raw, alt.cov, pos.cov)
+
+
+def _beyond_chance(raw: dict[Parameter, Array], cov_alt: dict[str, Array],
+                   cov: dict[str, Array]) -> tuple[dict[Parameter, Array], dict[Parameter, Array]]:
+    """The part of each difference that the reweighting does not explain by chance, and the
+    plain |difference|."""
     excess = {}
     for p, d in raw.items():
         chance = 0.0
-        if p.name in pos.cov and p.name in alt.cov:
-            chance = np.abs(np.diag(alt.cov[p.name]) - np.diag(pos.cov[p.name]))
+        if p.name in cov and p.name in cov_alt:
+            chance = np.abs(np.diag(cov_alt[p.name]) - np.diag(cov[p.name]))
         excess[p] = np.sqrt(np.maximum(d**2 - chance, 0.0))
     return excess, {k: np.abs(v) for k, v in raw.items()}
+
+
+def _take_shifts(alt: PositionResult, pos: PositionResult
+                 ) -> tuple[list[dict[Parameter, Array]], list[dict[Parameter, Array]]]:
+    """Per take, :func:`_shifts` of its own clock offset and biases."""
+    shift, raw = [], []
+    for a, b in zip(alt.takes, pos.takes, strict=True):
+        d = {GYRO_BIAS: GYRO_BIAS.difference(b.gyro_bias_mean, a.gyro_bias_mean),
+             ACCEL_BIAS: ACCEL_BIAS.difference(b.accel_bias_mean, a.accel_bias_mean)}
+        if TIME_OFFSET.name in b.cov:
+            d[TIME_OFFSET] = TIME_OFFSET.difference(b.delta, a.delta)
+        s, r = _beyond_chance(d, a.cov, b.cov)
+        shift.append(s)
+        raw.append(r)
+    return shift, raw
 
 
 def noise_sensitivity(pos: PositionResult, model: Model,
@@ -190,6 +221,8 @@ def noise_sensitivity(pos: PositionResult, model: Model,
                 out.implausible = why
                 return None
         out.shift[key], out.raw[key] = _shifts(alt, pos)
+        if len(pos.takes) > 1:
+            out.take_shift[key], out.take_raw[key] = _take_shifts(alt, pos)
         out.moved[key] = z_pair(alt, pos, sig, None)
         return alt
 

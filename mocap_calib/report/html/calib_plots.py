@@ -12,8 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.parameters import TIME_OFFSET, TRANSLATION
+from mocap_calib.core.result.series import ResidualSeries
 from mocap_calib.core.result.verdicts import SegmentRecord
-from mocap_calib.core.stages.figures import ResidualSeries
 from mocap_calib.report.html.mpl import (
     AXIS_COLORS,
     every,

@@ -1,64 +1,24 @@
 """The sections of a calibration report: result table, checks, clock search, residuals and
 spectra, trajectory and mocap gaps.
 
-:func:`calibration_sections` takes the result (with its in-memory diagnostics) and the
-figures the workflow computed for the report (:class:`CalibrationExtras`); every number in a
-table is tied to its key in the result YAML (see :mod:`.page`).
+:func:`calibration_sections` takes the result and the series computed with it for the outputs
+(:class:`~mocap_calib.core.result.series.OutputSeries`); every number in a table is tied to
+its key in the result YAML (see :mod:`.page`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import fields
 from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
-
-from mocap_calib.core.clock.search import MIN_PEAK_Z
-from mocap_calib.core.diagnosis.dead_reckoning import DeadReckoning
-from mocap_calib.core.diagnosis.predict import ResidualAnalysis
 from mocap_calib.core.model.parameters import COMPARED, PARAMETERS, TIME_OFFSET, TRANSLATION
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.estimate import plain
+from mocap_calib.core.result.series import ClockCurve
 from mocap_calib.report.html import calib_plots as plots
 from mocap_calib.report.html.page import Cell, Figure, Notes, Row, Section, Table
 from mocap_calib.report.html.tables import flat, kv_rows, num
 from mocap_calib.report.text import UNCERTAINTY_TERMS, checks_lines
-
-Array = NDArray[np.float64]
-
-
-@dataclass
-class StageSpectrum:
-    """Welch PSD of one stage's residuals (per axis) and the white floor its noise model
-    assumes (per axis, in the residual's unit^2/Hz)."""
-
-    unit: str
-    freq: Array
-    before: Array
-    after: Array
-    floor: Array
-
-
-@dataclass
-class CalibrationExtras:
-    """What the workflow computed for the report beyond the result.
-
-    Attributes:
-        imu_analysis: measured-minus-predicted IMU residuals with the Monte Carlo noise floor.
-        imu_before: (freq, gyro, accel) PSDs with raw intrinsics (zero biases, no effects).
-        stage_spectra: per stage name.
-        dead_reckoning: 2 s IMU dead-reckoning segments from the mocap state.
-        spectrum_span_s: mocap-time span the IMU-domain analysis covers.
-        seconds: time spent computing these (s).
-    """
-
-    imu_analysis: ResidualAnalysis | None = None
-    imu_before: tuple[Array, Array, Array] | None = None
-    stage_spectra: dict[str, StageSpectrum] = field(default_factory=dict)
-    dead_reckoning: DeadReckoning | None = None
-    spectrum_span_s: tuple[float, float] | None = None
-    seconds: float = 0.0
 
 
 def _component_rows(label: str, unit: str, key: str | None, value: Any, scale: float,
@@ -264,8 +224,9 @@ def _sensitivity_table(r: CalibrationResult) -> Table | None:
                  "noise densities are scaled")
 
 
-def clock_section(r: CalibrationResult) -> Section:
-    """The coarse clock search: curve, chosen peak, margin and the fine estimate."""
+def clock_section(r: CalibrationResult, cs: ClockCurve | None = None) -> Section:
+    """The coarse clock search: curve (``cs``, None: not drawn), chosen peak, margin and the
+    fine estimate."""
     c = r.clock
     if c is None:
         return Section("sec-clock", "Clock search", ["No search: the clock offset was given."])
@@ -278,11 +239,10 @@ def clock_section(r: CalibrationResult) -> Section:
              for i, (t, z) in enumerate(c.candidates)]
     rows.append(["signals", ", ".join(c.signals)])
     blocks: list[Any] = [Table("clock-table", ("figure", "value"), rows, "Clock search")]
-    cs = r.diagnostics.trace.clock if r.diagnostics and r.diagnostics.trace else None
     if cs is not None and len(cs.lags):
         fine = c.fine_time_offset
         png = plots.clock_png(cs.lags, cs.score, cs.time_offset, cs.candidates, cs.peak_z,
-                              cs.margin_z, fine, MIN_PEAK_Z)
+                              cs.margin_z, fine, cs.min_peak_z)
         blocks.append(Figure(
             "fig-clock", f"Clock search: combined correlation statistic against t_d; chosen "
             f"peak {1e3 * cs.time_offset:.3f} ms at {cs.peak_z:.2f} null sigmas, margin "

@@ -4,7 +4,7 @@ statistic, and the ``unexplained`` signature when the diagnosis reports one."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -13,7 +13,18 @@ from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
 from mocap_calib.report.html.tables import kv_rows, num
 
 if TYPE_CHECKING:
-    from mocap_calib.core.diagnosis.report import DiagnoseReport
+    from mocap_calib.core.result.calibration import CalibrationResult
+
+
+class DiagnosisRecord(Protocol):
+    """What the diagnosis pages read of a diagnosis report
+    (``core.diagnosis.report.DiagnoseReport``): its file form, its notes and its final
+    calibration."""
+
+    notes: list[str]
+    final: CalibrationResult
+
+    def to_dict(self) -> dict[str, Any]: ...
 
 
 def gap_png(labels: list[str], gyro: list[float], accel: list[float],
@@ -199,7 +210,7 @@ def unexplained_of(report: Any) -> Mapping[str, Any] | None:
     return u if isinstance(u, Mapping) and u else None
 
 
-def diagnosis_steps_sections(report: DiagnoseReport) -> list[Section]:
+def diagnosis_steps_sections(report: DiagnosisRecord) -> list[Section]:
     """Verdict, steps (gap per sensor, candidates) and the unexplained signature."""
     d = report.to_dict()
     steps = d["steps"]

@@ -21,7 +21,7 @@ from mocap_calib.report.html.page import Cell, Figure, Notes, Section, Table
 from mocap_calib.report.html.tables import flat, get, kv_rows, num
 
 if TYPE_CHECKING:
-    from mocap_calib.core.intrinsics.multipos import MultiposResult
+    from mocap_calib.core.intrinsics.multipos.result import MultiposResult
     from mocap_calib.core.intrinsics.noise_result import AllanResult, SensorNoise
     from mocap_calib.core.model.types import ImuSamples
 

@@ -1,6 +1,6 @@
-"""Calibration report sections from the solver's diagnostics: residuals per stage (time series,
-weights, outliers, spectra), IMU-domain spectra against the noise floor, the 3D trajectory and
-the mocap gaps."""
+"""Calibration report sections from a take's series (:class:`TakeSeries`, computed with the
+result): residuals per stage (time series, weights, outliers, spectra), IMU-domain spectra
+against the noise floor, the 3D trajectory and the mocap and IMU gaps."""
 
 from __future__ import annotations
 
@@ -10,27 +10,26 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.policy import IMU_BRIDGE_MAX_S
-from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.result.series import ReportFigures, Scene, TakeSeries
 from mocap_calib.report.html import calib_plots as plots
-from mocap_calib.report.html.calibration import CalibrationExtras
 from mocap_calib.report.html.mpl import fmt
 from mocap_calib.report.html.page import Figure, Section, Table
 
 Array = NDArray[np.float64]
 
 
-def residuals_section(r: CalibrationResult, extras: CalibrationExtras) -> Section:
+def residuals_section(take: TakeSeries | None) -> Section:
     """Per stage: residuals before/after over time with weights, outliers and removed spikes,
     and their spectra; then the IMU-domain spectra against the noise floor."""
     blocks: list[Any] = []
-    diag = r.diagnostics
-    if diag is None or not diag.residuals:
+    if take is None or not take.residuals:
         return Section("sec-residuals", "Residuals",
                        ["Residual series are not available (the result was read from a file)."])
-    trace = diag.trace
-    removed = trace.session.removed_tau if trace is not None else np.zeros(0)
-    spans = imu_gap_spans(r)
-    for name, s in diag.residuals.items():
+    scene = solver_scene(take)
+    extras = take.figures or ReportFigures()
+    removed = scene.removed_tau if scene is not None else np.zeros(0)
+    spans = scene.imu_gaps if scene is not None else np.zeros((0, 2))
+    for name, s in take.residuals.items():
         n_out = int(np.sum(s.weight < 0.5))
         sp = extras.stage_spectra.get(name)
         spec = None if sp is None else (sp.freq, sp.before, sp.after, sp.floor)
@@ -66,14 +65,10 @@ def residuals_section(r: CalibrationResult, extras: CalibrationExtras) -> Sectio
     return Section("sec-residuals", "Residuals per stage and spectra", blocks)
 
 
-def imu_gap_spans(r: CalibrationResult) -> Array:
-    """(G, 2) the IMU gaps of the session the solver used (the take whose diagnostics ``r``
-    carries), on the mocap clock (the estimated clock offset); none without the solver's
-    trace."""
-    tr = r.diagnostics.trace if r.diagnostics is not None else None
-    if tr is None or tr.session.imu_gaps is None:
-        return np.zeros((0, 2))
-    return tr.session.imu_gaps.spans(tr.model_state.delta)
+def solver_scene(take: TakeSeries | None) -> Scene | None:
+    """The take's scene if it is the session the solver used (a report shows no other)."""
+    scene = take.scene if take is not None else None
+    return scene if scene is not None and scene.from_solver else None
 
 
 def _span_data(spans: Array) -> dict[str, str]:
@@ -91,26 +86,18 @@ def _imu_gaps_table(spans: Array) -> Table:
                  + (f" (first 50 of {len(spans)})" if len(spans) > 50 else ""))
 
 
-def gap_intervals(tau: Array, gap: float) -> Array:
-    """(g, 2) start and end times of the mocap gaps (intervals longer than ``gap``)."""
-    i = np.flatnonzero(np.diff(tau) > gap)
-    return np.stack([tau[i], tau[i + 1]], axis=1) if len(i) else np.zeros((0, 2))
-
-
-def trajectory_section(r: CalibrationResult, extras: CalibrationExtras) -> Section:
+def trajectory_section(take: TakeSeries | None) -> Section:
     """3D marker path with the IMU's dead-reckoned segments, and the mocap gaps over time."""
-    trace = r.diagnostics.trace if r.diagnostics is not None else None
-    if trace is None:
+    s = solver_scene(take)
+    if s is None:
         return Section("sec-trajectory", "Trajectory and mocap gaps",
                        ["The trajectory is not available (the result was read from a file)."])
-    s = trace.session
-    gaps = gap_intervals(s.tau, s.gap)
-    spans = imu_gap_spans(r)
-    i = np.flatnonzero(np.diff(s.tau) > s.gap)
+    extras = (take.figures if take is not None else None) or ReportFigures()
+    i = s.gap_index
+    gaps = np.stack([s.tau[i], s.tau[i + 1]], axis=1) if len(i) else np.zeros((0, 2))
+    spans = s.imu_gaps
     gap_pts = np.concatenate([s.p_WM[i], s.p_WM[i + 1]]) if len(i) else np.zeros((0, 3))
-    rem = s.removed_tau
-    rem_pts = (np.stack([np.interp(rem, s.tau, s.p_WM[:, a]) for a in range(3)], axis=1)
-               if len(rem) else np.zeros((0, 3)))
+    rem, rem_pts = s.removed_tau, s.removed_p_WM
     dr = extras.dead_reckoning
     segs = [] if dr is None else list(dr.p_after)
     dr_t = np.zeros(0) if dr is None else dr.tau[:, 0]

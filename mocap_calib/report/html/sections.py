@@ -9,54 +9,51 @@ from typing import TYPE_CHECKING, Any
 from mocap_calib.report.html.page import Cell, Row, Section, Table, prefixed
 
 if TYPE_CHECKING:
-    from mocap_calib.core.diagnosis.diagnose import DiagnoseReport
-    from mocap_calib.core.intrinsics.multipos import MultiposResult
+    from mocap_calib.core.intrinsics.multipos.result import MultiposResult
     from mocap_calib.core.intrinsics.noise_result import AllanResult
     from mocap_calib.core.model.types import ImuSamples
     from mocap_calib.core.result.calibration import CalibrationResult
-    from mocap_calib.report.html.calibration import CalibrationExtras
+    from mocap_calib.core.result.series import OutputSeries, TakeSeries
+    from mocap_calib.report.html.diagnosis import DiagnosisRecord
     from mocap_calib.report.html.intrinsics import PoseResiduals
 
 
 def calibration_sections(result: CalibrationResult,
-                         extras: CalibrationExtras | None = None) -> list[Section]:
+                         series: OutputSeries | None = None) -> list[Section]:
     """Result table, checks (plausibility, consistency, sensitivity), clock search, residuals
-    per stage with spectra, trajectory and mocap gaps. The figures from the solver's
-    diagnostics need ``result.diagnostics`` (a result read from a file has none: those
-    sections then say so)."""
+    per stage with spectra, trajectory and mocap gaps. The figures beyond the result file
+    are drawn from ``series`` (computed with the result for the outputs; its first take);
+    without it (a result read from a file) those sections say they are not available."""
     from mocap_calib.report.html.calibration import (
-        CalibrationExtras,
         checks_section,
         clock_section,
         result_section,
     )
     from mocap_calib.report.html.residuals import residuals_section, trajectory_section
 
-    ex = extras or CalibrationExtras()
-    return [result_section(result), checks_section(result), clock_section(result),
-            residuals_section(result, ex), trajectory_section(result, ex)]
+    first = series.first if series is not None else None
+    return [result_section(result), checks_section(result),
+            clock_section(result, series.clock if series is not None else None),
+            residuals_section(first), trajectory_section(first)]
 
 
-def take_sections(view: CalibrationResult, take: int,
-                  extras: CalibrationExtras | None = None) -> list[Section]:
-    """Another take's residuals and trajectory: ``view`` is the result with that take's
-    diagnostics (``result.diagnostics.takes[take - 1]``); ids and titles name the take."""
-    from mocap_calib.report.html.calibration import CalibrationExtras
+def take_sections(take: TakeSeries, k: int) -> list[Section]:
+    """Take ``k``'s residuals and trajectory (``take``: its series); ids and titles name the
+    take."""
     from mocap_calib.report.html.residuals import residuals_section, trajectory_section
 
-    ex = extras or CalibrationExtras()
-    sections = prefixed([residuals_section(view, ex), trajectory_section(view, ex)],
-                        f"take{take}-")
-    return [replace(s, title=f"Take {take}: {s.title}") for s in sections]
+    sections = prefixed([residuals_section(take), trajectory_section(take)], f"take{k}-")
+    return [replace(s, title=f"Take {k}: {s.title}") for s in sections]
 
 
-def diagnosis_sections(report: DiagnoseReport,
-                       extras: CalibrationExtras | None = None) -> list[Section]:
+def diagnosis_sections(report: DiagnosisRecord,
+                       series: OutputSeries | None = None) -> list[Section]:
     """The gap per step and sensor, every candidate's statistic, the ``unexplained``
-    signature when there is one, then the final calibration's sections."""
+    signature when there is one, then the final calibration's sections (``series``: computed
+    with the final calibration)."""
     from mocap_calib.report.html.diagnosis import diagnosis_steps_sections
 
-    final = rekeyed(calibration_sections(report.final, extras), "final_calibration/")
+    final = rekeyed(calibration_sections(report.final, series), "final_calibration/")
     for s in final:
         s.title = f"Final calibration: {s.title}"
     return diagnosis_steps_sections(report) + final
