@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from _doc_section import add_doc_options, check, provenance, table, write
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import NoiseModel
@@ -165,6 +166,29 @@ def print_table(runs: list[Run], seeds: list[int], peer_name: str | None) -> Non
               + _fmt(max(finite) if finite else None, 10, 2))
 
 
+def markdown(runs: list[Run], seeds: list[int], duration: float, peer_name: str | None) -> str:
+    """Section bench_peer: both tools' mean errors side by side, and our largest |err|/sigma."""
+    tools = ["mocap-calib", *(["peer"] if peer_name else [])]
+    rows = []
+    for tool in tools:
+        done = [r for r in runs if r.tool == tool and r.errors]
+        rows.append([peer_name if tool == "peer" else tool,
+                     *(f"{np.mean([r.errors[m] for r in done]):.3f}" if done else "-"
+                       for m, _ in METRICS),
+                     f"{np.mean([r.wall_s for r in done]):.1f}" if done else "-",
+                     f"{len(done)}/{len(seeds)}"])
+    ours = [r for r in runs if r.tool == "mocap-calib" and r.z]
+    worst = {k: max((r.z[k] for r in ours if k in r.z), default=float("nan")) for k in Z_PARAMS}
+    return (provenance("bench_peer.py") + "\n"
+            + f"{len(seeds)} simulated flights of {duration:g} s (`--preset flying`, seeds "
+            f"{seeds[0]}-{seeds[-1]}), both tools given the data sheet's noise; mean errors "
+            "against the simulator's truth:\n\n"
+            + table(["tool", "`R_MI` (deg)", "`p_MI` (mm)", "`t_d` (ms)", "wall (s)",
+                     "flights"], rows)
+            + "\nmocap-calib's largest \\|err\\|/sigma over the flights: "
+            + ", ".join(f"{k} {v:.2f}" for k, v in worst.items()) + ".\n")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=4)
@@ -176,7 +200,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None,
                     help="folder for the sessions and results (default: a temporary one)")
     ap.add_argument("--json", type=Path, default=None, help="also write every run here")
+    add_doc_options(ap)
     a = ap.parse_args()
+    check(a, ["bench_peer"])
     peer = shlex.split(a.peer) if a.peer else None
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     with tempfile.TemporaryDirectory() as tmp:
@@ -198,6 +224,9 @@ def main() -> None:
     print_table(runs, seeds, a.peer_name if peer else None)
     if a.json:
         a.json.write_text(json.dumps([asdict(r) for r in runs], indent=1))
+    md = markdown(runs, seeds, a.duration, a.peer_name if peer else None)
+    print(md)
+    write(a, {"bench_peer": md})
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ import argparse
 import itertools
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -31,7 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _doc_section import add_doc_options, check, provenance, table, write
+from _doc_section import ROOT, add_doc_options, check, provenance, table, write
 from _shared_data import DATA
 
 from mocap_calib.core.model import so3
@@ -343,6 +344,26 @@ def markdown(reports: list[dict], pairs: dict[str, dict[str, float]]) -> str:
     return out
 
 
+def readme_markdown(reports: list[dict]) -> str:
+    """Section real_data of the README: per recording the exit code, the answer with its
+    sigmas and the wall time; a refusal's cause to its first clause."""
+    rows = []
+    for rep in (r for r in reports if "full" in r):
+        f = rep["full"]
+        if f["exit"] != 0:
+            cause = re.split(r" \(|: ", f["error"].removeprefix("error: "), maxsplit=1)[0]
+            rows.append([rep["recording"], str(f["exit"]), cause, "", "", f"{f['seconds']:.0f}"])
+            continue
+        sR = np.asarray(f["sigma_R_deg"])
+        rows.append([rep["recording"], "0",
+                     f"{f['R_MI_vs_ref_deg']:.2f} (sigma {sR.min():.2f}-{sR.max():.2f})",
+                     f"{_three(f['p_MI_mm'])} +- {_three(f['sigma_p_mm'])}",
+                     f"{f['t_d_ms']:.2f} +- {f['sigma_t_d_ms']:.2f}", f"{f['seconds']:.0f}"])
+    return table(["recording", "exit", "`R_MI` from the reference (deg), or the refusal",
+                  "`p_MI` (mm)",
+                  "`t_d` (ms)", "s"], rows) + provenance("real_data_study.py")
+
+
 def px4_markdown(px4: list[dict]) -> str:
     """Section real_data_px4: what calibrate and allan say on the PX4 logs."""
     lines = [provenance("real_data_study.py").rstrip("\n"), "", "```"]
@@ -362,6 +383,8 @@ def main() -> None:
     ap.add_argument("--only", default=",".join([*RECORDINGS, "px4"]))
     ap.add_argument("--no-thirds", action="store_true")
     ap.add_argument("--no-sensitivity", action="store_true")
+    ap.add_argument("--readme", type=Path, default=ROOT / "README.md",
+                    help="with --write-doc, the README whose real_data section is rewritten")
     add_doc_options(ap)
     a = ap.parse_args()
     if not DATA.is_dir():
@@ -399,6 +422,9 @@ def main() -> None:
                                      default=str))
     # The recordings' table is written only from a full run (a partial one would drop rows).
     write(a, {k: v for k, v in sections.items() if k != "real_data_study" or full})
+    if a.write_doc and full and reports:
+        write(argparse.Namespace(write_doc=True, doc=a.readme),
+              {"real_data": readme_markdown(reports)})
 
 
 if __name__ == "__main__":

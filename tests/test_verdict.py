@@ -75,15 +75,20 @@ def test_noise_sensitivity_lands_where_a_rerun_does(calibrated) -> None:
 
 def test_identified_noise_does_not_follow_the_densities_given(calibrated) -> None:
     """By default the levels come from the data: a rerun given densities x3 or x1/3 lands
-    where the first run did (the given ones only centre a weak prior)."""
+    close to where the first run did (the given ones only centre a weak prior), and within what
+    the run's own noise-sensitivity term claims (it scales the identified levels themselves).
+    Measured: at most 0.39 statistical sigma (t_d at x3: the gyro's level, which the mocap's
+    attitude noise hides here, stays near the one given), where the term claims 0.67."""
     sim, res = calibrated
     tr = res.diagnostics.trace
     assert res.noise_identification is not None and res.noise_identification.used
-    for f in (3.0, 1.0 / 3.0):
+    sens = noise_sensitivity(tr.position, tr.model_state.model, mocap_model=False)
+    for f, key in ((3.0, "x3"), (1.0 / 3.0, "x0.333")):
         alt = calibrate(sim.imu, sim.mocap, CalibrationOptions(
             noise=NoiseModel().imu_scaled(f), segments=0, sensitivity=False))
         for k, v in _moves(tr, alt.diagnostics.trace).items():
-            assert v < 0.3, (f, k, v)
+            assert v < 0.5, (f, k, v)
+            assert v <= sens.moved[key][k] + 0.1, (f, k, v, sens.moved[key][k])
 
 
 def test_implausible_answer_exits_4_or_is_marked() -> None:
