@@ -43,6 +43,8 @@ SIMULATED = {
     "sim_gyro_sm": ["--seed", "601", "--duration", "90", "-e", "time_offset=0.004",
                     "-e", "gyro_scale_misalignment"],
     "sim_none": ["--seed", "600", "--duration", "90", "--mocap-noise-corr", "0.3"],
+    "sim2min_delay": ["--seed", "21", "--duration", "120", "-e", "time_offset=0.003",
+                      "-e", "accel_delay=0.004", "--mocap-noise-corr", "0.3"],
 }
 
 
@@ -78,7 +80,7 @@ def run(out: Path, repo: Path, sim_dir: Path, only: list[str] | None,
         commands: list[str]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     for name, args in SIMULATED.items():
-        if not (sim_dir / name / "truth.yaml").exists():
+        if (only is None or name in only) and not (sim_dir / name / "truth.yaml").exists():
             subprocess.run([sys.executable, "-m", "mocap_calib", "simulate", str(sim_dir / name),
                             *args], check=True, capture_output=True)
     times_file = out / "times.json"
@@ -105,11 +107,14 @@ def run(out: Path, repo: Path, sim_dir: Path, only: list[str] | None,
 
 
 def _named(path: Path, cmd: str) -> str:
-    """The effects a report or result names (its final model)."""
+    """The effects a report or result names (its final model; a diagnosis' unexplained
+    residual too)."""
     if not path.exists():
         return "(missing)"
     d = yaml.safe_load(path.read_text())
-    return str(d["final_model"] if cmd == "diagnose" else d["model"])
+    if cmd == "diagnose":
+        return str(d["final_model"]) + ("; unexplained" if d.get("unexplained") else "")
+    return str(d["model"])
 
 
 def largest_z(before: dict, after: dict) -> float:

@@ -75,6 +75,39 @@ def test_two_hidden_effects_are_both_found() -> None:
         assert sum(not np.isnan(c.confirm_statistic) for c in step.candidates) <= 2
 
 
+def test_the_checks_run_on_the_answer_only(monkeypatch) -> None:
+    """The starting fit gets calibrate's checks (effect tests, consistency, sensitivity,
+    plausibility) only when it is the answer; with an effect found, only the final
+    calibration gets them. When nothing is found the answer is what ``calibrate`` gives."""
+    import mocap_calib.core.pipeline.calibrate as cal
+    from mocap_calib.core.model.effects import Model
+    from mocap_calib.core.options import CalibrationOptions
+
+    judged: list[str] = []
+    real = cal.judge
+
+    def judge(r, *args, **kwargs):
+        judged.append(r.model)
+        return real(r, *args, **kwargs)
+
+    monkeypatch.setattr(cal, "judge", judge)
+    sim = simulate_flight(SimConfig(seed=4, duration=60.0, effects={"time_offset": [0.006]}))
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(candidates=("time_offset",
+                                                                   "accel_delay")))
+    assert rep.found == ["time_offset"] and judged == ["base+time_offset"]
+    judged.clear()
+    timed = Model(("time_offset",))
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=timed,
+                                                       candidates=("accel_delay",)))
+    assert rep.found == [] and judged == ["base+time_offset"]
+    ref = cal.calibrate(sim.imu, sim.mocap, CalibrationOptions(model=timed))
+    got = rep.final
+    for p, e in ref.estimates.items():
+        np.testing.assert_array_equal(got.estimates[p].value, e.value, err_msg=p.name)
+        np.testing.assert_array_equal(got.estimates[p].sigma, e.sigma, err_msg=p.name)
+    assert got.notes == ref.notes and got.effect_tests == ref.effect_tests
+
+
 def test_report_round_trips_through_yaml(tmp_path) -> None:
     from mocap_calib.io.yaml_io import load_yaml, save_yaml
 

@@ -64,7 +64,13 @@ from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
-from mocap_calib.core.pipeline.calibrate import Recording, calibrate_takes
+from mocap_calib.core.pipeline.calibrate import (
+    Fitted,
+    Recording,
+    calibrate_takes,
+    conclude,
+    fit_takes,
+)
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import (
     PositionResult,
@@ -73,7 +79,6 @@ from mocap_calib.core.position.stage import (
     run_position_stage,
 )
 from mocap_calib.core.prepare.session import PreparedSession
-from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.sections import Degradation
 from mocap_calib.errors import CalibrationError, InputError, Interrupted
 
@@ -276,8 +281,7 @@ def diagnose_takes(recordings: list[Recording], options: DiagnoseOptions | None 
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
     ds, model, start = _start(recordings, opts, say)
-    current = start.diagnostics.trace.position
-    assert current is not None  # every calibration keeps its position stage in the trace
+    current = start.pos
     cur_res = ds.residuals(current, model, ds.floor_noise(current.noise))
     start_res = cur_res
     found: list[str] = []
@@ -316,11 +320,12 @@ def diagnose_takes(recordings: list[Recording], options: DiagnoseOptions | None 
 
 
 def _start(recordings: list[Recording], opts: DiagnoseOptions,
-           say: Callable[[str], None]) -> tuple[_Session, Model, CalibrationResult]:
-    """Calibrate the starting model as ``calibrate`` does (its noise model, robust weights and
-    effect tests); every later fit keeps its noise model and weights, so that every comparison
-    uses the same cost. Accepts an implausible answer: a model that misses an effect may well
-    look implausible (that is what the diagnosis is for)."""
+           say: Callable[[str], None]) -> tuple[_Session, Model, Fitted]:
+    """Fit the starting model as ``calibrate`` does (its noise model and robust weights; its
+    checks only when it is the final model, :func:`_finish`); every later fit keeps its noise
+    model and weights, so that every comparison uses the same cost. Accepts an implausible
+    answer: a model that misses an effect may well look implausible (that is what the
+    diagnosis is for)."""
     model = opts.start_model
     notes: list[str] = []
     why = "the raw stamps do not overlap: time_offset added before the diagnosis"
@@ -330,14 +335,14 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
     cal_opts = replace(opts.calibration, model=model, accept_implausible=True)
     say(f"fitting the starting model {model}")
     try:
-        start = calibrate_takes(recordings, cal_opts)
+        start = fit_takes(recordings, cal_opts)
     except InputError:  # the streams may not even overlap without the offset
         if model.timed:
             raise
         model = model.with_effect(CLOCK_OFFSET.name)
         notes.append(why)
-        start = calibrate_takes(recordings, replace(cal_opts, model=model))
-    tr = start.diagnostics.trace
+        start = fit_takes(recordings, replace(cal_opts, model=model))
+    tr = start.result.diagnostics.trace
     pos = tr.position
     assert pos is not None
     ds = _Session([tf.take for tf in pos.takes], [tf.weights for tf in pos.takes],
@@ -451,14 +456,15 @@ def _refit_test(ds: _Session, c: CandidateScore, f: PositionResult, current: Pos
 
 
 def _finish(recordings: list[Recording], ds: _Session, model: Model,
-            start: CalibrationResult, start_res: Residuals, current: PositionResult,
+            start: Fitted, start_res: Residuals, current: PositionResult,
             steps: list[DiagnoseStep], say: Callable[[str], None]) -> DiagnoseReport:
     """The final calibration with the model found (the starting one when nothing was added:
-    it is that calibration), and the signature of any gap left (the first take's, with
-    several)."""
+    its fit, checked as ``calibrate`` checks it), and the signature of any gap left (the first
+    take's, with several)."""
     opts = ds.opts
-    if str(model) == start.model:
-        final, final_res = start, start_res
+    nothing_added = str(model) == start.result.model
+    if nothing_added:
+        final, final_res = conclude(start), start_res
     else:
         say(f"final calibration with {model}")
         final = calibrate_takes(recordings, replace(opts.calibration, model=model,
@@ -466,7 +472,7 @@ def _finish(recordings: list[Recording], ds: _Session, model: Model,
     fx = final.diagnostics.trace
     pos = fx.position
     assert pos is not None
-    if final is not start:
+    if not nothing_added:
         # The floor under the final calibration's own noise model (identified from the data).
         final_res = ds.residuals(pos, model, ds.floor_noise(pos.noise))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
