@@ -45,6 +45,7 @@ SIMULATED = {
     "sim_none": ["--seed", "600", "--duration", "90", "--mocap-noise-corr", "0.3"],
     "sim2min_delay": ["--seed", "21", "--duration", "120", "-e", "time_offset=0.003",
                       "-e", "accel_delay=0.004", "--mocap-noise-corr", "0.3"],
+    "sim10": ["--seed", "7", "--duration", "600"],  # scripts/bench_models.py's
 }
 
 
@@ -107,14 +108,14 @@ def run(out: Path, repo: Path, sim_dir: Path, only: list[str] | None,
 
 
 def _named(path: Path, cmd: str) -> str:
-    """The effects a report or result names (its final model; a diagnosis' unexplained
-    residual too)."""
+    """The effects a report or result names (its final model's, in a fixed order: the order
+    they were found in is not compared; a diagnosis' unexplained residual too)."""
     if not path.exists():
         return "(missing)"
     d = yaml.safe_load(path.read_text())
-    if cmd == "diagnose":
-        return str(d["final_model"]) + ("; unexplained" if d.get("unexplained") else "")
-    return str(d["model"])
+    model = str(d["final_model"] if cmd == "diagnose" else d["model"]).split("+")
+    named = "+".join([model[0], *sorted(model[1:])])
+    return named + ("; unexplained" if cmd == "diagnose" and d.get("unexplained") else "")
 
 
 def largest_z(before: dict, after: dict) -> float:
