@@ -6,9 +6,8 @@ to ``calibrate``. Acceptance: ``--model auto`` and ``diagnose`` at most 2x ``cal
 Sessions: mocap2gt's real 65 s session (``peer/m2g_session`` beside ``shared``), EuRoC V2_03
 (``shared/data``) and a simulated 10-minute session (``simulate DIR --duration 600 --seed 7``,
 written once to ``--sessions``). A session whose files are missing is skipped with a line.
-Each command runs ``--runs`` times (median); the diagnosis' compiled filters are run once
-first, so that no timed run compiles them (the calibration's kernels: run the benchmark twice
-after installing).
+Each command runs ``--runs`` times (median), after ``mocap-calib compile`` (the install step),
+so that no timed run compiles a kernel.
 
 Usage: python scripts/bench_models.py [--runs 1] [--only m2g,euroc,sim10] [--sessions DIR]
        [--write-doc] [--doc PATH]
@@ -35,12 +34,6 @@ PEER = next((p / "peer" / "m2g_session" for p in (DATA.parents[1], *DATA.parents
 COMMANDS = (("calibrate", ["calibrate"]), ("auto", ["calibrate", "--model", "auto"]),
             ("diagnose", ["diagnose"]))
 LIMIT = 2.0
-#: Fills the compiled kernels' cache (the calibration's and the diagnosis' filters).
-WARM = ("import numpy as np\n"
-        "from mocap_calib.core.diagnosis.filters import ar1, butter_lowpass, sosfiltfilt\n"
-        "import mocap_calib.core.pipeline.calibrate\n"
-        "sosfiltfilt(butter_lowpass(4, 1.0, 10.0), np.zeros((40, 2)))\n"
-        "ar1(np.zeros((4, 2)), 0.5, 1.0)\n")
 
 
 def sessions(sim_dir: Path) -> dict[str, tuple[str, list[str], list[Path]]]:
@@ -97,7 +90,9 @@ def main() -> int:
     if (a.only is None or "sim10" in a.only) and not (sim / "truth.yaml").exists():
         subprocess.run([sys.executable, "-m", "mocap_calib", "simulate", str(sim),
                         "--duration", "600", "--seed", "7"], check=True, capture_output=True)
-    subprocess.run([sys.executable, "-c", WARM], check=True, capture_output=True)
+    # The install step: no timed run compiles a kernel.
+    subprocess.run([sys.executable, "-m", "mocap_calib", "compile"], check=True,
+                   capture_output=True)
     rows, ok, complete = [], True, True
     for key, (label, inputs, needs) in sessions(a.sessions).items():
         if a.only and key not in a.only:

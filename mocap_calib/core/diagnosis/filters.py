@@ -107,3 +107,11 @@ def ar1(e: Array, a: float, b0: float) -> Array:  # pragma: no cover - compiled
             prev = b0 * e[i, j] + a * prev
             y[i, j] = prev
     return y
+
+
+def run_kernels() -> None:
+    """Each kernel once, on the argument types a diagnosis passes them (C-ordered float64
+    arrays, float coefficients): the install step (``mocap-calib compile``) runs this so that
+    a diagnosis compiles nothing."""
+    sosfiltfilt(butter_lowpass(4, 2.0, 100.0), np.zeros((40, 3)))
+    ar1(np.zeros((4, 3)), 0.5, 0.5)
