@@ -84,3 +84,17 @@ def test_unequal_pairs_are_refused_in_one_line(tmp_path: Path,
                  "--out", str(tmp_path / "r.yaml")])
     err = capsys.readouterr().err
     assert code == 2 and "2 --imu and 1 --mocap given" in err and err.count("\n") == 1
+
+
+@pytest.mark.slow
+def test_model_auto_with_two_takes_keeps_what_every_take_shows(tmp_path: Path) -> None:
+    """``--model auto`` over two takes: one joint diagnosis, an effect kept only when each
+    take's own test shows it, the result calibrated jointly with it."""
+    out = tmp_path / "auto.yaml"
+    args = _takes(tmp_path, {"accel_delay": [0.004]})
+    assert main(["calibrate", *args, "--model", "auto", "--out", str(out), "-q"]) == 0
+    a = yaml.safe_load(out.read_text())
+    assert "accel_delay" in a["model"].split("+")
+    assert abs(a["effects"]["accel_delay"]["accel_delay"] - 0.004) < 0.5e-3
+    assert [("accel_delay" in x) for x in a["model_selection"]["found_per_take"]] == [True, True]
+    assert len(a["takes"]) == 2

@@ -90,15 +90,19 @@ def test_calibration_with_fast_motion_and_mismatched_noise() -> None:
 
 
 def test_diagnosis_names_nothing_on_fast_motion_with_mismatched_noise() -> None:
-    """Nothing hidden (the clock offset is in the starting model). The residuals exceed the
-    floor of the assumed noise (the true noise is larger), but not so far that the report calls
-    them unexplained, and no effect takes the noise's place. With the diagnosis's pose smoothing
-    at 3 Hz instead of 10 this test fails (residual reported unexplained; on a 60 s session of
-    this kind the ratios go from 1.2-1.3 to 2.2), and it fails only with the fast motion."""
+    """Nothing hidden (the clock offset is in the starting model). The accelerometer's
+    residual exceeds the floor of the assumed noise (its true noise is larger), but not so far
+    that the report calls it unexplained, and no effect takes the noise's place. With the
+    diagnosis's pose smoothing at 3 Hz instead of 10 this test fails (residual reported
+    unexplained; on a 60 s session of this kind the ratios go from 1.2-1.3 to 2.2), and it fails
+    only with the fast motion. The gyro's doubled density hardly shows in the low band, where
+    the mocap's part of its floor dominates: against the floor of the true mocap noise at the
+    densities given, the ratios are 1.01 (gyro) and 1.11 (accel); the diagnosis's floor, from
+    the identified mocap noise, gives 1.03 and 1.13."""
     sim = _session()
     rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=Model(("time_offset",))))
     assert rep.found == [] and rep.verdict == "none", rep.found
     assert rep.unexplained is None, rep.unexplained
-    for sensor in ("gyro", "accel"):
-        assert 1.05 < rep.final_residuals.ratio(sensor) < 1.5, (
+    for sensor, low in (("gyro", 0.97), ("accel", 1.05)):
+        assert low < rep.final_residuals.ratio(sensor) < 1.5, (
             f"{sensor}: residual {rep.final_residuals.ratio(sensor):.3f} x the noise floor")

@@ -230,11 +230,15 @@ def diagnose_table(report) -> str:
             cand_rows = []
             for c in step.candidates[:4]:
                 verdict = "ADDED" if c.effect == step.added else (
-                    "significant" if c.significant else "")
+                    "significant" if c.significant else "refuted by its refit" if c.refuted
+                    else "implausible" if c.implausible else "")
+                refit = ("-" if np.isnan(c.confirm_log10_p) else f"{c.confirm_log10_p:.1f}")
+                drop = "-" if np.isnan(c.residual_drop) else f"{100 * c.residual_drop:.1f}%"
                 cand_rows.append((c.effect, f"{c.statistic:.1f}", str(c.dof), f"{c.log10_p:.1f}",
-                                  f"{100 * c.residual_drop:.1f}%", verdict))
-            tab = table(("candidate", "T", "dof", "log10 p", "resid. drop", "verdict"), cand_rows,
-                        (False, True, True, True, True, False))
+                                  refit, drop, verdict))
+            tab = table(("candidate", "score T", "dof", "log10 p", "refit log10 p",
+                         "resid. drop", "verdict"), cand_rows,
+                        (False, True, True, True, True, True, False))
             lines += ["  " + x for x in tab.splitlines()]
             if len(step.candidates) > 4:
                 lines.append(f"  ... {len(step.candidates) - 4} more, none better")

@@ -3,7 +3,9 @@ later run compiles them (the install scripts run it).
 
 The kernels are compiled for the argument types a calibration passes them by running one: a
 short simulated session calibrated in memory (no file is read or written besides the cache).
-Whatever a kernel's module changes, the types are those the calibration uses.
+Whatever a kernel's module changes, the types are those the calibration uses. The diagnosis'
+filters (``diagnose``, ``calibrate --model auto``), which a calibration does not run, are run
+once on the types a diagnosis passes them.
 """
 
 from __future__ import annotations
@@ -54,7 +56,9 @@ class CompileReport:
 
 
 def compile_kernels(request: CompileRequest | None = None) -> CompileReport:
-    """Run a short simulated calibration, which compiles (or loads) every kernel it uses."""
+    """Run a short simulated calibration, which compiles (or loads) every kernel it uses, and
+    the diagnosis' filters."""
+    from mocap_calib.core.diagnosis.filters import run_kernels
     from mocap_calib.core.model.effects import CLOCK_OFFSET
     from mocap_calib.core.options import CalibrationOptions
     from mocap_calib.core.pipeline.calibrate import calibrate
@@ -64,6 +68,7 @@ def compile_kernels(request: CompileRequest | None = None) -> CompileReport:
     sim = simulate_flight(SimConfig(seed=0, duration=SESSION_S,
                                     effects={CLOCK_OFFSET.name: [0.004]}))
     calibrate(sim.imu, sim.mocap, CalibrationOptions())
+    run_kernels()
     compiled = jit.compiled_in_process()
     return CompileReport(compiled, jit.loaded_in_process(),
                          [k for k in jit.uncached_kernels() if k in compiled],

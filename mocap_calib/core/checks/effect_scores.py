@@ -16,7 +16,7 @@ candidates) and plausible.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -62,6 +62,14 @@ class EffectScore:
     problem: str | None  # why it is implausible (None: plausible)
     significant: bool
     failures: tuple[str, ...] = ()
+    #: The one-step estimate in the effect's own coordinates (a clock offset: every take's
+    #: shift) and its model-based covariance (the Schur complement's inverse).
+    step: Array = field(default_factory=lambda: np.zeros(0), repr=False, compare=False)
+    step_cov: Array = field(default_factory=lambda: np.zeros((0, 0)), repr=False,
+                            compare=False)
+    #: The model-based statistic's log10 p alone (0: not computed): its ranking of strong
+    #: effects follows their size, where the windows' (Hotelling's) tails flatten.
+    model_log10_p: float = 0.0
 
     @property
     def shown(self) -> bool:
@@ -76,43 +84,25 @@ class EffectScore:
 
 def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | None = None,
                   candidates: tuple[str, ...] | None = None,
-                  alpha: float = ALPHA) -> list[EffectScore]:
+                  alpha: float = ALPHA, sequential: bool = True,
+                  parts: bool = False) -> list[EffectScore]:
     """Score tests of every canonical effect the model lacks (or ``candidates``): the
     effects shown in order of evidence (each tested with those before it free), then the
-    rest (tested with the shown ones free)."""
+    rest (tested with the shown ones free). Without ``sequential``: every candidate tested
+    against the model as it is, in order of evidence (the diagnosis adds one at a time and
+    tests again). With ``parts``, the sandwich's blocks are the windows' one-second parts
+    instead of the windows (Hotelling's statistic on a few windows has little power for an
+    effect of several parameters: 12 windows, 9 parameters, F(9, 3)); the diagnosis, which
+    confirms what it adds by a refit, tests so."""
     cands = [c for c in (candidates or CANONICAL_EFFECTS) if not model.has(c)]
     if not cands:
         return []
-    ext = Model((*model.effects, *cands))
-    which = _spread(pos)
-    takes = [Take(t.s, t.windows.subset(w)) for t, w in zip(pos.takes, which, strict=True)]
-    effects0 = {**pos.effects, **{e.name: e.zero() for e in ext.units
-                                  if e.in_effects and e.name in cands}}
-    init = PositionInit(pos.R_MI, pos.p_MI, pos.g_dir, pos.g_mag,
-                        [TakeStart(t.delta, t.gyro_bias_mean, t.accel_bias_mean, t.knots[w])
-                         for t, w in zip(pos.takes, which, strict=True)], effects0)
-    # Under the correlated mocap noise the session prefers (when it does): a white model would
-    # count correlated residuals as independent evidence for whatever can absorb them.
-    corr = correlated_mocap_model(pos, model)
-    pg = build_position_graph(takes, ext, pos.noise if corr is None else corr[0], init)
-    pg.set_weights([t.weights[w] for t, w in zip(pos.takes, which, strict=True)])
-    for pp in pg.problems:
-        pp.mocap_axis_scale = pos.axis_scale.copy()
-    for pp in pg.problems:
-        pp.collect_scores = True
-    H, offsets, n = information_matrix(pg.graph, pg.values)
-    grad = pg.graph.linearize(pg.values).gradientAtZero()
-    d = np.zeros(n)
-    for key, o in offsets.items():
-        v = np.asarray(grad.at(key), dtype=float)
-        d[o:o + len(v)] = -v  # gradientAtZero is that of 0.5 |A x - b|^2 at x = 0: -A^T b
-    rows = _window_scores(pg, offsets, n)
-    # The windows' bias knots are nuisance in every test: eliminate them once (exact block
-    # elimination with a sparse factor), so that each test solves a system of the shared
-    # parameters only instead of a dense one over every knot (at 60 min, 4000+ of them).
-    H, d, rows, index = _without_knots(H, d, rows, _knot_rows(pg, offsets))
-    n = int(np.count_nonzero(index >= 0))
-    rows_of = {c: index[_rows(pg, offsets, c)] for c in cands}
+    # One linearisation per solution and candidate set: the calibration's tests and the
+    # diagnosis' first step share it.
+    H, d, by_window, by_part, rows_of = pos.memo.get(f"effect_scores {'+'.join(cands)}",
+                                                      lambda: _linearise(pos, model, cands))
+    rows = by_part if parts else by_window
+    n = H.shape[0]
     alpha_each = alpha / len(cands)
     # In order of evidence, as the diagnosis adds effects: the strongest significant one is
     # then free (a nuisance) while the rest are tested again, so that a candidate that only
@@ -128,7 +118,7 @@ def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | N
             keep = np.setdiff1d(keep, rows_of[c])
             tests.append(_test(c, rows_of[c], keep, H, d, rows, alpha_each, limits))
         tests.sort(key=lambda t: t.log10_p)
-        best = next((t for t in tests if t.shown), None)
+        best = next((t for t in tests if t.shown), None) if sequential else None
         if best is None:
             out += tests
             break
@@ -136,6 +126,50 @@ def effect_scores(pos: PositionResult, model: Model, limits: PlausibleLimits | N
         free.append(best.effect)
         todo.remove(best.effect)
     return out
+
+
+def _linearise(pos: PositionResult, model: Model, cands: list[str]
+               ) -> tuple[Array, Array, Array, Array, dict[str, NDArray[np.int64]]]:
+    """The information, gradient and scores (per window, and per one-second part of a window)
+    at the solution with the candidates added at zero, the windows' bias knots eliminated;
+    and each candidate's rows."""
+    ext = Model((*model.effects, *cands))
+    which = _spread(pos)
+    takes = [Take(t.s, t.windows.subset(w)) for t, w in zip(pos.takes, which, strict=True)]
+    effects0 = {**pos.effects, **{e.name: e.zero() for e in ext.units
+                                  if e.in_effects and e.name in cands}}
+    init = PositionInit(pos.R_MI, pos.p_MI, pos.g_dir, pos.g_mag,
+                        [TakeStart(t.delta, t.gyro_bias_mean, t.accel_bias_mean, t.knots[w])
+                         for t, w in zip(pos.takes, which, strict=True)], effects0)
+    # Under the correlated mocap noise the session prefers (when it does): a white model would
+    # count correlated residuals as independent evidence for whatever can absorb them. The
+    # solution's own noise model when it has a correlated part (identified from the data with
+    # the IMU densities, or given); else the AR(1) model the windows' likelihood prefers.
+    noise = pos.noise
+    if not noise.mocap_correlated:
+        corr = correlated_mocap_model(pos, model)
+        noise = noise if corr is None else corr[0]
+    pg = build_position_graph(takes, ext, noise, init)
+    pg.set_weights([t.weights[w] for t, w in zip(pos.takes, which, strict=True)])
+    for pp in pg.problems:
+        pp.mocap_axis_scale = pos.axis_scale.copy()
+    for pp in pg.problems:
+        pp.collect_scores = True
+    H, offsets, n = information_matrix(pg.graph, pg.values)
+    grad = pg.graph.linearize(pg.values).gradientAtZero()
+    d = np.zeros(n)
+    for key, o in offsets.items():
+        v = np.asarray(grad.at(key), dtype=float)
+        d[o:o + len(v)] = -v  # gradientAtZero is that of 0.5 |A x - b|^2 at x = 0: -A^T b
+    by_window, by_part = _window_scores(pg, offsets, n)
+    # The windows' bias knots are nuisance in every test: eliminate them once (exact block
+    # elimination with a sparse factor), so that each test solves a system of the shared
+    # parameters only instead of a dense one over every knot (at 60 min, 4000+ of them).
+    H, d, rows, index = _without_knots(H, d, np.vstack([by_window, by_part]),
+                                       _knot_rows(pg, offsets))
+    by_window, by_part = rows[:len(by_window)], rows[len(by_window):]
+    by_part = by_part[np.any(by_part != 0.0, axis=1)]  # padding parts hold no samples
+    return H, d, by_window, by_part, {c: index[_rows(pg, offsets, c)] for c in cands}
 
 
 def windows_tested(pos: PositionResult) -> int:
@@ -192,20 +226,25 @@ def _without_knots(H: Any, d: Array, rows: Array, knots: NDArray[np.int64]
             rows[:, keep] - rows[:, knots] @ X[:, :-1], index)
 
 
-def _window_scores(pg: Any, offsets: dict[int, int], n: int) -> Array:
-    """Every window's whitened score ``J^T r`` in the graph's coordinates (W, n)."""
+def _window_scores(pg: Any, offsets: dict[int, int], n: int) -> tuple[Array, Array]:
+    """Every window's whitened score ``J^T r`` in the graph's coordinates (W, n), and every
+    one-second part's (W x B, n; their sum over a window is the window's)."""
     layout = pg.problem.layout
-    rows = []
+    rows, parts = [], []
     for k, out in enumerate(pg.evals[-1]):
         keys = pg.block_keys(k)
         glob = np.concatenate([offsets[keys[name]] + np.arange(dim)
                                for name, dim in layout.blocks if name != "knot"])
-        for w, s in enumerate(out.scores.sum(axis=1)):
-            row = np.zeros(n)
+        for w, s in enumerate(out.scores):
             idx = np.concatenate([glob, offsets[key_knot(pg.knot0[k] + w)] + np.arange(6)])
-            np.add.at(row, idx, s)
+            row = np.zeros(n)
+            np.add.at(row, idx, s.sum(axis=0))
             rows.append(row)
-    return np.array(rows)
+            part = np.zeros((s.shape[0], n))
+            for b in range(s.shape[0]):
+                np.add.at(part[b], idx, s[b])
+            parts.append(part)
+    return np.array(rows), np.concatenate(parts)
 
 
 def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d: Array,
@@ -220,8 +259,10 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     n_w, k = len(s), len(e)
     log10_ps = []
     failures = []
+    model_log10_p = 0.0
     try:  # model-based: chi-square
         log10_ps.append(float(chi2_logsf(float(g @ np.linalg.solve(V_model, g)), k)))
+        model_log10_p = log10_ps[-1] / np.log(10.0)
     except np.linalg.LinAlgError as err:
         failures.append(f"the model-based statistic could not be computed ({err})")
     if n_w > k + 1:  # the windows' own spread: Hotelling's T^2 (few windows, F tails)
@@ -239,7 +280,8 @@ def _test(name: str, e: NDArray[np.int64], n_idx: NDArray[np.int64], H: Array, d
     value = eff.report_value(step[:eff.dim] if eff.acts_on == "clock" else step)
     problem = effect_problem(name, value, limits or PlausibleLimits())
     return EffectScore(name, float(T), k, float(log10_p), _plain(value), problem,
-                       bool(log10_p < np.log10(alpha)), tuple(failures))
+                       bool(log10_p < np.log10(alpha)), tuple(failures), step,
+                       np.linalg.inv(V_model), float(model_log10_p))
 
 
 def _plain(value: object) -> object:

@@ -14,11 +14,14 @@ floor is computed by Monte Carlo with a fixed seed (deterministic).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
 from scipy.interpolate import CubicSpline
 
+from mocap_calib.core.diagnosis.filters import ar1, butter_lowpass, sosfiltfilt, welch
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.imu_model import Intrinsics, accel_lag, forward, imu_times
 from mocap_calib.core.model.types import NoiseModel
@@ -39,9 +42,9 @@ def _pose_splines(tau: Array, R_WI: Array, p_WI: Array,
     p = p_WI
     rate = 1.0 / float(np.median(np.diff(tau)))
     if smooth_hz < 0.45 * rate and len(tau) > 30:
-        sos = signal.butter(4, smooth_hz, fs=rate, output="sos")
-        q = signal.sosfiltfilt(sos, q, axis=0)
-        p = signal.sosfiltfilt(sos, p_WI, axis=0)
+        sos = butter_lowpass(4, smooth_hz, rate)
+        q = sosfiltfilt(sos, q)
+        p = sosfiltfilt(sos, p_WI)
     return CubicSpline(tau, q, axis=0), CubicSpline(tau, p, axis=0)
 
 
@@ -136,10 +139,10 @@ def model_forward(st: ModelState, w: Array, f: Array, u: Array,
 
 def lowpass(x: Array, rate: float, cutoff: float, segments: list[NDArray[np.int64]]) -> Array:
     """Zero-phase Butterworth low-pass, applied within each segment."""
-    sos = signal.butter(4, cutoff, fs=rate, output="sos")
+    sos = butter_lowpass(4, cutoff, rate)
     y = np.zeros_like(x)
     for seg in segments:
-        y[seg] = signal.sosfiltfilt(sos, x[seg], axis=0)
+        y[seg] = sosfiltfilt(sos, x[seg])
     return y
 
 
@@ -163,7 +166,7 @@ def _welch(x: Array, rate: float, segments: list[NDArray[np.int64]]) -> tuple[Ar
     for seg in segments:
         if len(seg) < nper:
             continue
-        freq, p = signal.welch(x[seg], fs=rate, nperseg=nper, axis=0)
+        freq, p = welch(x[seg], rate, nper)
         psds.append(p)
         weights.append(len(seg))
     if not psds:
@@ -173,8 +176,11 @@ def _welch(x: Array, rate: float, segments: list[NDArray[np.int64]]) -> tuple[Ar
 
 def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
                       pred: ImuPrediction | None = None, cutoff_hz: float = 2.0,
-                      bias_knot_spacing: float | None = None, seed: int = 0) -> ResidualAnalysis:
-    """Residuals of the calibrated model against the measurements, with their noise floor."""
+                      bias_knot_spacing: float | None = None, seed: int = 0,
+                      floor_of: ResidualAnalysis | None = None) -> ResidualAnalysis:
+    """Residuals of the calibrated model against the measurements, with their noise floor
+    (``floor_of``: that analysis' floor, for a nearby model under the same noise model,
+    instead of a Monte Carlo of its own)."""
     pred = pred or predict_imu(s, st)
     rate = s.imu_rate
     cutoff = min(cutoff_hz, 0.45 * min(rate, s.mocap_rate))
@@ -182,10 +188,6 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
     ra = pred.accel_meas - pred.accel_pred
     rg_lp = lowpass(rg, rate, cutoff, pred.segments)
     ra_lp = lowpass(ra, rate, cutoff, pred.segments)
-
-    # Noise floor: push synthetic noise through the same processing, averaged over a few
-    # draws so that the floor's own Monte Carlo scatter stays near 2 %.
-    rng = np.random.default_rng(seed)
     n = len(pred.u)
     keep = interior(n, pred.segments, rate, cutoff)
     if len(s.removed_tau):
@@ -199,11 +201,38 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
     def rms(x: Array) -> Array:
         return np.sqrt(np.mean(x[keep] ** 2, axis=0))
 
-    spacing = bias_knot_spacing or (float(np.median(np.diff(st.bias_t))) if len(st.bias_t) > 1
-                                    else pred.u[-1] - pred.u[0])
+    if floor_of is None:
+        spacing = bias_knot_spacing or (float(np.median(np.diff(st.bias_t)))
+                                        if len(st.bias_t) > 1 else pred.u[-1] - pred.u[0])
+        floor2, parts, psd_floor = _noise_floor(s, st, pred, noise, (rate, cutoff, spacing),
+                                                rms, np.random.default_rng(seed))
+    freq, pg = _welch(rg, rate, pred.segments)
+    _, pa = _welch(ra, rate, pred.segments)
+    if floor_of is not None:
+        floor2 = np.r_[floor_of.gyro_floor, floor_of.accel_floor] ** 2
+        parts = dict(floor_of.floor_parts)
+        psd_floor = np.hstack([floor_of.gyro_psd_floor, floor_of.accel_psd_floor])
+        if len(floor_of.freq) != len(freq) or not np.allclose(floor_of.freq, freq):
+            # Other segments (another clock offset): the floor's spectrum at these frequencies.
+            psd_floor = np.column_stack([np.interp(freq, floor_of.freq, c)
+                                         for c in psd_floor.T])
+    pgf, paf = psd_floor[:, 0:3], psd_floor[:, 3:6]
+    return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
+                            np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
+                            parts, pred.u + st.delta, keep)
+
+
+def _noise_floor(s: PreparedSession, st: ModelState, pred: ImuPrediction, noise: NoiseModel,
+                 bands: tuple[float, float, float], rms: Callable[[Array], Array],
+                 rng: np.random.Generator) -> tuple[Array, dict[str, Array], Array]:
+    """Noise alone through the same processing, averaged over a few draws so that the floor's
+    own Monte Carlo scatter stays near 2 %: its mean square per axis (gyro then accel), per
+    source (RMS), and its Welch PSD. ``bands``: IMU rate, low-pass cutoff, knot spacing."""
+    rate, cutoff, spacing = bands
+    n = len(pred.u)
     parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
     floor2 = np.zeros(6)
-    psd_floor = 0.0
+    psd_floor: Any = 0.0
     draws = 4
     for _ in range(draws):
         white = np.concatenate([
@@ -227,12 +256,7 @@ def analyse_residuals(s: PreparedSession, st: ModelState, noise: NoiseModel,
             total = total + lp
         floor2 += rms(total) ** 2 / draws
         psd_floor = psd_floor + _welch(white + walk + moc, rate, pred.segments)[1] / draws
-    freq, pg = _welch(rg, rate, pred.segments)
-    _, pa = _welch(ra, rate, pred.segments)
-    pgf, paf = psd_floor[:, 0:3], psd_floor[:, 3:6]
-    return ResidualAnalysis(cutoff, rms(rg_lp), rms(ra_lp), np.sqrt(floor2[0:3]),
-                            np.sqrt(floor2[3:6]), freq, pg, pa, pgf, paf, rg_lp, ra_lp,
-                            {k: np.sqrt(v) for k, v in parts.items()}, pred.u + st.delta, keep)
+    return floor2, {k: np.sqrt(v) for k, v in parts.items()}, psd_floor
 
 
 def mocap_noise(rng: np.random.Generator, tau: Array, sigma: float,
@@ -245,7 +269,7 @@ def mocap_noise(rng: np.random.Generator, tau: Array, sigma: float,
     rho = noise.mocap_noise_corr_fraction
     a = float(np.exp(-np.median(np.diff(tau)) / noise.mocap_noise_corr_time))
     e = rng.normal(0.0, sigma, (len(tau), 3))
-    ar = signal.lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], e, axis=0)
+    ar = ar1(e, a, float(np.sqrt(1.0 - a * a)))
     ar += np.outer(a ** np.arange(len(tau)), e[0] * (1.0 - np.sqrt(1.0 - a * a)))  # stationary
     return np.sqrt(1.0 - rho) * white + np.sqrt(rho) * ar
 

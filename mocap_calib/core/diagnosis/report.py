@@ -19,7 +19,9 @@ from mocap_calib.core.versioned import check_kind, header
 Array = NDArray[np.float64]
 
 REPORT_KIND = "diagnosis"
-REPORT_VERSION = 1
+#: 2: every candidate's statistic is its score test at the step's solution; the refitted
+#: ones' likelihood ratio and Wald are the confirmation (``confirm_*``, ``refuted``).
+REPORT_VERSION = 2
 
 
 @dataclass
@@ -27,9 +29,18 @@ class CandidateScore:
     """One candidate's test.
 
     Attributes:
-        statistic: the smaller of the noise-scaled likelihood ratio and the Wald statistic
-            with the sandwich covariance (robust when the noise model is off).
-        significant: passes the test and lowers the measurement-domain residual.
+        statistic, log10_p: the score test at the step's solution (the smaller evidence of
+            its model-based and windows' sandwich statistics).
+        delta_chi2, scale, wald, confirm_statistic, confirm_log10_p: the refit's confirmation
+            (NaN where it was not refitted): the cost drop, the noise scale, the robust Wald
+            statistic, and the smaller of the noise-scaled likelihood ratio and the Wald.
+        significant: the score test passes and, where refitted, the refit confirms it and
+            lowers the measurement-domain residual.
+        residual_drop: relative low-band residual drop on the effect's sensor (0.1 = 10 %;
+            NaN where not refitted).
+        params, sigma: the refit's estimate and 1-sigma (not refitted: the score test's
+            one-step estimate, no sigma).
+        refuted: why a significant score was not confirmed by the refit.
         implausible: the one-line reason when its magnitude is outside the plausible range.
     """
 
@@ -40,19 +51,28 @@ class CandidateScore:
     statistic: float
     log10_p: float
     significant: bool
-    residual_drop: float  # relative low-band residual drop on the effect's sensor (0.1 = 10 %)
+    residual_drop: float
     params: object = None
     sigma: object = None
-    wald: float = 0.0
+    wald: float = float("nan")
     implausible: str | None = None
     takes: list[dict[str, Any]] | None = None  # several takes: each one's own test
+    confirm_statistic: float = float("nan")
+    confirm_log10_p: float = float("nan")
+    refuted: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        d = {"effect": self.effect, "dof": self.dof, "delta_chi2": round(self.delta_chi2, 3),
-             "noise_scale": round(self.scale, 4),
-             "wald_robust": None if np.isnan(self.wald) else round(self.wald, 3),
-             "statistic": round(self.statistic, 3), "log10_p": round(self.log10_p, 3),
-             "significant": self.significant, "residual_drop": round(self.residual_drop, 4)}
+        d = {"effect": self.effect, "dof": self.dof, "statistic": round(self.statistic, 3),
+             "log10_p": round(self.log10_p, 3), "significant": self.significant}
+        if not np.isnan(self.confirm_statistic):
+            d["refit"] = {"delta_chi2": round(self.delta_chi2, 3),
+                          "noise_scale": round(self.scale, 4),
+                          "wald_robust": _num(self.wald, 3),
+                          "statistic": round(self.confirm_statistic, 3),
+                          "log10_p": round(self.confirm_log10_p, 3),
+                          "residual_drop": _num(self.residual_drop, 4)}
+        if self.refuted:
+            d["refuted"] = self.refuted
         if self.implausible:
             d["implausible"] = self.implausible
         if self.takes:
@@ -61,12 +81,25 @@ class CandidateScore:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CandidateScore:
-        return cls(str(d["effect"]), int(d["dof"]), float(d["delta_chi2"]),
-                   float(d["noise_scale"]), float(d["statistic"]), float(d["log10_p"]),
-                   bool(d["significant"]), float(d["residual_drop"]),
-                   wald=float("nan") if d.get("wald_robust") is None
-                   else float(d["wald_robust"]), implausible=d.get("implausible"),
-                   takes=d.get("takes"))
+        """Either version: a version 1 candidate's test is its refit's."""
+        r = d.get("refit") or (d if "delta_chi2" in d else {})
+
+        def num(x: Any) -> float:
+            return float("nan") if x is None else float(x)
+
+        return cls(str(d["effect"]), int(d["dof"]), num(r.get("delta_chi2")),
+                   num(r.get("noise_scale")), float(d["statistic"]), float(d["log10_p"]),
+                   bool(d["significant"]), num(r.get("residual_drop")),
+                   wald=num(r.get("wald_robust")), implausible=d.get("implausible"),
+                   takes=d.get("takes"),
+                   confirm_statistic=num(r.get("statistic")) if "refit" in d else float("nan"),
+                   confirm_log10_p=num(r.get("log10_p")) if "refit" in d else float("nan"),
+                   refuted=d.get("refuted"))
+
+
+def _num(x: float, digits: int) -> float | None:
+    """A figure for the file (None: not computed)."""
+    return None if np.isnan(x) else round(float(x), digits)
 
 
 @dataclass
@@ -135,6 +168,8 @@ class DiagnoseStep:
             d["added"] = {"effect": self.added, EFFECTS[self.added].param: self.added_params,
                           "sigma": self.added_sigma, "statistic": round(best.statistic, 3),
                           "dof": best.dof, "log10_p": round(best.log10_p, 3),
+                          "refit_statistic": round(best.confirm_statistic, 3),
+                          "refit_log10_p": round(best.confirm_log10_p, 3),
                           **({"takes": best.takes} if best.takes else {})}
             if self.residuals_after is not None:
                 d["residuals_after"] = self.residuals_after.to_dict()
@@ -183,8 +218,11 @@ class DiagnoseReport:
             "verdict": self.verdict,
             "start_model": self.start_model,
             "final_model": self.final_model,
-            "test": {"kind": "min(noise-scaled likelihood ratio, robust Wald), Bonferroni over "
-                             "candidates",
+            "test": {"kind": "score test at each step's solution (the weaker of model-based "
+                             "and windows' sandwich), Bonferroni over candidates; the one "
+                             "added confirmed by its refit: min(noise-scaled likelihood "
+                             "ratio, robust Wald) beyond the same threshold and a lower "
+                             "low-band residual",
                      "threshold_log10_p": round(self.threshold_log10_p, 3)},
             "steps": [s.to_dict() for s in self.steps],
             "final_residuals": self.final_residuals.to_dict(),

@@ -109,8 +109,9 @@ def _clock_profile(s: PreparedSession, st: ModelState, pos: PositionResult,
     sig = np.array([g.est.sigma[TIME_OFFSET][0] for g in cons.segments])
     slope = float(np.polyfit(t, td, 1, w=1.0 / sig)[0]) if len(t) > 2 else 0.0
     jumps = np.abs(np.diff(td)) / np.hypot(sig[1:], sig[:-1])
-    return {"t_s": [round(float(x), 2) for x in t], "t_d_ms": [round(1e3 * x, 4) for x in td],
-            "sigma_ms": [round(1e3 * x, 4) for x in sig], "slope_ppm": round(1e6 * slope, 2),
+    return {"t_s": [round(float(x), 2) for x in t],
+            "t_d_ms": [round(1e3 * float(x), 4) for x in td],
+            "sigma_ms": [round(1e3 * float(x), 4) for x in sig], "slope_ppm": round(1e6 * slope, 2),
             "largest_jump_sigmas": round(float(jumps.max()), 2) if len(jumps) else 0.0}
 
 

@@ -2,12 +2,13 @@
 effect found jointly holds in each take.
 
 The diagnosis fits every take together (shared ``T_MI``, gravity and effects; each take its
-own clock offset and biases, as ``calibrate``). An effect the joint test finds is then refitted
-in each take alone, from the joint solution with the same noise model and robust weights:
-each take's own test (``evidence``: significant at the step's threshold) and estimate are
-reported, and the takes' estimates must agree (a homogeneity chi-square, the inverse-variance
-mean against each take's) for the effect to count as found. An effect each take has its own
-value of (the clock offset) is not tested for agreement.
+own clock offset and biases, as ``calibrate``). An effect the joint test finds is then tested
+in each take alone at the joint solution (its score test with that take's parameters, shared
+ones included, re-optimised to first order): each take's own test (``evidence``: significant
+at the step's threshold) and one-step estimate are reported, and the takes' estimates must
+agree (a homogeneity chi-square, the inverse-variance mean against each take's) for the effect
+to count as found. An effect each take has its own value of (the clock offset) is not tested
+for agreement.
 """
 
 from __future__ import annotations
@@ -20,38 +21,21 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis
 from mocap_calib.core.model.effects import EFFECTS, Model
-from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.core.position.stage import PositionResult, block_value
+from mocap_calib.core.position.stage import Memo, PositionResult
 from mocap_calib.core.result.state import ModelState
 
 Array = NDArray[np.float64]
 
 
 def take_result(pos: PositionResult, k: int) -> PositionResult:
-    """A joint fit seen as take ``k``'s alone (the shared values, that take's own)."""
-    return replace(pos, takes=[pos.takes[k]])
+    """A joint fit seen as take ``k``'s alone (the shared values, that take's own; none of
+    what was computed from the joint fit and kept with it)."""
+    return replace(pos, takes=[pos.takes[k]], memo=Memo())
 
 
 def take_state(pos: PositionResult, k: int, model: Model, t_mid: float) -> ModelState:
     """The model state of take ``k`` of a joint fit."""
     return ModelState.from_position(take_result(pos, k), model, t_mid)
-
-
-def combine_noise(noises: list[NoiseModel]) -> NoiseModel:
-    """One mocap noise model for the takes together (the position stage has one): the levels'
-    root mean square, the correlation's mean time and fraction."""
-    if len(noises) == 1:
-        return noises[0]
-
-    def rms(name: str) -> float:
-        return float(np.sqrt(np.mean([getattr(n, name) ** 2 for n in noises])))
-
-    return replace(noises[0], mocap_position_sigma=rms("mocap_position_sigma"),
-                   mocap_rotation_sigma=rms("mocap_rotation_sigma"),
-                   mocap_noise_corr_time=float(np.mean([n.mocap_noise_corr_time
-                                                        for n in noises])),
-                   mocap_noise_corr_fraction=float(np.mean([n.mocap_noise_corr_fraction
-                                                            for n in noises])))
 
 
 def combine_rms(analyses: list[ResidualAnalysis]) -> tuple[Array, Array, Array, Array]:
@@ -67,14 +51,14 @@ def combine_rms(analyses: list[ResidualAnalysis]) -> tuple[Array, Array, Array, 
     return ms("gyro_rms"), ms("gyro_floor"), ms("accel_rms"), ms("accel_floor")
 
 
-def homogeneity(fits: list[PositionResult], effect: str) -> tuple[float, int]:
-    """Chi-square of the takes' estimates of ``effect`` about their inverse-variance mean, and
+def homogeneity(values: list[Array], covs: list[Array]) -> tuple[float, int]:
+    """Chi-square of the takes' estimates of an effect about their inverse-variance mean, and
     its degrees of freedom ((takes - 1) x the effect's dimension)."""
-    x = [np.atleast_1d(block_value(f, effect, 0.0)) for f in fits]
-    info = [np.linalg.pinv(np.atleast_2d(f.cov[effect])) for f in fits]
+    x = [np.atleast_1d(v) for v in values]
+    info = [np.linalg.pinv(np.atleast_2d(c)) for c in covs]
     mean = np.linalg.solve(sum(info), sum(i @ v for i, v in zip(info, x, strict=True)))
     q = float(sum((v - mean) @ i @ (v - mean) for i, v in zip(info, x, strict=True)))
-    return q, (len(fits) - 1) * len(mean)
+    return q, (len(values) - 1) * len(mean)
 
 
 def evidence_row(k: int, log10_p: float, threshold: float, params: Any,
@@ -87,3 +71,15 @@ def evidence_row(k: int, log10_p: float, threshold: float, params: Any,
 def shared(effect: str) -> bool:
     """Whether the takes share the effect's value (the clock offset is each take's own)."""
     return EFFECTS[effect].acts_on != "clock"
+
+
+def stamps_disjoint(recordings: list[Any], t_d: float) -> bool:
+    """Whether some take's (a recording's) raw IMU and mocap stamps, the IMU's shifted by
+    ``t_d``, share no instant: a model without the clock offset cannot be calibrated then."""
+    for r in recordings:
+        shift = (r.mocap.time_origin_ns - r.imu.time_origin_ns) * 1e-9  # mocap t on IMU clock
+        lo = max(r.imu.t[0] + t_d, r.mocap.t[0] + shift)
+        hi = min(r.imu.t[-1] + t_d, r.mocap.t[-1] + shift)
+        if hi <= lo:
+            return True
+    return False

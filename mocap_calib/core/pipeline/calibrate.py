@@ -68,7 +68,8 @@ Array = NDArray[np.float64]
 #: Most rounds of the position stage (settling rounds and the final solve).
 SETTLING_ROUNDS = 6
 
-__all__ = ["calibrate", "calibrate_takes", "Recording", "ProgressFn", "IterationFn"]
+__all__ = ["calibrate", "calibrate_takes", "fit_takes", "conclude", "Fitted", "Recording",
+           "ProgressFn", "IterationFn"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,34 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
     The result keeps the shared quantities under their usual keys; with several takes, their
     own (clock offset, biases) are under ``takes``, in input order.
     """
+    return conclude(fit_takes(recordings, options, progress, on_iteration), progress)
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """A calibration fitted but not yet checked (:func:`fit_takes`): ``result`` without its
+    effect tests, consistency, sensitivity and plausibility; :func:`conclude` adds them.
+
+    Attributes:
+        result: the fitted values, sigmas and diagnostics.
+        pos: the position stage over every take.
+        fits: every take's first fits.
+        opts: the options it was fitted with (validated).
+        seconds: the time its steps took (s): ``clock_and_stages_1_2``, ``position_stage``.
+    """
+
+    result: CalibrationResult
+    pos: PositionResult
+    fits: list[FirstFits]
+    opts: CalibrationOptions
+    seconds: dict[str, float]
+
+
+def fit_takes(recordings: list[Recording], options: CalibrationOptions | None = None,
+              progress: ProgressFn | None = None,
+              on_iteration: IterationFn | None = None) -> Fitted:
+    """The fitting part of :func:`calibrate_takes`: the clock, stages 1-2 and the position
+    stage over every take, packaged as a result without its checks."""
     opts = options or CalibrationOptions()
     opts.validate()
     model = opts.model
@@ -167,18 +196,29 @@ def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | N
     if len(fits) > 1:
         result = _with_takes(result, pos, fits, recordings)
     t_pos = time.perf_counter()
+    return Fitted(result, pos, fits, opts, {"clock_and_stages_1_2": round(t_first - t0, 3),
+                                            "position_stage": round(t_pos - t_first, 3)})
+
+
+def conclude(fitted: Fitted, progress: ProgressFn | None = None) -> CalibrationResult:
+    """The checks of a fitted calibration (:func:`fit_takes`): the effect tests, the
+    single-axis mark, consistency, sensitivity, plausibility and the sigmas by the rule."""
+    say = progress or (lambda _m: None)
+    t0 = time.perf_counter()
+    result, pos, opts, fits = fitted.result, fitted.pos, fitted.opts, fitted.fits
     if opts.effect_tests:
         result = _effect_tests(result, pos, opts, say)
     interrupt.check()
     t_eff = time.perf_counter()
-    result, axis = mark_single_axis(result, f.s, pos.delta)
+    result, axis = mark_single_axis(result, fits[0].s, pos.delta)
     result, steps = judge(result, [ft.s for ft in fits], pos, opts, [ft.clock for ft in fits],
                           say, axis)
     interrupt.check()
-    solver = replace(result.solver, total_seconds=round(time.perf_counter() - t0, 3))
+    fit_s = sum(fitted.seconds.values())
+    solver = replace(result.solver,
+                     total_seconds=round(fit_s + time.perf_counter() - t0, 3))
     return replace(result, solver=solver.with_steps(last={
-        "clock_and_stages_1_2": round(t_first - t0, 3), "position_stage": round(t_pos - t_first, 3),
-        "effect_tests": round(t_eff - t_pos, 3), **steps}))
+        **fitted.seconds, "effect_tests": round(t_eff - t0, 3), **steps}))
 
 
 def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: PositionInit,

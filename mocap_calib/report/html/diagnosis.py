@@ -161,14 +161,18 @@ def _candidate_rows(steps: list[dict[str, Any]]) -> list[list[str | Cell]]:
     for i, s in enumerate(steps):
         for j, c in enumerate(s.get("candidates") or []):
             p = f"steps/{i}/candidates/{j}"
+            refit = c.get("refit") or {}
+            why = c.get("implausible") or c.get("refuted")
             rows.append([str(i + 1) if j == 0 else "", c["effect"], num(f"{p}/dof", c["dof"]),
                          num(f"{p}/statistic", c["statistic"], digits=6),
                          num(f"{p}/log10_p", c["log10_p"], digits=5),
-                         num(f"{p}/noise_scale", c["noise_scale"], digits=4),
-                         num(f"{p}/residual_drop", c["residual_drop"], digits=4),
+                         num(f"{p}/refit/log10_p", refit["log10_p"], digits=5) if refit
+                         else "-",
+                         num(f"{p}/refit/residual_drop", refit.get("residual_drop"), digits=4)
+                         if refit else "-",
                          num(f"{p}/significant", c["significant"]),
-                         num(f"{p}/implausible", c["implausible"]) if c.get("implausible")
-                         else ""])
+                         num(f"{p}/{'implausible' if c.get('implausible') else 'refuted'}",
+                             why) if why else ""])
     return rows
 
 
@@ -227,11 +231,12 @@ def diagnosis_steps_sections(report: DiagnosisRecord) -> list[Section]:
                        [s["residuals"]["accel_ratio"] for s in steps],
                        [(s.get("added") or {}).get("effect") for s in steps]),
                data={"steps": str(len(steps)), "threshold-log10-p": f"{thr!r}"}),
-        Table("diagnosis-candidates", ("step", "candidate", "dof", "statistic T", "log10 p",
-                                       "noise scale", "residual drop", "significant",
-                                       "implausible"),
-              _candidate_rows(steps), f"Every candidate's likelihood-ratio test (threshold "
-              f"log10 p < {thr:.3f}, Bonferroni over the candidates)"),
+        Table("diagnosis-candidates", ("step", "candidate", "dof", "score T", "log10 p",
+                                       "refit log10 p", "residual drop", "significant",
+                                       "not added because"),
+              _candidate_rows(steps), f"Every candidate's score test at the step's solution "
+              f"(threshold log10 p < {thr:.3f}, Bonferroni over the candidates); the "
+              "significant ones refitted until one is confirmed"),
     ]
     take_rows = _take_rows(steps)
     if take_rows:
