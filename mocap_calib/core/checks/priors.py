@@ -210,9 +210,9 @@ def refusal_line(b: PriorBlock) -> str:
 def used_line(report: PriorsReport) -> str:
     """The result's note: which priors were used, from which files, and how they agree with
     the session's data."""
-    files = ", ".join(report.sources) or "the caller"
     names = ", ".join(dict.fromkeys(b.label() for b in report.blocks))
-    head = f"priors used from {files} ({names})"
+    head = (f"priors used from {', '.join(report.sources)} ({names})" if report.sources
+            else f"priors used ({names})")
     if not report.checked:
         return f"{head}, untested against this session's data (the refit without them failed)"
     if report.conflicts:
