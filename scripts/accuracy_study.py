@@ -30,8 +30,8 @@ def run_case(job: tuple[int, float, tuple[str, ...]]) -> dict[str, tuple[str, fl
     from mocap_calib.core.options import CalibrationOptions
     from mocap_calib.core.pipeline.calibrate import calibrate
     from mocap_calib.core.result.calibration import CalibrationResult
+    from mocap_calib.report.compare import compare
     from mocap_calib.sim.flight import SimConfig, parse_effect, simulate_flight
-    from mocap_calib.workflows.compare import compare
 
     rng = np.random.default_rng(seed)
     parsed = dict(parse_effect(e) for e in effects) or {

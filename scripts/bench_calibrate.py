@@ -36,8 +36,8 @@ def run_one(minutes: float, seed: int = 1) -> dict:
     from mocap_calib.core.options import CalibrationOptions
     from mocap_calib.core.pipeline.calibrate import calibrate
     from mocap_calib.core.result.calibration import CalibrationResult
+    from mocap_calib.report.compare import compare
     from mocap_calib.sim.flight import SimConfig, simulate_flight
-    from mocap_calib.workflows.compare import compare
 
     sim = simulate_flight(SimConfig(seed=seed, duration=60.0 * minutes,
                                     effects={"time_offset": [0.004]}))

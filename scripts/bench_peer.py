@@ -44,7 +44,7 @@ from _doc_section import add_doc_options, check, provenance, table, write
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.io.yaml_io import load_result
-from mocap_calib.workflows.compare import compare
+from mocap_calib.report.compare import compare
 from mocap_calib.workflows.simulate import simulate_to_folder
 
 #: The section of docs/validation.md this script writes.
@@ -52,7 +52,7 @@ SECTIONS = ("bench_peer",)
 
 CLI = [sys.executable, "-m", "mocap_calib"]
 METRICS = (("R_MI", "deg"), ("p_MI", "mm"), ("t_d", "ms"))
-#: mocap-calib's parameters whose |err|/sigma is shown (workflows.compare's rows).
+#: mocap-calib's parameters whose |err|/sigma is shown (report.compare's rows).
 Z_PARAMS = ("R_MI", "p_MI", "gyro_bias", "accel_bias", "gravity_in_mocap", "time_offset")
 
 

@@ -6,7 +6,7 @@ Usage: python scripts/compare_truth.py calib.yaml truth.yaml
 import argparse
 
 from mocap_calib.io.yaml_io import load_result
-from mocap_calib.workflows.compare import compare, format_rows
+from mocap_calib.report.compare import compare, format_rows
 
 
 def main() -> None:

@@ -359,9 +359,9 @@ def readme_markdown(reports: list[dict]) -> str:
                      f"{f['R_MI_vs_ref_deg']:.2f} (sigma {sR.min():.2f}-{sR.max():.2f})",
                      f"{_three(f['p_MI_mm'])} +- {_three(f['sigma_p_mm'])}",
                      f"{f['t_d_ms']:.2f} +- {f['sigma_t_d_ms']:.2f}", f"{f['seconds']:.0f}"])
-    return table(["recording", "exit", "`R_MI` from the reference (deg), or the refusal",
-                  "`p_MI` (mm)",
-                  "`t_d` (ms)", "s"], rows) + provenance("real_data_study.py")
+    return provenance("real_data_study.py") + table(
+        ["recording", "exit", "`R_MI` from the reference (deg), or the refusal", "`p_MI` (mm)",
+         "`t_d` (ms)", "s"], rows)
 
 
 def px4_markdown(px4: list[dict]) -> str:

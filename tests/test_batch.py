@@ -26,7 +26,7 @@ from mocap_calib.cli.main import main
 from mocap_calib.core.model.parameters import GYRO_BIAS
 from mocap_calib.io.atomic import TMP_TAG, temporary_name
 from mocap_calib.io.yaml_io import load_result
-from mocap_calib.workflows.compare import compare
+from mocap_calib.report.compare import compare
 from mocap_calib.workflows.fleet_sim import FleetSimConfig, simulate_fleet
 
 pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset

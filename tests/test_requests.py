@@ -14,7 +14,7 @@ from mocap_calib.cli.main import app, main
 from mocap_calib.workflows.requests import from_flat, leaves
 
 COMMANDS = ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift",
-            "export", "groundtruth", "batch")
+            "export", "groundtruth", "batch", "compile")
 
 
 def _commands() -> dict:
@@ -26,6 +26,7 @@ def _request_of(name: str) -> tuple[type, tuple[str, ...]]:
     """The request class and excluded fields of a command (as registered)."""
     from mocap_calib.batch.runner import BatchRequest
     from mocap_calib.workflows.calibrate import CalibrateRequest
+    from mocap_calib.workflows.compile import CompileRequest
     from mocap_calib.workflows.diagnose import NOT_OPTIONS, DiagnoseRequest
     from mocap_calib.workflows.export import ExportRequest
     from mocap_calib.workflows.groundtruth import GroundtruthRequest
@@ -40,7 +41,8 @@ def _request_of(name: str) -> tuple[type, tuple[str, ...]]:
             "diagnose": (DiagnoseRequest, NOT_OPTIONS), "view": (ViewRequest, ()),
             "multipos": (MultiposRequest, ()), "allan": (AllanRequest, MULTIPOS_ONLY),
             "drift": (DriftRequest, MULTIPOS_ONLY), "export": (ExportRequest, ()),
-            "groundtruth": (GroundtruthRequest, ()), "batch": (BatchRequest, ())}[name]
+            "groundtruth": (GroundtruthRequest, ()), "batch": (BatchRequest, ()),
+            "compile": (CompileRequest, ())}[name]
 
 
 def test_every_command_has_a_request() -> None:

@@ -3,7 +3,7 @@
 import importlib
 
 COMMANDS = ("simulate", "calibrate", "diagnose", "view", "multipos", "allan", "drift", "export",
-            "groundtruth", "batch")
+            "groundtruth", "batch", "compile")
 
 
 def register(names: tuple[str, ...] = COMMANDS) -> None:

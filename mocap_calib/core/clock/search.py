@@ -223,15 +223,14 @@ def _fine_peak(sigs: list[ClockSignal], tau_c: dict[str, float], t_d: float,
     score = np.zeros(len(offsets))
     for sg in sigs:
         t_y = sg.start_m + np.arange(len(sg.y)) * dt
-        pos = (t_y[None, :] - clock_shift - offsets[:, None] - sg.start_i) / dt
-        k = np.clip(np.floor(pos).astype(int), 0, len(sg.x) - 2)
-        a = pos - k
-        ok = ((pos >= 0) & (pos <= len(sg.x) - 1) & sg.y_ok[None, :] & sg.x_ok[k]
-              & sg.x_ok[k + 1])
-        xi = (1.0 - a) * sg.x[k] + a * sg.x[k + 1]
-        for j in range(len(offsets)):
-            r = _pearson(xi[j][ok[j]], sg.y[ok[j]])
-            n_eff = max(ok[j].sum() * dt / tau_c[sg.name], 4.0)
+        for j, offset in enumerate(offsets):  # one offset at a time: no (offsets x n) arrays
+            pos = (t_y - clock_shift - offset - sg.start_i) / dt
+            k = np.clip(np.floor(pos).astype(int), 0, len(sg.x) - 2)
+            a = pos - k
+            ok = (pos >= 0) & (pos <= len(sg.x) - 1) & sg.y_ok & sg.x_ok[k] & sg.x_ok[k + 1]
+            xi = (1.0 - a[ok]) * sg.x[k[ok]] + a[ok] * sg.x[k[ok] + 1]
+            r = _pearson(xi, sg.y[ok])
+            n_eff = max(ok.sum() * dt / tau_c[sg.name], 4.0)
             score[j] += np.arctanh(np.clip(r, -0.9999, 0.9999)) * np.sqrt(n_eff - 3.0)
     return _refine(offsets, score, int(np.argmax(score)))
 

@@ -19,6 +19,7 @@ radio, quantised) get the width that their noise calls for.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -186,13 +187,18 @@ class _NoiseChain:
         return _rms(_high_pass(side.values), ok) / unit if unit > 0 else 0.0
 
 
-def _choose(widths: Array, noise: Array, signal: Array) -> tuple[float, float]:
+def _choose(widths: Array, ratio_at: Callable[[float], float]) -> tuple[float, float]:
     """The narrowest width whose noise is at most :data:`NOISE_RATIO` of the signal (else
-    the one with the best ratio), and that ratio."""
-    ratio = noise / np.maximum(signal, 1e-300)
-    fine = np.flatnonzero(ratio <= NOISE_RATIO)
-    k = int(fine[0]) if len(fine) else int(np.argmin(ratio))
-    return float(widths[k]), float(ratio[k])
+    the one with the best ratio), and that ratio. ``ratio_at(s)`` is the noise over the signal
+    at width ``s``; the widths are tried narrowest first and the search stops at the first
+    that passes (lab mocap: the narrowest)."""
+    ratios = []
+    for s in widths:
+        ratios.append(ratio_at(float(s)))
+        if ratios[-1] <= NOISE_RATIO:
+            break
+    k = len(ratios) - 1 if ratios[-1] <= NOISE_RATIO else int(np.argmin(ratios))
+    return float(widths[k]), float(ratios[k])
 
 
 def _norm_spread(side: Gridded, s: float, dt: float) -> float:
@@ -211,10 +217,13 @@ def choose_smoothing(gyro: Gridded, accel: Gridded, rates: Gridded, positions: G
                                             (accel, positions, MIN_FORCE_S, 2)):
         chain = _NoiseChain.of(tau, dt, gap, order)
         level = chain.level_of(mocap_side)
-        widths = _widths(lo)
-        noise = np.array([level * chain.after(s, dt) for s in widths])
-        signal = np.array([_norm_spread(imu_side, s, dt) for s in widths])
-        out.append(_choose(widths, noise, signal))
+
+        def ratio_at(s: float, chain: _NoiseChain = chain, level: float = level,
+                     imu_side: Gridded = imu_side) -> float:
+            noise = level * chain.after(s, dt)
+            return noise / max(_norm_spread(imu_side, s, dt), 1e-300)
+
+        out.append(_choose(_widths(lo), ratio_at))
     (rs, rr), (fs, fr) = out
     return Smoothing(rs, fs, rr, fr)
 

@@ -11,9 +11,12 @@ import time
 from collections.abc import Iterable
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mocap_calib
-from mocap_calib.report.html.page import InputFile, Provenance
+
+if TYPE_CHECKING:  # the HTML pages' module, imported when a report is written
+    from mocap_calib.report.html.page import InputFile, Provenance
 
 #: The command line as the CLI received it (set by ``cli.main``); None: use ``sys.argv``.
 _COMMAND: list[str] | None = None
@@ -44,6 +47,8 @@ def sha256(path: Path, chunk: int = 1 << 20) -> str:
 
 def input_files(paths: Iterable[Path | str | None]) -> list[InputFile]:
     """Sizes and hashes of the input files; a folder contributes its data files (sorted)."""
+    from mocap_calib.report.html.page import InputFile
+
     out: list[InputFile] = []
     seen: set[Path] = set()
     for p in paths:
@@ -80,6 +85,8 @@ class RunClock:
 def provenance(paths: Iterable[Path | str | None], clock: RunClock) -> Provenance:
     """The provenance of a run that read ``paths`` and started at ``clock``."""
     import numpy
+
+    from mocap_calib.report.html.page import Provenance
 
     return Provenance(
         tool=f"mocap-calib {mocap_calib.__version__}", command=command_line(),
