@@ -27,8 +27,8 @@ SECTIONS = ("bench_report",)
 def run_one(minutes: float, seed: int = 3) -> dict:
     from mocap_calib.core.diagnosis.outputs import output_series
     from mocap_calib.workflows.calibrate import CalibrateRequest, InputSpec, run_calibration
-    from mocap_calib.workflows.html import report as html_report
-    from mocap_calib.workflows.html.provenance import RunClock
+    from mocap_calib.workflows.report_files import pages as html_report
+    from mocap_calib.workflows.report_files.provenance import RunClock
     from mocap_calib.workflows.simulate import simulate_to_folder
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -32,7 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _doc_section import ROOT, add_doc_options, check, provenance, table, write
+from _doc_section import ROOT, add_doc_options, check, command_line, provenance, table, write
 from _shared_data import DATA
 
 from mocap_calib.core.model import so3
@@ -359,7 +359,8 @@ def readme_markdown(reports: list[dict]) -> str:
                      f"{f['R_MI_vs_ref_deg']:.2f} (sigma {sR.min():.2f}-{sR.max():.2f})",
                      f"{_three(f['p_MI_mm'])} +- {_three(f['sigma_p_mm'])}",
                      f"{f['t_d_ms']:.2f} +- {f['sigma_t_d_ms']:.2f}", f"{f['seconds']:.0f}"])
-    return provenance("real_data_study.py") + table(
+    # The README names the command, not the commit (docs/validation.md carries that).
+    return f"Measured with `{command_line('real_data_study.py')}`.\n" + table(
         ["recording", "exit", "`R_MI` from the reference (deg), or the refusal", "`p_MI` (mm)",
          "`t_d` (ms)", "s"], rows)
 

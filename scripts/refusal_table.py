@@ -20,8 +20,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 from refusal_corpus import run_case  # noqa: E402
 from refusal_more import ALL_CASES as CASES  # noqa: E402
 
-#: What the same inputs gave before issue 17 (commit 151d384), run the same way; for the cases
-#: of issue 23, before it (commit d8dff8f).
+#: What the same inputs gave at commit 151d384, before the refusals, run the same way; for the
+#: cases of refusal_more.py, at commit d8dff8f, before their checks.
 BEFORE = {
     "clean": "exit 0, right",
     "clean_offset": "exit 0, right",
@@ -67,7 +67,7 @@ BEFORE = {
     "allan_dead_accel": "exit 3, 'accelerometer x axis is constant'",
     "allan_frozen": "exit 3, 'gyroscope random walk not resolved' (frozen span not named)",
     "multipos_dead_gyro": "exit 70, internal error: ValueError",
-    # Issue 23's cases, before it (commit d8dff8f), run the same way.
+    # refusal_more.py's cases at commit d8dff8f, run the same way.
     "columns_five_for_three": "d8dff8f: exit 0, the map dropped with a note",
     "columns_on_euroc_used": "d8dff8f: exit 0, the map dropped with a note",
     "mocap_tab_separated": "d8dff8f: exit 2, 'timestamps overflow ... they look like ns: pass "

@@ -57,7 +57,7 @@ class Expect:
 @dataclass(frozen=True)
 class Case:
     name: str
-    kind: str  # the row of the table it belongs to
+    kind: str  # its group in docs/refusals.md's table
     what: str  # what the user did
     build: Callable[[Path], list[str]]  # writes the inputs, returns the command line
     expect: Expect
@@ -238,7 +238,7 @@ def _drift_with(content: bytes) -> Callable[[Path], list[str]]:
         write_euroc_imu(d / "imu.csv", clean().imu)
         (d / "calib.yaml").write_bytes(content)
         return ["drift", "--imu", str(d / "imu.csv"), "--calibration", str(d / "calib.yaml"),
-                "--start", "5", "--end", "15", "--out", str(d / "drift.yaml")]
+                "--segment-start", "5", "--segment-end", "15", "--out", str(d / "drift.yaml")]
     return build
 
 

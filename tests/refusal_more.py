@@ -1,4 +1,4 @@
-"""The corpus cases of issue 23: column maps that were dropped, files a column short or in
+"""More corpus cases: column maps that must not be dropped, files a column short or in
 another delimiter, swapped IMU columns, one-axis motion that fit upside down, marker swaps
 (isolated: removed, the session calibrates; in runs: their holes leave too few intervals),
 ``--start`` beyond the session. Built from the helpers of :mod:`refusal_corpus`; :data:`ALL_CASES`

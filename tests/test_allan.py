@@ -137,7 +137,7 @@ def test_noise_file_round_trip_and_kind() -> None:
     import yaml
 
     from mocap_calib.core.intrinsics.noise_result import AllanResult
-    from mocap_calib.core.model.versioned import KindError
+    from mocap_calib.core.versioned import KindError
 
     imu, _ = simulate_static(4, 1200.0, RATE_HZ, noise=NoiseModel(gyroscope_random_walk=1e-7))
     res = characterise_noise(imu, require_random_walk=False, aggregate="max")

@@ -19,7 +19,7 @@ from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
 
-# Acceptance targets of the calibration issue (90 s, defaults, a few ms of clock offset).
+# Accuracy bounds of a default calibration (90 s, a few ms of clock offset).
 #: About three times the worst error achieved on these seeds (0.0037 deg, 0.21 mm, 9.3e-5 rad/s,
 #: 1.5e-3 m/s^2, 0.0043 deg, 0.013 ms), so that a regression of a few times fails; each is also
 #: within the original targets (0.05 deg, 2 mm, 2e-4 rad/s, 5e-3 m/s^2, 0.02 deg, 0.2 ms).

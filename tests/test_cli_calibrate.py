@@ -129,7 +129,7 @@ def test_run_lm_reports_whether_it_converged() -> None:
     """A curved problem (Rosenbrock) that LM cannot finish in 2 iterations, but can in 200."""
     import gtsam
 
-    from mocap_calib.core.graph import run_lm
+    from mocap_calib.core.gtsam_tools import run_lm
 
     key = gtsam.symbol("x", 0)
 

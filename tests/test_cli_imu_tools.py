@@ -338,7 +338,7 @@ def test_allan_output_is_a_calibrate_noise_file(work: Path, allan_run: tuple[Pat
     assert used["accelerometer_random_walk"] == pytest.approx(d["accelerometer_random_walk"])
     out_file = work / "drift_calibrate.yaml"
     out = ok(run(["drift", "--imu", flight, "--mocap", flight, "--calibration", cal,
-                  "--start", 26, "--end", 39, "--out", out_file, "-q"], capsys))
+                  "--segment-start", 26, "--segment-end", 39, "--out", out_file, "-q"], capsys))
     r = load(out_file)
     print("drift after calibrate:", {k: r[k] for k in ("tilt_drift_raw_deg",
                                                        "tilt_drift_cal_deg", "reduction")})
@@ -356,8 +356,8 @@ def test_drift_with_mocap_and_the_true_calibration(work: Path, flight: Path,
     out_file = work / "drift_truth.yaml"
     out = ok(run(["drift", "--imu", flight / "mav0" / "imu0" / "data.csv", "--mocap",
                   flight / "mav0" / "vicon0" / "data.csv", "--calibration",
-                  flight / "truth.yaml", "--start", 5, "--end", 35, "--out", out_file],
-                 capsys))
+                  flight / "truth.yaml", "--segment-start", 5, "--segment-end", 35, "--out",
+                  out_file], capsys))
     r = load(out_file)
     print("drift with the true calibration:", {k: r[k] for k in (
         "tilt_drift_raw_deg", "tilt_drift_cal_deg", "reduction")})
@@ -379,8 +379,8 @@ def test_drift_with_multipos_intrinsics_at_rest(work: Path, multipos_run: tuple[
     iv = np.asarray(tr["simulation"]["static_intervals_s"])
     t1 = float(np.mean(iv[np.argmin(np.abs(iv.mean(axis=1) - 100.0))]))
     out_file = work / "drift_multipos.yaml"
-    out = ok(run(["drift", "--imu", tr["csv"], "--calibration", multipos_run[0], "--start",
-                  35, "--end", t1, "--out", out_file], capsys))
+    out = ok(run(["drift", "--imu", tr["csv"], "--calibration", multipos_run[0],
+                  "--segment-start", 35, "--segment-end", t1, "--out", out_file], capsys))
     r = load(out_file)
     print("drift with multipos intrinsics:", {k: r[k] for k in (
         "duration", "tilt_drift_raw_deg", "tilt_drift_cal_deg", "reduction")})
@@ -488,31 +488,32 @@ def test_bad_input_drift(work: Path, bad_files: dict[str, Path], flight: Path,
     truth = flight / "truth.yaml"
     iv = np.asarray(multipos_session[1]["simulation"]["static_intervals_s"])
     mid_rotation = float(0.5 * (iv[5, 1] + iv[6, 0]))
+    def seg(start: float, end: float) -> list[Any]:
+        return ["--segment-start", start, "--segment-end", end]
+
     cases: list[tuple[list[Any], int, str]] = [
-        (["--imu", work / "missing.csv", "--calibration", truth, "--start", 1, "--end", 5], 2,
+        (["--imu", work / "missing.csv", "--calibration", truth, *seg(1, 5)], 2,
          "file not found"),
-        (["--imu", imu, "--calibration", work / "missing.yaml", "--start", 1, "--end", 5], 2,
-         "not found"),
-        (["--imu", imu, "--calibration", allan_run[0], "--start", 1, "--end", 5], 2,
+        (["--imu", imu, "--calibration", work / "missing.yaml", *seg(1, 5)], 2, "not found"),
+        (["--imu", imu, "--calibration", allan_run[0], *seg(1, 5)], 2,
          "noise file.*not a calibration"),
-        (["--imu", bad_files["garbage"], "--calibration", truth, "--start", 1, "--end", 5], 2,
+        (["--imu", bad_files["garbage"], "--calibration", truth, *seg(1, 5)], 2,
          "garbage.csv"),
-        (["--imu", imu, "--mocap", mocap, "--calibration", truth, "--start", 5, "--end", 5], 2,
-         "must be before --end"),
-        (["--imu", imu, "--mocap", mocap, "--calibration", truth, "--start", 10, "--end", 2],
-         2, "must be before --end"),
-        (["--imu", imu, "--mocap", mocap, "--calibration", truth, "--start", 10, "--end", 100],
-         2, "outside the IMU log"),
-        (["--imu", imu, "--mocap", mocap, "--calibration", truth, "--start", -5, "--end", 10],
-         2, "--start -5.0: must be at least 0 s"),
-        (["--imu", imu, "--mocap", mocap, "--calibration", multipos_run[0], "--start", 1,
-          "--end", 5], 2, "no T_marker_imu"),
+        (["--imu", imu, "--mocap", mocap, "--calibration", truth, *seg(5, 5)], 2,
+         "must be before --segment-end"),
+        (["--imu", imu, "--mocap", mocap, "--calibration", truth, *seg(10, 2)], 2,
+         "must be before --segment-end"),
+        (["--imu", imu, "--mocap", mocap, "--calibration", truth, *seg(10, 100)], 2,
+         "outside the IMU log"),
+        (["--imu", imu, "--mocap", mocap, "--calibration", truth, *seg(-5, 10)], 2,
+         "--segment-start -5.0: must be at least 0 s"),
+        (["--imu", imu, "--mocap", mocap, "--calibration", multipos_run[0], *seg(1, 5)], 2,
+         "no T_marker_imu"),
         # No mocap: roll and pitch must come from the accelerometer, but the drone flies.
-        (["--imu", imu, "--calibration", truth, "--start", 5, "--end", 15], 3,
-         "not at rest.*pass --mocap"),
+        (["--imu", imu, "--calibration", truth, *seg(5, 15)], 3, "not at rest.*pass --mocap"),
         # Multipos session: start at rest, end in the middle of a rotation.
-        (["--imu", multipos_session[0], "--calibration", multipos_run[0], "--start", 35,
-          "--end", mid_rotation], 3, "not at rest"),
+        (["--imu", multipos_session[0], "--calibration", multipos_run[0], *seg(35, mid_rotation)],
+         3, "not at rest"),
     ]
     for args, code, pattern in cases:
         assert_error(run(["drift", *args, "-q"], capsys), code, pattern)
@@ -536,7 +537,7 @@ def test_allan_allow_unresolved_writes_null_random_walk(work: Path, bad_files: d
 
 def test_imu_commands_import_only_workflows() -> None:
     """The multipos, allan and drift commands parse options and call one workflow: their
-    modules import nothing of io, core, viz or report (issue 16)."""
+    modules import nothing of io, core, viz or report."""
     import ast
 
     import mocap_calib.cli.commands as commands

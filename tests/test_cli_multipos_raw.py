@@ -1,5 +1,5 @@
 """``multipos --raw``, imu_tk's two-file input and ``export --to imu_tk``, end to end through the
-CLI on simulated 16-bit counts (issue 12)."""
+CLI on simulated 16-bit counts."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def test_raw_counts_calibration(raw_run: tuple[Path, str],
 def test_counts_without_raw_are_named_as_counts(counts_session: tuple[Path, dict],
                                                 work: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
-    """The issue's first problem: counts were taken for deg/s."""
+    """Raw counts are not taken for deg/s."""
     imu = counts_session[0]
     for extra in ([], ["--gyro-unit", "deg/s"], ["--gyro-unit", "deg/s", "--accel-unit", "g"]):
         code, out, err = run(["multipos", "--imu", imu, "--out", work / "no.yaml", "-q",
@@ -202,8 +202,8 @@ def test_raw_prior_and_drift(work: Path, raw_run: tuple[Path, str],
     iv = np.asarray(other_truth["simulation"]["static_intervals_s"])
     t1 = float(np.mean(iv[np.argmin(np.abs(iv.mean(axis=1) - 100.0))]))
     drift = work / "drift_raw.yaml"
-    out_text = ok(run(["drift", "--imu", other, "--calibration", raw_run[0], "--start", 35,
-                       "--end", t1, "--out", drift], capsys))
+    out_text = ok(run(["drift", "--imu", other, "--calibration", raw_run[0],
+                       "--segment-start", 35, "--segment-end", t1, "--out", drift], capsys))
     r = load(drift)
     print("drift with raw intrinsics:", {k: r[k] for k in ("tilt_drift_raw_deg",
                                                            "tilt_drift_cal_deg")})
@@ -220,7 +220,7 @@ def test_raw_prior_and_drift(work: Path, raw_run: tuple[Path, str],
 def test_initial_rest_message_names_the_length(work: Path,
                                                counts_session: tuple[Path, dict[str, Any]],
                                                capsys: pytest.CaptureFixture[str]) -> None:
-    """The issue's '50-50 s' message."""
+    """The message names the initial rest's length once, not as a '50-50 s' range."""
     out = work / "flight"
     ok(run(["simulate", out, "--seed", 9, "--duration", 80], capsys))
     code, o, err = run(["multipos", "--imu", out / "mav0" / "imu0" / "data.csv",

@@ -1,6 +1,6 @@
-"""A ``--columns`` map is used or refused, never dropped (issue 23): it used to be ignored,
-with a note, for EuRoC files, ROS bags, ULogs and imu_tk pairs, so a malformed or wrong map
-ran as if none had been given. The calibrate command's cases are in the refusal corpus
+"""A ``--columns`` map is used or refused, never dropped: for EuRoC files, ROS bags, ULogs and
+imu_tk pairs too, a malformed or wrong map must not run as if none had been given (a note is
+not enough). The calibrate command's cases are in the refusal corpus
 (``tests/refusal_more.py``); here the IMU-only commands and the recordings."""
 
 from __future__ import annotations

@@ -84,15 +84,15 @@ def test_a_failed_sensitivity_refit_is_degraded(sim, monkeypatch) -> None:
 
 def test_settling_rounds_cut_at_their_cap_are_degraded(sim, monkeypatch) -> None:
     from mocap_calib.core.pipeline.calibrate import SETTLING_ROUNDS
-    from mocap_calib.core.position import stage
+    from mocap_calib.core.position import settle
 
-    real = stage.settle
+    real = settle.settle
 
     def never_settled(*a, **k):
         real(*a, **k)
         return True, 1.0  # the levels moved every round
 
-    monkeypatch.setattr(stage, "settle", never_settled)
+    monkeypatch.setattr(settle, "settle", never_settled)
     r = calibrate(sim.imu, sim.mocap, QUIET)
     assert r.solver.rounds == SETTLING_ROUNDS
     (entry,) = _entries(r, "position stage")

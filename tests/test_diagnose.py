@@ -88,7 +88,7 @@ def test_report_round_trips_through_yaml(tmp_path) -> None:
     assert d["final_calibration"]["time_offset"] == pytest.approx(0.006, abs=2e-4)
     # Typed and versioned: the file reads back into a report that writes the same data.
     from mocap_calib.core.diagnosis.diagnose import DiagnoseReport
-    from mocap_calib.core.model.versioned import KindError
+    from mocap_calib.core.versioned import KindError
 
     assert (d["kind"], d["version"]) == ("diagnosis", 1)
     back = DiagnoseReport.from_dict(d)

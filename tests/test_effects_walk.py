@@ -1,7 +1,7 @@
 """Every effect of the registry, alone and all together, through the CLI: simulated, calibrated
 with the text and HTML reports and the result YAML, exported to every target, and diagnosed
-(with its reports) on a session where it is hidden (issue 23: ``diagnose`` exited 70 on an
-effect with several parameters, ``accel_size_effect``'s ``r_y`` and ``r_z``).
+(with its reports) on a session where it is hidden (an effect with several parameters too,
+``accel_size_effect``'s ``r_y`` and ``r_z``).
 
 Effects are handled through their registry entries (``acts_on``, ``param``, ``report_value``),
 never by name, so a new effect is walked as soon as it is registered. 50 s sessions keep a walk

@@ -130,7 +130,7 @@ def test_batch_cache_follows_the_values_between_and_within_passes() -> None:
     copies) reuse the evaluation."""
     import gtsam
 
-    from mocap_calib.core.graph import BatchFactors, BatchOutput
+    from mocap_calib.core.gtsam_tools import BatchFactors, BatchOutput
 
     n = 50
 
@@ -181,7 +181,7 @@ def test_spd_factor_solves_an_arrowhead_without_filling_it_in() -> None:
     dense one)."""
     import scipy.sparse as sp
 
-    from mocap_calib.core.graph import spd_factor
+    from mocap_calib.core.gtsam_tools import spd_factor
 
     rng = np.random.default_rng(5)
     W, ns = 400, 15
@@ -211,7 +211,7 @@ def test_huber_stack_is_gtsams_robust_noise_model_on_each_factor() -> None:
     the same error, the same Hessian and gradient, the same LM solution."""
     import gtsam
 
-    from mocap_calib.core.graph import BatchFactors, BatchOutput, Huber, run_lm
+    from mocap_calib.core.gtsam_tools import BatchFactors, BatchOutput, Huber, run_lm
 
     rng = np.random.default_rng(3)
     n, k, key_r, key_b = 200, 1.5, 0, 1
@@ -261,7 +261,7 @@ def test_predicted_decrease_is_half_the_squared_mahalanobis_step() -> None:
     and LM with ``predicted_tol`` tries no step within it and converges from outside it."""
     import gtsam
 
-    from mocap_calib.core.graph import predicted_decrease, run_lm
+    from mocap_calib.core.gtsam_tools import predicted_decrease, run_lm
 
     key = 7
     graph = gtsam.NonlinearFactorGraph()

@@ -19,7 +19,7 @@ from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.core.policy import IMU_BRIDGE_MAX_S, IMU_TRIM_START_S
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.viz.recording import write_calibration_recording
-from mocap_calib.workflows.html.report import RunClock, write_calibration_html
+from mocap_calib.workflows.report_files.pages import RunClock, write_calibration_html
 
 T_D = 0.004
 

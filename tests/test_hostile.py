@@ -27,7 +27,7 @@ from mocap_calib.core.model.parameters import (
     TIME_OFFSET,
     TRANSLATION,
 )
-from mocap_calib.core.model.plausible import PlausibleLimits
+from mocap_calib.core.plausible import PlausibleLimits
 from mocap_calib.core.result.priors import prior_problems
 from mocap_calib.errors import ConvergenceError, InputError
 from mocap_calib.io import atomic

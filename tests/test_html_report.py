@@ -1,7 +1,7 @@
 """``--html`` reports of calibrate, diagnose, multipos and allan, read back as a browser would.
 
 Every page must parse (balanced tags), reference nothing outside itself (inline PNGs, in-page
-links only), hold the figures the issue lists (by id), and show the numbers of the YAML that
+links only), hold the figures each report has (by id), and show the numbers of the YAML that
 the same run wrote: every cell tied to a key (``data-key``) holds that key's value, and its
 text shows it (to the precision printed). The simulator's truth gives figures the report must
 reproduce independently (mocap gaps), and the multi-position per-pose residuals must give the
@@ -284,7 +284,8 @@ def test_no_matplotlib_without_html() -> None:
     """matplotlib is imported only when a page is drawn."""
     code = ("import mocap_calib.cli.main as m\n"
             "m._register_commands()\n"
-            "import mocap_calib.workflows.html.report, mocap_calib.workflows.html.intrinsics\n"
+            "import mocap_calib.workflows.report_files.pages\n"
+            "import mocap_calib.workflows.report_files.intrinsics\n"
             "import mocap_calib.report.html\n")
     assert loaded_by(code, ["matplotlib"]) == []
 
@@ -412,12 +413,12 @@ def test_allan_page_with_the_fitted_lines(tmp_path: Path) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# batch (the page the batch command writes through workflows.html_report.write_batch_report)
+# batch (the page the batch command writes: workflows.report_files.pages.write_batch_report)
 # --------------------------------------------------------------------------------------------
 
 def test_batch_page_lists_every_session_with_its_result(
         calibrated: tuple[dict[str, Any], str, Path], session: Path, tmp_path: Path) -> None:
-    from mocap_calib.workflows.html.report import write_batch_report
+    from mocap_calib.workflows.report_files.pages import write_batch_report
 
     d, _, _ = calibrated
     calib = session.parent / "calib.yaml"

@@ -87,7 +87,7 @@ def _calibrate(effects: dict) -> tuple:
 
 @pytest.mark.slow
 def test_px4_like_gaps_calibrate_nearly_as_well_as_none() -> None:
-    """The issue's acceptance: errors within about twice those of the same session without
+    """Errors within about twice those of the same session without
     gaps (rotation, translation, clock offset), sigmas that still cover them, and the result
     saying what the gaps were."""
     clean, sim0 = _calibrate({})

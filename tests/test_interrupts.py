@@ -115,7 +115,7 @@ def test_a_stop_requested_inside_a_solver_callback_is_raised_after_it() -> None:
     import numpy as np
 
     from mocap_calib.core import interrupt
-    from mocap_calib.core.graph import BatchFactors, BatchOutput, run_lm
+    from mocap_calib.core.gtsam_tools import BatchFactors, BatchOutput, run_lm
     from mocap_calib.errors import Interrupted
 
     key = gtsam.symbol("x", 0)

@@ -12,6 +12,7 @@ import pytest
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
+from mocap_calib.io.formats.columns import parse_columns
 from mocap_calib.io.formats.euroc import (
     read_euroc_imu,
     read_euroc_poses,
@@ -20,7 +21,7 @@ from mocap_calib.io.formats.euroc import (
     write_euroc_poses,
     write_mav0,
 )
-from mocap_calib.io.formats.generic import parse_columns, read_generic
+from mocap_calib.io.formats.generic import read_generic
 from mocap_calib.io.formats.tum import read_tum, write_tum
 from mocap_calib.io.loader import load_inputs
 

@@ -10,7 +10,7 @@ import pytest
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
-from mocap_calib.io.checks import check_overlap
+from mocap_calib.io.formats.columns import BROAD, ColumnMap, parse_columns
 from mocap_calib.io.formats.euroc import (
     IMU_HEADER,
     POSE_HEADER,
@@ -21,9 +21,10 @@ from mocap_calib.io.formats.euroc import (
     write_euroc_poses,
     write_mav0,
 )
-from mocap_calib.io.formats.generic import BROAD, ColumnMap, parse_columns, read_generic
+from mocap_calib.io.formats.generic import read_generic
 from mocap_calib.io.formats.tum import read_tum, write_tum
 from mocap_calib.io.loader import load_inputs, sniff_format
+from mocap_calib.io.validate import check_overlap
 
 T0_NS = 1_413_394_881_575_760_384  # an EuRoC-like epoch stamp
 

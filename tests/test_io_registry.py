@@ -13,10 +13,10 @@ import pytest
 from refusal_corpus import run_cli, session
 
 from mocap_calib.io import registry
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.loader import load_imu_file, load_inputs, sniff_format
 from mocap_calib.io.reading import Format, ReadOptions
 from mocap_calib.io.streams import ImuTable, PoseTable
+from mocap_calib.io.validate import Lines
 
 MAGIC = b'{"toy":'
 
@@ -104,9 +104,10 @@ def test_toy_format_through_every_command(toy: Format, tmp_path: Path) -> None:
     # The IMU-only commands read it; on 20 s of flight they refuse the data, not the format.
     for argv in (["allan", "--out", str(tmp_path / "noise.yaml")],
                  ["multipos", "--out", str(tmp_path / "intr.yaml")],
-                 ["drift", "--calibration", str(calib), "--start", "2", "--end", "12"],
-                 ["drift", "--mocap", str(path), "--calibration", str(calib), "--start", "2",
-                  "--end", "12"]):
+                 ["drift", "--calibration", str(calib), "--segment-start", "2",
+                  "--segment-end", "12"],
+                 ["drift", "--mocap", str(path), "--calibration", str(calib),
+                  "--segment-start", "2", "--segment-end", "12"]):
         code, _, err, _ = run_cli([argv[0], "--imu", str(path), *argv[1:]])
         assert "IMU: 4001 samples" in err and "toy JSON-lines log" in err, (argv, err)
         assert code in (0, 2, 3), (argv, err)

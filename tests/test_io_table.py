@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from mocap_calib.errors import InputError
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.layout import WHITESPACE, read_table, sniff_layout
 from mocap_calib.io.formats.stamps import parse_stamps
+from mocap_calib.io.validate import Lines
 
 FILES = {
     "clean.csv": "#t,a,b\n1,0.5,2e-3\n2,-1.25,3\n3,7,1e300\n",

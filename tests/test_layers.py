@@ -261,7 +261,7 @@ def test_importing_the_writers_loads_no_estimator() -> None:
     estimators = [f"mocap_calib.core.{p}" for p in ("prepare", "clock", "position",
                                                     "uncertainty", "checks", "pipeline",
                                                     "diagnosis", "groundtruth")]
-    estimators += ["mocap_calib.core.graph", "mocap_calib.core.stages.attitude",
+    estimators += ["mocap_calib.core.gtsam_tools", "mocap_calib.core.stages.attitude",
                    "mocap_calib.core.stages.velocity"]
     code = ("import importlib, json, sys\n"
             f"for m in {modules!r}:\n"

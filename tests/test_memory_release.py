@@ -1,5 +1,5 @@
 """A calibration's refits (effect tests, segments, sensitivity) release their engines: nothing
-of a finished position graph outlives it (issue 27: memory flat in the session length).
+of a finished position graph outlives it (memory flat in the session length).
 
 The position graph's C++ factors hold Python callbacks; a callback that held the graph back
 made a cycle the collector cannot see, and every refit's window arrays lived until the process

@@ -255,7 +255,7 @@ def test_intrinsics_round_trip_and_kind() -> None:
 
     import yaml
 
-    from mocap_calib.core.model.versioned import KindError
+    from mocap_calib.core.versioned import KindError
 
     res = _calibrated(1)
     d = res.to_dict()

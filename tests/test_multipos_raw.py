@@ -1,5 +1,5 @@
 """Multi-position calibration of raw counts, units-free quality figures, imu_tk's threshold and
-files, and the gyro's g-sensitivity (issue 12), against the simulator's truth."""
+files, and the gyro's g-sensitivity, against the simulator's truth."""
 
 from __future__ import annotations
 
@@ -131,7 +131,8 @@ def test_rescaled_input_gives_identical_figures(factor: float) -> None:
 
 @pytest.mark.slow
 def test_quality_figures_do_not_depend_on_the_gyro_nominal_scale() -> None:
-    """The issue's case: the gyro chi2 changed 4x with the nominal scale used for the counts."""
+    """The gyro chi2 does not move with the nominal scale used for the counts (a 4x change
+    would)."""
     imu, _ = session(0)
     good = nominal(CountsSpec())
     chi2 = []

@@ -41,7 +41,7 @@ ALLOWED = {
     "mocap_calib/core/model/imu_model.py",
     "mocap_calib/core/position/engine.py",
     "mocap_calib/core/position/graph.py",
-    "mocap_calib/core/position/stage.py",
+    "mocap_calib/core/position/settle.py",
     "mocap_calib/viz/recording.py",
     # The first stages' range priors (RANGE_SIGMA by block).
     "mocap_calib/core/stages/attitude.py",

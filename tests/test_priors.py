@@ -52,7 +52,7 @@ def test_prior_from_an_earlier_session_shortens_the_session_needed() -> None:
     assert np.all(np.abs(d_rot) < 4 * with_prior.sigma_rotation)
     assert np.all(np.abs(d_p) < 4 * with_prior.sigma_translation)
     e_prior = _errors(with_prior, short.truth)
-    assert e_prior[0] < 0.05 and e_prior[1] < 2e-3  # the calibration issue's targets
+    assert e_prior[0] < 0.05 and e_prior[1] < 2e-3  # 0.05 deg, 2 mm
 
 
 def test_trend_from_two_results_extrapolates_to_the_new_session() -> None:

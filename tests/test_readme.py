@@ -15,8 +15,8 @@ ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
 MAX_LINES = 300
 
-#: Options another change is adding to `calibrate`'s inputs; the README already shows them.
-#: Empty this set when they are in --help (test_pending_options_are_still_pending says when).
+#: Options the README shows that --help does not list (yet to be added to their command);
+#: test_pending_options_are_still_pending fails once one of them is in --help.
 PENDING_OPTIONS: set[str] = set()
 
 #: Development-process wording: history, bookkeeping and work-tracking words. Word boundaries

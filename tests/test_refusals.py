@@ -1,4 +1,4 @@
-"""Refuse what cannot be right and name the mistake (issue 17).
+"""Refuse what cannot be right and name the mistake.
 
 The corpus (``tests/refusal_corpus.py``): a clean 30 s simulated session corrupted one way at a
 time, run through the CLI as a user would. No case may exit 0 with a wrong answer (numbers are
@@ -19,12 +19,12 @@ from refusal_corpus import Case, clean, run_case, session
 from refusal_more import ALL_CASES as CASES
 
 from mocap_calib.cli.main import _is_indeterminate
-from mocap_calib.core.checks.conventions import check_conventions
-from mocap_calib.core.graph import marginals
-from mocap_calib.core.model.faults import frozen, imu_faults
+from mocap_calib.core.clock.conventions import check_conventions
+from mocap_calib.core.gtsam_tools import marginals
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
+from mocap_calib.core.prepare.fault_detection import frozen, imu_faults
 from mocap_calib.core.prepare.session import prepare
 from mocap_calib.errors import InputError, ObservabilityError
 

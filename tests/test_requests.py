@@ -70,6 +70,16 @@ def test_help_is_the_request(name: str, capsys: pytest.CaptureFixture[str]) -> N
         assert " ".join(words[1:]) in text, (name, leaf.name)
 
 
+@pytest.mark.parametrize("name", [None, *COMMANDS])
+def test_flags_show_no_type(name: str | None, capsys: pytest.CaptureFixture[str]) -> None:
+    """A flag takes no value, so --help shows none for it: the commands' flags and --help
+    itself, on the app's page and on every command's."""
+    assert main([*([name] if name else []), "--help"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines()
+            if "--help" in line or "--quiet" in line]
+    assert rows and not [r for r in rows if "<bool>" in r], rows
+
+
 def _numeric(name: str) -> list:
     cls, exclude = _request_of(name)
     out = []

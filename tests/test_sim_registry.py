@@ -9,9 +9,9 @@ import pytest
 
 from mocap_calib.core.model.effects import EFFECTS, Effect, EffectSim
 from mocap_calib.errors import InputError
-from mocap_calib.sim.faults import FAULTS
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.sim.injected import effect_help, injectable, parse_effect
+from mocap_calib.sim.stream_faults import FAULTS
 from tests.test_sim import QUIET, expected_imu, fast_config
 
 TOY = Effect("toy_accel_rate_sensitivity", "accel_rate_matrix", 9, "accel", "w", "m/s^2 per rad/s",

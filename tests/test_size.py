@@ -1,4 +1,4 @@
-"""No module over 500 lines and no function over 80 (the restructuring issue's rule), with no
+"""No module over 500 lines and no function over 80 (DEVELOPERS.md), with no
 list of exceptions in scripts/check_size.py."""
 
 from __future__ import annotations

@@ -138,8 +138,8 @@ def test_every_take_is_drawn_with_its_own_clock_and_biases(joint_and_alone,
     not the other take's bias difference."""
     from mocap_calib.core.diagnosis.outputs import output_series
     from mocap_calib.viz.recording import write_calibration_recording
-    from mocap_calib.workflows.html.provenance import RunClock
-    from mocap_calib.workflows.html.report import write_calibration_html
+    from mocap_calib.workflows.report_files.pages import write_calibration_html
+    from mocap_calib.workflows.report_files.provenance import RunClock
 
     sims, joint, _ = joint_and_alone
     takes = joint.diagnostics.takes

@@ -1,4 +1,4 @@
-"""No data loss reported as success (issue 23): every output goes through one atomic writer
+"""No data loss reported as success: every output goes through one atomic writer
 (``mocap_calib/io/atomic.py``); a write that fails ends with one line naming the file and the
 problem and a non-zero exit, and never leaves a truncated file where a good one was.
 

@@ -297,7 +297,7 @@ def test_load_noise_rejects_files_without_noise_keys(tmp_path: Path, text: str) 
 
 
 def test_result_kind_and_version_are_checked() -> None:
-    from mocap_calib.core.model.versioned import KindError
+    from mocap_calib.core.versioned import KindError
 
     d = make_result().to_dict()
     assert (d["kind"], d["version"]) == ("calibration", 1)

@@ -103,7 +103,7 @@ def die_with_parent(parent: int) -> None:
     """End this process when ``parent`` ends, however it ends (``kill -9`` included): on Linux
     the kernel sends SIGKILL at once (``PR_SET_PDEATHSIG``); everywhere a daemon thread also
     checks every :data:`WATCHDOG_S` s that the parent is still ours (a process whose parent
-    died is given another). A parent already gone ends this one now."""
+    died is given another). A parent already gone ends this one at once."""
     if sys.platform.startswith("linux"):
         import ctypes
 
@@ -178,7 +178,7 @@ class LocalEngine(Engine):
     def __exit__(self, exc_type: object, *exc: object) -> None:
         if self._pool is None:
             return
-        if exc_type is not None:  # Ctrl-C or an error: stop running jobs now
+        if exc_type is not None:  # Ctrl-C or an error: stop running jobs at once
             self._terminate()
         else:
             self._pool.shutdown(wait=True)

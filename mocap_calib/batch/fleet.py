@@ -23,9 +23,9 @@ import numpy as np
 
 from mocap_calib.batch.manifest import SessionEntry
 from mocap_calib.core.model.parameters import PARAMETERS
-from mocap_calib.core.model.versioned import header
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.priors import priors_from_results, to_chart
+from mocap_calib.core.versioned import header
 from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import save_yaml
 

@@ -20,12 +20,12 @@ from mocap_calib.batch.manifest import Manifest, SessionEntry, load_manifest
 from mocap_calib.batch.session import SessionJob, run_session
 from mocap_calib.batch.store import Digests, batch_id, finished_hash, input_hash
 from mocap_calib.core import interrupt
-from mocap_calib.core.model.versioned import header
 from mocap_calib.core.params import param
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.versioned import header
 from mocap_calib.errors import ConvergenceError, InputError
 from mocap_calib.io.atomic import remove_leftovers
-from mocap_calib.io.yaml_io import load_result, save_result, save_yaml
+from mocap_calib.io.yaml_io import load_result, load_yaml, save_result, save_yaml
 from mocap_calib.workflows.outputs import Named, OutputPlan, output
 
 BATCH_KIND, BATCH_VERSION = "batch", 1
@@ -217,7 +217,7 @@ class _Batch:
             self.results[i] = result
             st.status, st.error = "ok", ""
         else:
-            # A result for other inputs or options would now be wrong: it goes (a file that
+            # A result for other inputs or options would be wrong: it goes (a file that
             # is not a batch's result for this session is not the batch's to remove).
             if finished_hash(path) is not None and batch_id(path) == st.id:
                 path.unlink(missing_ok=True)
@@ -272,7 +272,6 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
         InputError: an unusable OUT folder, engine or scheduler.
     """
     from mocap_calib.batch.fleet import write_fleet
-    from mocap_calib.batch.html import check_html_available, write_html
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -282,7 +281,7 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
     manifest = load_manifest(manifest_path)
     request.plan(manifest).check()
     if html is not None:
-        check_html_available()
+        _check_html_available()
     make_engine(engine, workers, scheduler)  # checks the choice before any work
     batch = _Batch(manifest, out, lambda: make_engine(engine, workers, scheduler),
                    prior_from_history, progress)
@@ -308,6 +307,21 @@ def run_batch(manifest_path: str | Path, out_dir: str | Path, engine: str = "loc
     fleet_files, outliers = write_fleet(out / "fleet", done)
     files = [out / "batch.yaml", *fleet_files]
     if html is not None:
-        files.append(write_html(Path(html), [s.to_dict() for s in batch.status],
-                                out / "fleet"))
+        files.append(_write_html(Path(html), [s.to_dict() for s in batch.status],
+                                 out / "fleet"))
     return BatchReport(out, batch.status, files, outliers)
+
+
+def _check_html_available() -> None:
+    """``--html`` needs matplotlib; importing the page's writer fails early when it is
+    missing."""
+    from mocap_calib.workflows.report_files.pages import write_batch_report  # noqa: F401
+
+
+def _write_html(path: Path, sessions: list[dict[str, Any]], fleet_dir: Path) -> Path:
+    """``--html``: one self-contained page over the batch (the HTML report's batch view)."""
+    from mocap_calib.workflows.report_files.pages import write_batch_report
+
+    fleet_file = fleet_dir / "fleet.yaml"
+    fleet = load_yaml(fleet_file, "fleet summary") if fleet_file.is_file() else None
+    return Path(write_batch_report(path, sessions, fleet))

@@ -14,6 +14,7 @@ from typing import Annotated, Any, Literal
 
 import typer
 
+from mocap_calib.cli.common import Command
 from mocap_calib.workflows.requests import Leaf, from_flat, leaves
 
 #: Choices longer than this (joined) are listed in the help text instead of the type column,
@@ -92,7 +93,7 @@ def add_command(app: typer.Typer, name: str, request_cls: type,
     command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
     command.__annotations__ = {p.name: p.annotation for p in params}
     command.__name__ = name
-    app.command(name=name, help=help, epilog=epilog)(command)
+    app.command(name=name, help=help, epilog=epilog, cls=Command)(command)
 
 
 def option_names(leaf: Leaf) -> tuple[str, ...]:

@@ -12,9 +12,11 @@ import sys
 
 import typer
 
+from mocap_calib.cli.common import Group
 from mocap_calib.errors import CalibrationError, InputError, ObservabilityError
 
 app = typer.Typer(
+    cls=Group,
     name="mocap-calib",
     help="Calibrate an IMU from motion-capture sessions (EuRoC/ASL CSVs, TUM, generic CSV, ROS "
     "bags, MCAP, PX4 ULog, Motive and Vicon exports).",
@@ -81,10 +83,11 @@ def _is_indeterminate(err: BaseException) -> bool:
 
 
 def _one_malloc_arena() -> None:
-    """One glibc malloc arena for the process, set before any thread starts. The window chunks'
-    threads otherwise get arenas of their own whose freed memory the main thread never reuses:
-    60-min session 790-817 -> 735 MB peak, 10 min 353 -> 330 MB, no slower (measured). An
-    explicit MALLOC_ARENA_MAX wins; elsewhere than glibc nothing changes."""
+    """One glibc malloc arena for the process, set before any thread starts. Otherwise the
+    window chunks' threads get arenas of their own whose freed memory the main thread never
+    reuses (measured peaks: 735 MB on a 60-min session with one arena, 790-817 MB with one per
+    thread; 10 min: 330 and 353 MB; no slower). An explicit MALLOC_ARENA_MAX wins; elsewhere
+    than glibc nothing changes."""
     if "MALLOC_ARENA_MAX" in os.environ or not sys.platform.startswith("linux"):
         return
     import ctypes
@@ -97,9 +100,9 @@ def _one_malloc_arena() -> None:
 
 
 def _names_as_given() -> None:
-    """File names with bytes that are not UTF-8 reach Python as lone surrogates; printed to a
-    strict stream (the default outside the C locale) they ended the run with exit 70 after
-    its files were written. stdout writes them back as the bytes they were."""
+    """File names with bytes that are not UTF-8 reach Python as lone surrogates, which a
+    strict stream (the default outside the C locale) cannot print: the run would end with exit
+    70 after writing its files. stdout writes them back as their original bytes."""
     reconfigure = getattr(sys.stdout, "reconfigure", None)
     if reconfigure is not None and getattr(sys.stdout, "errors", None) == "strict":
         reconfigure(errors="surrogateescape")
@@ -110,8 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     _one_malloc_arena()
     _names_as_given()
     debug = os.environ.get("MOCAP_CALIB_DEBUG", "") not in ("", "0")
-    from mocap_calib.workflows.html.provenance import record_command_line
     from mocap_calib.workflows.interrupts import stop_on_signals
+    from mocap_calib.workflows.report_files.provenance import record_command_line
 
     record_command_line(list(sys.argv[1:] if argv is None else argv))  # for the HTML reports
     try:

@@ -80,7 +80,7 @@ def _in_callback(frame: FrameType | None) -> bool:
 
 
 def handle(signum: int, frame: FrameType | None) -> None:
-    """Signal handler: record the stop, and raise it now unless C++ is on the way out or a
+    """Signal handler: record the stop, and raise it at once unless C++ is on the way out or a
     :func:`deferred` block runs."""
     request(signum)
     if not _DEFERRED[0] and not _in_callback(frame):

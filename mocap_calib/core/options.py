@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mocap_calib.core.model.effects import EFFECTS, Model
-from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.params import check_options, param
+from mocap_calib.core.plausible import PlausibleLimits
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.position.graph import Prior
 from mocap_calib.errors import InputError

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from mocap_calib.core.groundtruth.smoother import GroundTruth
-from mocap_calib.core.model.versioned import header
+from mocap_calib.core.versioned import header
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.tum import TUM_HEADER, format_seconds
 from mocap_calib.io.tables import write_table

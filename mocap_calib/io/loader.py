@@ -8,7 +8,7 @@ the registry
 (:mod:`mocap_calib.io.registry`) says which format a path holds and reads it into a table
 (:mod:`mocap_calib.io.streams`); the options the format cannot use are refused or noted
 (:func:`~mocap_calib.io.reading.screen`); the table is cropped, and only then checked
-(:mod:`mocap_calib.io.checks`), so no refusal is about rows the user cropped away.
+(:mod:`mocap_calib.io.validate`), so no refusal is about rows the user cropped away.
 
 Column maps are parsed (and a malformed one refused) before any file is read: ``--columns``
 covers both files, ``--imu-columns`` and ``--mocap-columns`` one each (they exclude
@@ -29,7 +29,6 @@ from pathlib import Path
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
 from mocap_calib.io import registry
-from mocap_calib.io.checks import check_mocap_rate
 from mocap_calib.io.formats.columns import COLUMNS_FIX, ColumnMap, parse_columns
 from mocap_calib.io.formats.imu_tk import imu_tk_pair_table
 from mocap_calib.io.merge import merge_split_rows
@@ -48,6 +47,7 @@ from mocap_calib.io.streams import (
     crop_imu_table,
     crop_pose_table,
 )
+from mocap_calib.io.validate import check_mocap_rate
 
 
 def sniff_format(path: Path | str) -> str:
@@ -79,7 +79,7 @@ class ColumnMaps:
 
 def column_maps(columns: str | None, imu_columns: str | None = None,
                 mocap_columns: str | None = None) -> ColumnMaps:
-    """The per-file maps from the three options, refused now if malformed, if ``--columns``
+    """The per-file maps from the three options, refused here if malformed, if ``--columns``
     is combined with a per-file map, or if a per-file map names the other stream's columns."""
     if columns is not None and (imu_columns is not None or mocap_columns is not None):
         given = " and ".join(f for f, v in (("--imu-columns", imu_columns),
@@ -101,7 +101,7 @@ def column_maps(columns: str | None, imu_columns: str | None = None,
 
 
 def _column_map(columns: str, flag: str) -> ColumnMap:
-    """A map, refused now if malformed or if it names no stream."""
+    """A map, refused here if malformed or if it names no stream."""
     cmap = parse_columns(columns, flag)
     if not (cmap.has_imu or cmap.has_mocap):
         raise input_error("names neither IMU (gyro=, accel=) nor mocap (quat=, pos=) columns",

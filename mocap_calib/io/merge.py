@@ -28,8 +28,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.policy import gap_threshold
-from mocap_calib.io.checks import Lines, check_increasing
 from mocap_calib.io.streams import ImuTable
+from mocap_calib.io.validate import Lines, check_increasing
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]

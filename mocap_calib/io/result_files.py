@@ -1,5 +1,5 @@
 """Result files by kind: every file mocap-calib writes starts with ``kind`` and ``version``
-(:mod:`mocap_calib.core.model.versioned`); files written before that are recognised once, here,
+(:mod:`mocap_calib.core.versioned`); files written before that are recognised once, here,
 by the keys their kind always had.
 """
 
@@ -10,7 +10,7 @@ from typing import Any
 
 from mocap_calib.core.intrinsics.multipos.result import MultiposResult
 from mocap_calib.core.intrinsics.noise_result import AllanResult
-from mocap_calib.core.model.versioned import KindError
+from mocap_calib.core.versioned import KindError
 from mocap_calib.errors import InputError
 from mocap_calib.io.yaml_io import INTRINSICS_NUMBERS, NOISE_KEYS, load_yaml, non_finite
 

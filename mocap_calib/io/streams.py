@@ -2,7 +2,7 @@
 :class:`PoseTable`, their ``--start``/``--end`` crop and their validation.
 
 Every reader returns tables; the loader crops them and only then validates them
-(:mod:`mocap_calib.io.checks`), so that no check refuses rows the user cropped away. A cropped
+(:mod:`mocap_calib.io.validate`), so that no check refuses rows the user cropped away. A cropped
 stream keeps its uncropped origin (the log's first sample), so times and stamps read the same as
 those of the whole log.
 """
@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError
-from mocap_calib.io.checks import Lines, imu_gap_note, validate_imu, validate_mocap
+from mocap_calib.io.validate import Lines, imu_gap_note, validate_imu, validate_mocap
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -67,7 +67,7 @@ class ImuTable:
                        lines=self.lines.subset(rows))
 
     def validate(self) -> ImuSamples:
-        """The checked samples (:func:`~mocap_calib.io.checks.validate_imu`)."""
+        """The checked samples (:func:`~mocap_calib.io.validate.validate_imu`)."""
         return validate_imu(self.ns, self.gyro, self.accel, self.lines,
                             time_unit=self.time_unit, gyro_unit=self.gyro_unit,
                             accel_unit=self.accel_unit, raw=self.raw, origin_ns=self.origin_ns)
@@ -115,7 +115,7 @@ class PoseTable:
         return ~(np.isnan(self.quat_wxyz).any(axis=1) | np.isnan(self.position).any(axis=1))
 
     def validate(self) -> MocapPoses:
-        """The checked poses (:func:`~mocap_calib.io.checks.validate_mocap`)."""
+        """The checked poses (:func:`~mocap_calib.io.validate.validate_mocap`)."""
         return validate_mocap(self.ns, self.quat_wxyz, self.position, self.lines,
                               time_unit=self.time_unit, position_unit=self.position_unit,
                               origin_ns=self.origin_ns)

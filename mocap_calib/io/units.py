@@ -1,7 +1,7 @@
 """Unit plausibility checks of the streams: a time unit whose rate no sensor has, a gyro in
 deg/s read as rad/s, an accelerometer in g, raw counts, swapped gyro and accelerometer columns,
 positions in mm. One-line :class:`~mocap_calib.errors.InputError` messages naming the option
-that fixes it; called by :mod:`mocap_calib.io.checks` once a stream is read and cropped."""
+that fixes it; called by :mod:`mocap_calib.io.validate` once a stream is read and cropped."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from mocap_calib.errors import InputError
 
 
 class Lines(Protocol):
-    """Where a stream's rows came from (:class:`mocap_calib.io.checks.Lines`)."""
+    """Where a stream's rows came from (:class:`mocap_calib.io.validate.Lines`)."""
 
     def error(self, what: str, fix: str, row: int | None = None) -> InputError: ...
 

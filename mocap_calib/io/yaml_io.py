@@ -23,10 +23,10 @@ import numpy as np
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.core.model.versioned import KindError
+from mocap_calib.core.plausible import PlausibleLimits
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.core.versioned import KindError
 from mocap_calib.errors import ConvergenceError, InputError
 from mocap_calib.io.atomic import check_writable as check_writable  # re-exported
 from mocap_calib.io.atomic import write_text

@@ -24,10 +24,9 @@ from scipy.signal import lfilter
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
-from mocap_calib.core.model.versioned import header
 from mocap_calib.core.policy import GRAVITY
+from mocap_calib.core.versioned import header
 from mocap_calib.errors import InputError
-from mocap_calib.sim.faults import FAULTS, imu_gaps, mocap_dropouts, mocap_outliers
 from mocap_calib.sim.injected import (
     OWN_QUANTITY,
     Truth,
@@ -37,6 +36,7 @@ from mocap_calib.sim.injected import (
     truth_effects,
 )
 from mocap_calib.sim.motions import MOTIONS, motion_trajectory
+from mocap_calib.sim.stream_faults import FAULTS, imu_gaps, mocap_dropouts, mocap_outliers
 from mocap_calib.sim.trajectory import (
     Trajectory,
     periodic_trajectory,

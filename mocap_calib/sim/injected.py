@@ -2,7 +2,7 @@
 
 An effect of the model ladder is described by its registry record
 (:class:`~mocap_calib.core.model.effects.EffectSim`: default, help, how to draw); a stream
-fault by :data:`~mocap_calib.sim.faults.FAULTS`. The truth is collected by kind
+fault by :data:`~mocap_calib.sim.stream_faults.FAULTS`. The truth is collected by kind
 (``Effect.acts_on`` and ``sensor``), so an effect of an existing kind needs only its registry
 entry; the measurement model that applies it is written out in :mod:`mocap_calib.sim.flight`.
 """
@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.effects import EFFECTS, Effect, EffectSim
 from mocap_calib.errors import InputError
-from mocap_calib.sim.faults import FAULTS, Injected
+from mocap_calib.sim.stream_faults import FAULTS, Injected
 
 Array = NDArray[np.float64]
 

@@ -19,8 +19,8 @@ from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
-from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
+from mocap_calib.workflows.report_files.provenance import RunClock
 from mocap_calib.workflows.session import (
     InputSpec,
     LoadedSession,
@@ -151,7 +151,7 @@ def calibrate_to_files(request: CalibrateRequest,
         write_with(outputs.rrd, lambda tmp: write_calibration_recording(tmp, result, series()))
 
     def html() -> None:
-        from mocap_calib.workflows.html.report import write_calibration_html
+        from mocap_calib.workflows.report_files.pages import write_calibration_html
 
         write_calibration_html(outputs.html, result, series(), [
             *request.inputs.sources(), request.noise.noise, *request.prior], clock)

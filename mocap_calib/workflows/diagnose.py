@@ -12,8 +12,8 @@ from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import load_plausible, save_yaml
 from mocap_calib.report.text import diagnose_table
 from mocap_calib.workflows.calibrate import HTML_HELP, QUIET_HELP
-from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
+from mocap_calib.workflows.report_files.provenance import RunClock
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
 #: Calibration options that the diagnosis sets itself (its model is --start-model plus what it
@@ -116,7 +116,7 @@ def diagnose_to_files(request: DiagnoseRequest,
         write_with(rrd, lambda tmp: write_calibration_recording(tmp, report.final, series()))
 
     def page() -> None:
-        from mocap_calib.workflows.html.report import write_diagnosis_html
+        from mocap_calib.workflows.report_files.pages import write_diagnosis_html
 
         write_diagnosis_html(html, report, series(), [*request.inputs.sources(),
                                                       request.noise.noise], clock)

@@ -11,16 +11,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mocap_calib.core.model.plausible import PlausibleLimits
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.params import ParamInfo, check_value, group, param, param_info
+from mocap_calib.core.plausible import PlausibleLimits
 from mocap_calib.core.result.priors import prior_problems, priors_from_results
 from mocap_calib.errors import InputError
-from mocap_calib.io.checks import MIN_MOCAP_RATE_HZ
 from mocap_calib.io.formats.euroc import find_mav0
 from mocap_calib.io.loader import load_inputs
 from mocap_calib.io.reading import ExportOptions, RecordingOptions
 from mocap_calib.io.streams import Crop
+from mocap_calib.io.validate import MIN_MOCAP_RATE_HZ
 from mocap_calib.io.yaml_io import load_noise, load_result, noise_values
 
 #: The format options shared with the IMU-only commands (same names, same help).

@@ -20,14 +20,14 @@ def _drift(request: DriftRequest) -> None:
 
 add_command(
     app, "drift", DriftRequest, _drift, exclude=MULTIPOS_ONLY,
-    help="Attitude-drift check: integrate the gyro over [--start, --end] (a segment not used "
-    "for the calibration) raw and calibrated, from the same initial attitude, and compare roll "
-    "and pitch at the end with a reference.\n\n"
+    help="Attitude-drift check: integrate the gyro over [--segment-start, --segment-end] (a "
+    "segment not used for the calibration) raw and calibrated, from the same initial attitude, "
+    "and compare roll and pitch at the end with a reference.\n\n"
     "The calibration is a 'mocap-calib calibrate' result or 'mocap-calib multipos' intrinsics. "
     "With --mocap the attitudes are the marker's turned by the calibration's T_marker_imu "
-    "(needs a calibrate result); without, the IMU must rest at --start and --end and the "
-    "accelerometer gives roll and pitch there.",
-    epilog="Examples: mocap-calib drift --imu imu0/data.csv --calibration calib.yaml --start "
-    "60 --end 120 --mocap vicon0/data.csv | mocap-calib drift --imu mp2 --calibration "
-    "intrinsics.yaml --start 35 --end 95",
+    "(needs a calibrate result); without, the IMU must rest at --segment-start and "
+    "--segment-end and the accelerometer gives roll and pitch there.",
+    epilog="Examples: mocap-calib drift --imu imu0/data.csv --calibration calib.yaml "
+    "--segment-start 60 --segment-end 120 --mocap vicon0/data.csv | mocap-calib drift --imu mp2 "
+    "--calibration intrinsics.yaml --segment-start 35 --segment-end 95",
 )

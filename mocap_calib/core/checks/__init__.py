@@ -1,2 +1,2 @@
-"""Checks on the answer and its inputs: conventions, degenerate motion, plausibility, and the
-verdict."""
+"""Checks on the answer: what the motion leaves undetermined, plausibility, the effects the
+model lacks, and the verdict."""

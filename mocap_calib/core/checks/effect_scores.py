@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import information_matrix, spd_factor
+from mocap_calib.core.gtsam_tools import information_matrix, spd_factor
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.stats import chi2_isf, chi2_logsf, f_logsf
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.graph import (
     PositionInit,
     Take,

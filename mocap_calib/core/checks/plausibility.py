@@ -1,6 +1,6 @@
 """The plausibility gate: a calibration that no physical rig could have is refused.
 
-Every answer is checked against :class:`~mocap_calib.core.model.plausible.PlausibleLimits`:
+Every answer is checked against :class:`~mocap_calib.core.plausible.PlausibleLimits`:
 bias magnitudes, the lever arm, the mocap world's tilt against its nearest axis (the up axis is
 reported: y-up OptiTrack worlds are as legitimate as z-up Vicon ones), the mocap noise the
 residuals imply, how far the fine fit moved the clock from the coarse search, and each effect's
@@ -21,7 +21,7 @@ from mocap_calib.core.model.parameters import (
     GYRO_BIAS,
     TRANSLATION,
 )
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem, up_axis
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem, up_axis
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.verdicts import Plausibility, PlausibilityFigures
 

@@ -13,7 +13,7 @@ honestly that the cause is none of the effects it knows.
    counts, against ``chi2_k``, Bonferroni-corrected over the candidates tried.
 4. The most significant candidate must also *show* in the measurement domain (lower the
    low-band residual of its sensor) and be *plausible* (its magnitude within the range a MEMS
-   IMU has, :mod:`mocap_calib.core.model.plausible`): an implausible one is listed under
+   IMU has, :mod:`mocap_calib.core.plausible`): an implausible one is listed under
    ``implausible`` and the next candidate is considered. The first that passes is added; the
    loop repeats until none passes.
 5. If the residual then still exceeds the floor, the report says so under ``unexplained``, with
@@ -54,19 +54,22 @@ from mocap_calib.core.diagnosis.takes import (
     take_state,
 )
 from mocap_calib.core.model.effects import CANONICAL_EFFECTS, CLOCK_OFFSET, EFFECTS, Model
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.stats import chi2_logsf
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import Recording, calibrate_takes
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
 from mocap_calib.core.position.stage import (
+    Keep,
     PositionResult,
+    PositionSolver,
+    Rounds,
+    Weighting,
     block_value,
     effect_estimate,
-    run_position_stage,
 )
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.sections import Degradation
@@ -77,7 +80,7 @@ from mocap_calib.errors import CalibrationError, InputError, Interrupted
 Array = NDArray[np.float64]
 
 __all__ = ["DiagnoseOptions", "DiagnoseReport", "DiagnoseStep", "CandidateScore", "Residuals",
-           "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes", "plausibility"]
+           "REPORT_KIND", "REPORT_VERSION", "diagnose", "diagnose_takes"]
 
 
 def _effect_names(text: str) -> tuple[str, ...]:
@@ -117,11 +120,6 @@ class DiagnoseOptions:
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)
     unexplained_ratio: float = 1.5
     typical_mocap_noise: tuple[float, float] = (1.5e-3, float(np.radians(0.2)))
-
-
-def plausibility(effect: str, value: object) -> str | None:
-    """A one-line warning when an effect's estimate is outside its plausible range."""
-    return effect_problem(effect, value, PlausibleLimits())
 
 
 def _log10_sf(t: float, k: int) -> float:
@@ -197,11 +195,11 @@ class _Session:
                     st.delta = float(d)
         init = PositionInit(base.R_MI, base.p_MI, base.g_dir, base.g_mag, starts,
                             {**base.effects, **{k: v[:1] for k, v in (extra or {}).items()}})
-        return run_position_stage(self.takes, m, nz, init, robust=False,
-                                  adapt_noise=adapt, weights=self.weights,
-                                  max_iterations=self.opts.calibration.max_iterations,
-                                  covariance=covariance, window_blocks=False,
-                                  axis_scale=base.axis_scale)
+        return PositionSolver(self.takes, m, nz).solve(
+            init, Rounds(robust=False, adapt_noise=adapt,
+                         max_iterations=self.opts.calibration.max_iterations),
+            Weighting(self.weights, base.axis_scale),
+            Keep(covariance=covariance, window_blocks=False))
 
     def correlated(self, pos: PositionResult, m: Model) -> NoiseModel:
         """The mocap noise model (AR(1) and level) the windows' likelihood prefers at ``pos``:
@@ -377,8 +375,8 @@ def _start(recordings: list[Recording], opts: DiagnoseOptions,
     # inflates it, so it is redone after each effect is added): its level, then its
     # correlation (the diagnosis models it; calibrate keeps it as a check only); the
     # candidates of the step are then fitted with it frozen.
-    white = run_position_stage(ds.takes, model, tr.noise_used, init0,
-                               robust=False, adapt_noise=True, weights=ds.weights)
+    white = PositionSolver(ds.takes, model, tr.noise_used).solve(
+        init0, Rounds(robust=False, adapt_noise=True), Weighting(ds.weights))
     current = ds.fit(model, white, ds.correlated(white, model), adapt=True)
     return ds, model, current
 

@@ -11,10 +11,10 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.diagnosis.predict import ResidualAnalysis
 from mocap_calib.core.model.effects import EFFECTS
-from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.sections import Degradation
 from mocap_calib.core.stages.figures import ResidualSeries
+from mocap_calib.core.versioned import check_kind, header
 
 Array = NDArray[np.float64]
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.model.versioned import check_kind, header
+from mocap_calib.core.versioned import check_kind, header
 
 Array = NDArray[np.float64]
 

@@ -114,7 +114,7 @@ class Effect:
         unit: unit of the parameter, for reports.
         description: one line for ``--help`` and reports.
         limits: plausible magnitudes for a MEMS IMU (names and values, see
-            :mod:`mocap_calib.core.model.plausible`); overridable per session.
+            :mod:`mocap_calib.core.plausible`); overridable per session.
         range_sigma: the weak prior around the start value (parameter units) that keeps
             every graph well posed; a parameter whose posterior sigma is not well below it
             was not determined by the data (:mod:`mocap_calib.core.model.parameters`).

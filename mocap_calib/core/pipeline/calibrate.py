@@ -40,7 +40,12 @@ from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.first_fits import FirstFits, IterationFn, ProgressFn, first_fits
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
-from mocap_calib.core.position.stage import PositionResult, effect_estimate, run_position_stage
+from mocap_calib.core.position.stage import (
+    PositionResult,
+    PositionSolver,
+    Rounds,
+    effect_estimate,
+)
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.calibration import CalibrationResult, Diagnostics
 from mocap_calib.core.result.estimate import Estimate
@@ -182,12 +187,12 @@ def _position_stage(fits: list[FirstFits], lead: int, model: Model, init: Positi
     """Stage 3 over every take; a solve that crawls along a direction the motion leaves
     undetermined (one rotation axis) is refused naming the motion, not the iteration limit."""
     try:
-        return run_position_stage([Take(f.s, f.windows) for f in fits], model, opts.noise,
-                                  init, opts.priors, opts.robust, opts.max_iterations,
-                                  irls_rounds=SETTLING_ROUNDS,
-                                  adapt_noise=opts.adapt_noise,
-                                  identify_noise=opts.adapt_noise and opts.noise_from_data,
-                                  on_iteration=on_iteration, progress=say)
+        solver = PositionSolver([Take(f.s, f.windows) for f in fits], model, opts.noise,
+                                opts.priors, on_iteration=on_iteration, progress=say)
+        return solver.solve(init, Rounds(
+            robust=opts.robust, adapt_noise=opts.adapt_noise,
+            identify_noise=opts.adapt_noise and opts.noise_from_data, rounds=SETTLING_ROUNDS,
+            max_iterations=opts.max_iterations))
     except ConvergenceError as err:
         axis = single_axis(fits[lead].s, fits[lead].delta0)
         if axis is None:
@@ -253,7 +258,7 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
              diag: Diagnostics, seconds: float) -> CalibrationResult:
     """The result: values (None where unobservable), sigmas, effects, solver figures."""
     model = opts.model
-    sr, sp = pos.solver["mocap_noise_variance_scale"]
+    sr, sp = pos.figures.mocap_noise_variance_scale
     att = np.degrees(pos.noise.mocap_rotation_sigma * np.sqrt(pos.axis_scale[0:3]))
     posn = 1e3 * pos.noise.mocap_position_sigma * np.sqrt(pos.axis_scale[3:6])
     ident = _identification(pos, opts)
@@ -291,7 +296,7 @@ def _package(pos: PositionResult, s: PreparedSession, opts: CalibrationOptions,
         effects[name] = {eff.param: None if name in unob else value, "sigma": sigma}
         if eff.acts_on == "clock_rate" and name not in unob:
             effects[name]["ppm"] = 1e6 * float(value)
-    solver = SolverFigures(round(seconds, 3), round(pos.chi2_per_dof, 4), dict(pos.solver),
+    solver = SolverFigures(round(seconds, 3), round(pos.chi2_per_dof, 4), pos.figures.to_dict(),
                            per_axis_figures(att, posn))
     result = CalibrationResult(
         estimates=estimates, gravity_magnitude=float(pos.g_mag), model=str(model),
@@ -312,7 +317,7 @@ def _identification(pos: PositionResult, opts: CalibrationOptions) -> NoiseIdent
 
 def _settling(pos: PositionResult) -> list[Degradation]:
     """The position stage's settling rounds cut off by their cap."""
-    if not pos.solver.get("position_rounds_capped", False):
+    if not pos.figures.rounds_capped:
         return []
     return [Degradation(
         "position stage", f"the rounds that settle the mocap noise levels and robust weights "

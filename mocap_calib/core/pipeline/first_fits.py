@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.checks.conventions import explain_failure, screen_conventions
+from mocap_calib.core.clock.conventions import CLOCK_MOVE, base_fit_poor, check_conventions
 from mocap_calib.core.clock.search import ClockSearch, search_clock
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import Model
@@ -20,7 +20,7 @@ from mocap_calib.core.model.imu_model import Intrinsics, correct
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.position.windows import Windows, make_windows
-from mocap_calib.core.prepare.imu_faults import leave_out_imu_faults
+from mocap_calib.core.prepare.fault_spans import leave_out_imu_faults
 from mocap_calib.core.prepare.session import PreparedSession, local_derivative, prepare
 from mocap_calib.core.stages.attitude import AttitudeResult, run_attitude_stage
 from mocap_calib.core.stages.velocity import VelocityResult, run_velocity_stage
@@ -84,7 +84,7 @@ def first_fits(imu: ImuSamples, mocap: MocapPoses, opts: CalibrationOptions,
     except Interrupted:
         raise
     except CalibrationError:
-        found = explain_failure(s, opts, mocap.position_unit_m, say)
+        found = _explain_failure(s, opts, mocap.position_unit_m, say)
         if found is None:
             raise
         notes.append(f"clock offset started at {found:.4f} s, where a closed-form fit of the "
@@ -131,7 +131,7 @@ def _screen(s: PreparedSession, opts: CalibrationOptions, t_d0: float,
             on_iteration: IterationFn | None, say: ProgressFn):
     """The convention check when stages 1-2 fit poorly; restarts them at the clock offset a
     closed-form fit finds when the search picked a wrong lag."""
-    better = screen_conventions(s, opts, t_d0, [] if clock is None else [
+    better = _screen_conventions(s, opts, t_d0, [] if clock is None else [
         c for c, _ in clock.candidates], att.stats.rms_after, vel.stats.rms_after,
         position_unit_m, say)
     if better is None:
@@ -140,6 +140,53 @@ def _screen(s: PreparedSession, opts: CalibrationOptions, t_d0: float,
     att, vel = _initial_stages(s, opts, s.clock_shift + better, effects0, t_mid, on_iteration,
                                say)
     return better, clock, att, vel
+
+
+def _explain_failure(s: PreparedSession, opts: CalibrationOptions, position_unit_m: float,
+                     say: ProgressFn) -> float | None:
+    """After the clock alignment or stages 1-2 failed: raise the mistake that explains the
+    failure, if one does.
+
+    Returns:
+        The clock offset at which the data as given fit, when that is unambiguous (the next
+        best offset over a second away fits at least twice worse; periodic motion does not)
+        and the model estimates the offset: the calibration can start there. Else None (the
+        caller re-raises the original error).
+    """
+    say("checking the inputs' conventions (the first fits failed)")
+    known = [] if opts.time_offset is None else [opts.time_offset]
+    fit = check_conventions(s, known, opts.gravity, opts.max_offset, position_unit_m)
+    free = opts.model.timed and opts.time_offset is None
+    if fit is None or not free or fit.runner_up < 2.0 * fit.score:
+        return None
+    say(f"the data as given fit at clock offset {fit.t_d:.4f} s (closed-form fit)")
+    return fit.t_d
+
+
+def _screen_conventions(s: PreparedSession, opts: CalibrationOptions, t_d: float,
+                        candidates: list[float], rms_attitude_deg: list[float],
+                        rms_velocity: list[float], position_unit_m: float,
+                        say: ProgressFn) -> float | None:
+    """After stages 1-2: when their residuals are a large fraction of the motion, try the
+    other conventions (nothing is computed when the fit is good).
+
+    Returns:
+        A better starting clock offset, when the data as given fit well at one more than
+        :data:`CLOCK_MOVE` s from ``t_d`` (the coarse search picked a wrong lag; slow motion
+        blurs its peak) and the model estimates the offset; else None.
+    """
+    rot = float(np.radians(np.sqrt(np.mean(np.square(rms_attitude_deg)))))
+    vel = float(np.sqrt(np.mean(np.square(rms_velocity))))
+    if not base_fit_poor(s, opts.keyframe_spacing, rot, vel):
+        return None
+    say("the first fits are poor: checking the inputs' conventions")
+    fit = check_conventions(s, [t_d, *candidates], opts.gravity, opts.max_offset,
+                            position_unit_m)
+    free = opts.model.timed and opts.time_offset is None
+    if fit is None or not free or abs(fit.t_d - t_d) <= CLOCK_MOVE:
+        return None
+    say(f"the data fit at clock offset {fit.t_d:.4f} s, not {t_d:.4f} s: starting there")
+    return fit.t_d
 
 
 def _stage_hook(on_iteration: IterationFn | None, stage: str):

@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import information_matrix, marginals, spd_factor
+from mocap_calib.core.gtsam_tools import information_matrix, marginals, spd_factor
 from mocap_calib.core.model.parameters import (
     ACCEL_BIAS,
     GYRO_BIAS,

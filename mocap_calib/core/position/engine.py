@@ -168,22 +168,23 @@ class PositionProblem:
         Rbar, pbar, _ = compose(inc, h, R0, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
                                 th.g_mag * th.g_dir)
         rows = self._residuals(th, R_WM, p_WM, Rbar, pbar)
-        now = self._whitening(th, c, inc.pack(), R0)
+        current = self._whitening(th, c, inc.pack(), R0)
         # A frozen whitening (see freeze_whitening) is the recorded one; the first evaluation
         # after freezing records its own. The record keeps the increments in single precision
-        # (it is held for the whole session while the cost is frozen: 60 min, 147 -> 73 MB),
+        # (it is held for the whole session while the cost is frozen: 73 MB at 60 min, half
+        # the double-precision record),
         # and every evaluation of the frozen cost, the first included, replays the record, so
         # that the cost is one fixed function (its weighting rounded at 1e-7, the residuals
         # and Jacobians in double precision).
         op = self._ops.get(ci) if self.freeze else None
         if self.freeze and op is None:
-            op = replace(now, inc=now.inc.astype(np.float32))
+            op = replace(current, inc=current.inc.astype(np.float32))
             self._ops[ci] = op
         L = self.layout
         gcols, dg = self._gravity_inputs(th)
         blocks = self._score_blocks(win.steps) if self.collect_scores else None
         part = output_slice(out, slice(int(c[0]), int(c[-1]) + 1))
-        filter_pass(h, win.mask[c], now, Rbar, op, rows, dwf, dg, gcols,
+        filter_pass(h, win.mask[c], current, Rbar, op, rows, dwf, dg, gcols,
                     L.slice("rotation").start, L.slice("translation").start, blocks, part)
         return part.extras
 

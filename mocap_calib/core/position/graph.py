@@ -17,7 +17,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import BatchFactors, BatchOutput
+from mocap_calib.core.gtsam_tools import BatchFactors, BatchOutput
 from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, GRAVITY_MAGNITUDE, Model
 from mocap_calib.core.model.parameters import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel

@@ -114,19 +114,19 @@ def output_slice(out: EvalOut, sl: slice) -> EvalOut:
                    cut(out.raw_J), cut(out.whitened))
 
 
-def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, Rbar: Array,
+def filter_pass(h: Array, mask: NDArray[np.bool_], current: Whitening, Rbar: Array,
                 op: Whitening | None, rows: Rows, dwf: Array, dg: Array, gcols: list[int],
                 rs: int, ts: int, blocks: NDArray[np.int64] | None, out: EvalOut) -> None:
     """One filter pass over a chunk of windows, into ``out`` (zeroed, the chunk's windows):
-    ``now`` and the nominal attitudes ``Rbar`` give the sensitivities' transitions (and,
+    ``current`` and the nominal attitudes ``Rbar`` give the sensitivities' transitions (and,
     without ``op``, the whitening); ``op`` is a frozen whitening to reuse."""
     W = mask.shape[0]
     p = dwf.shape[-1]
     frozen = op is not None
-    op = now if op is None else op
+    op = current if op is None else op
     store = out.raw_J is not None
     kn.filter_windows(
-        _c(h), np.ascontiguousarray(mask), _c(now.weights), _c(now.inc), _c(Rbar),
+        _c(h), np.ascontiguousarray(mask), _c(current.weights), _c(current.inc), _c(Rbar),
         _c(op.inc), _c(op.R0), _c(op.weights), frozen, _c(dwf), _c(dg),
         np.asarray(gcols, dtype=np.int64), _c(rows.r), _c(rows.Jinv), _c(rows.Pm_rot),
         _c(rows.Jp), _c(rows.Hq), _c(rows.R_WM0), _c(op.M), _c(op.par), rs, ts,
@@ -138,7 +138,7 @@ def filter_pass(h: Array, mask: NDArray[np.bool_], now: Whitening, Rbar: Array,
     out.chi2[:] = np.einsum("wki,wki->w", out.e_white, out.e_white)
     if store:
         out.raw_r[:] = rows.r
-        out.extras.update(state_space(h, now, Rbar))
+        out.extras.update(state_space(h, current, Rbar))
 
 
 def likelihood_pass(h: Array, mask: NDArray[np.bool_], wh: Whitening, Rbar: Array,

@@ -1,20 +1,40 @@
-"""Between the position stage's rounds: the mocap noise levels and the robust weights follow
-the innovations (:mod:`mocap_calib.core.position.stage` runs the rounds; the identification of
-every level from the windows' likelihood is :mod:`.noise`)."""
+"""How the position stage's solve proceeds: rounds of LM on a fixed cost (a full solve) or
+Gauss-Newton steps (a refit near a solution), and between them the mocap noise levels and the
+robust weights following the innovations (:class:`mocap_calib.core.position.stage.
+PositionSolver` calls them; the identification of every level from the windows' likelihood is
+:mod:`.noise`)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import RELATIVE_TOL, huber_weight
-from mocap_calib.core.position.engine import ROBUST_C
+from mocap_calib.core import interrupt
+from mocap_calib.core.gtsam_tools import (
+    PREDICTED_TOL,
+    RELATIVE_TOL,
+    huber_weight,
+    require_converged,
+    run_lm,
+)
+from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.position.engine import ROBUST_C, Theta
 from mocap_calib.core.position.graph import PositionGraph
+from mocap_calib.core.position.noise import NoiseIdentification, identify_noise
 
 Array = NDArray[np.float64]
+
+IterationHook = Callable[[str, int, dict[str, Any], float], None]
+
+#: LM iterations of a round that settles the levels and weights (the last round converges).
+SETTLING_ITERATIONS = 4
+#: Rounds end when the cost moves by less than this fraction and the levels by < 5 %.
+COST_SETTLED = 1e-3
 
 def mocap_levels(pg: PositionGraph, outs: list[Any], skip: int = 5) -> Array:
     """Per axis (attitude x, y, z; position x, y, z), how much larger (variance) the mocap
@@ -81,3 +101,145 @@ def innovations_near(pg: PositionGraph, sol: gtsam.Values, cost: float) -> list[
     if at is None or abs(pg.graph.error(at) - cost) > RELATIVE_TOL * abs(cost):
         pg.batch.output(sol, 0)
     return pg.evals[-1]
+
+
+class History:
+    """Records every LM iterate (and the first evaluation's innovations, for the "before"
+    figures: only those, not the whole evaluation, are kept for the stage)."""
+
+    def __init__(self, pg: PositionGraph, on_iteration: IterationHook | None) -> None:
+        self.pg = pg
+        self.on_iteration = on_iteration
+        self.records: list[dict[str, Any]] = []
+        self.first_innovations: list[Array] | None = None
+
+    def __call__(self, it: int, v: gtsam.Values, err: float) -> None:
+        th = self.pg.theta(v)
+        rec = {"iteration": len(self.records), "cost": float(err), "R_MI": th.R_MI.tolist(),
+               "p_MI": th.p_MI.tolist(), "g_dir": th.g_dir.tolist(), "delta": th.delta,
+               "gyro_bias": th.knots[:, 0:3].mean(axis=0).tolist(),
+               "accel_bias": th.knots[:, 3:6].mean(axis=0).tolist()}
+        self.records.append(rec)
+        if self.first_innovations is None and self.pg.evals:
+            self.first_innovations = [o.innovation for o in self.pg.evals[-1]]
+        if self.on_iteration is not None:
+            self.on_iteration("position", rec["iteration"], rec, float(err))
+
+
+@dataclass
+class Fit:
+    """Where a solve ended and how it got there."""
+
+    values: gtsam.Values
+    iterations: int
+    noise_scale: Array
+    innovations0: list[Array] | None  # per take, the innovations at the start values
+    rounds: int = 1
+    linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
+    capped: bool = False  # the settling rounds ended at their cap, the levels still moving
+    #: The noise model the data prefer (a full solve asked to identify it), else None.
+    identification: NoiseIdentification | None = None
+
+
+def gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
+                       robust: bool = False,
+                       settled: Callable[[Theta, Theta], bool] | None = None) -> Fit:
+    """Gauss-Newton steps from the start values; between steps the mocap levels (with
+    ``adapt_noise``) and the weights (with ``robust``) follow the innovations of the last
+    linearisation, as between a full run's rounds. One evaluation per step; after the second,
+    ``settled(before, after)`` may end the steps early. The noise model's kind (white or
+    correlated) stays as given."""
+    pg.for_each("freeze_whitening", False)
+    noise_scale = np.ones(2)
+    values = pg.values
+    inn0: list[Array] | None = None
+    k = 0
+    at = values
+    for k in range(steps):
+        at = values
+        lin = pg.graph.linearize(at)
+        interrupt.check()  # a signal during the evaluation only set the request
+        outs = pg.evals[-1]
+        inn0 = [o.innovation for o in outs] if inn0 is None else inn0
+        values = values.retract(lin.optimize())
+        if k == steps - 1 or (k >= 1 and settled is not None
+                              and settled(pg.theta(at), pg.theta(values))):
+            break
+        settle(pg, outs, adapt_noise, robust, noise_scale)
+        del outs  # not alive while the next step evaluates
+        pg.batch.invalidate()
+    return Fit(values, k + 1, noise_scale, inn0, k + 1, linearized_at=at)
+
+
+def solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
+                 adapt_noise: bool, hook: History,
+                 progress: Callable[[str], None] | None, identify_noise: bool = False) -> Fit:
+    """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
+    are re-estimated from the innovations and the robust weights updated. The first run goes
+    to convergence from the start values; the settling rounds after it are short; once nothing
+    changes (or the cost moves by less than :data:`COST_SETTLED`) one LM run goes to
+    convergence."""
+    graph, batch = pg.graph, pg.batch
+    iterations, sol = 0, pg.values
+    inn0: list[Array] | None = None
+    noise_scale = np.ones(2)
+    prev_cost = None
+    final = settled = rounds <= 1
+    given = pg.problem.noise
+    ident = None
+    identification: NoiseIdentification | None = None
+    rnd = 0
+    while True:
+        rnd += 1
+        if progress is not None:
+            n = sum(p.win.count for p in pg.problems)
+            progress(f"position factors: {'final solve' if final else 'settling'} round {rnd} "
+                     f"({n} windows)")
+        pg.for_each("freeze_whitening", True)
+        batch.invalidate()
+        # The first run converges (from stages 1-2, unit weights); later ones only settle the
+        # levels and weights, until the last.
+        limit = max_iterations if (final or rnd == 1) else SETTLING_ITERATIONS
+        sol, rep = run_lm(graph, sol, limit, hook, predicted_tol=PREDICTED_TOL)
+        inn0 = hook.first_innovations if inn0 is None else inn0
+        iterations += rep.iterations
+        if final:
+            outs = evaluate_at(pg, sol)
+            break
+        outs = innovations_near(pg, sol, float(rep.final_error))
+        changed, moved = settle(pg, outs, adapt_noise and ident is None, robust, noise_scale)
+        if identify_noise and identification is None:
+            # Once, after the first solve: the levels the data prefer there, used from then
+            # on when they contradict the given ones (a second identification at the final
+            # solution changed no answer by a tenth of a sigma on simulated flights).
+            identification = identify(pg, sol, given)
+            if identification.contradicts:
+                ident = identification
+                moved_a = _noise_move(pg.problem.noise, ident.noise)
+                for pp in pg.problems:
+                    pp.noise = ident.noise
+                changed, moved = changed or moved_a > np.log(1.05), max(moved, moved_a)
+        cost = float(rep.final_error)
+        small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
+        prev_cost = cost
+        settled = (not changed) or (small and moved < np.log(1.05))
+        final = settled or rnd >= rounds - 1
+        del outs  # not alive while the next round evaluates (60 min: 37 MB)
+        batch.invalidate()
+    require_converged("position", rep, max_iterations)
+    return Fit(sol, iterations, noise_scale, inn0, rnd, capped=not settled,
+               identification=identification)
+
+
+def identify(pg: PositionGraph, values: gtsam.Values,
+             given: NoiseModel) -> NoiseIdentification:
+    """The noise model the windows' likelihood prefers at ``values`` (every take)."""
+    problems = [(pp, pg.theta(values, k)) for k, pp in enumerate(pg.problems)]
+    return identify_noise(problems, pg.problem.noise, given)
+
+
+def _noise_move(a: NoiseModel, b: NoiseModel) -> float:
+    """The largest relative change of a level between two noise models (log of the ratio)."""
+    keys = ("accelerometer_noise_density", "gyroscope_noise_density", "mocap_position_sigma",
+            "mocap_rotation_sigma")
+    return max(abs(float(np.log(getattr(b, k) / getattr(a, k)))) for k in keys)

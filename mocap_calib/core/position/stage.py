@@ -14,6 +14,10 @@ are down-weighted per sample by Huber's kernel on the whitened innovation (conve
 point wherever the weights start). Levels and weights settle in short LM runs on a fixed cost;
 the last run goes to convergence. The correlated-noise model is a check on the answer
 (:mod:`mocap_calib.core.uncertainty.sensitivity`), not part of it.
+
+:class:`PositionSolver` holds the problem (takes, model, noise densities, user priors):
+:meth:`~PositionSolver.solve` runs the rounds from start values, :meth:`~PositionSolver.refit`
+takes Gauss-Newton steps from a nearby solution (:mod:`.settle` runs either).
 """
 
 from __future__ import annotations
@@ -21,14 +25,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core import interrupt
-from mocap_calib.core.graph import PREDICTED_TOL, require_converged, run_lm
 from mocap_calib.core.model.effects import EFFECTS, Model
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.covariance import (
@@ -47,24 +49,20 @@ from mocap_calib.core.position.graph import (
     Take,
     build_position_graph,
 )
-from mocap_calib.core.position.noise import NoiseIdentification, identify_noise
+from mocap_calib.core.position.noise import NoiseIdentification
 from mocap_calib.core.position.settle import (
-    evaluate_at,
-    innovations_near,
-    settle,
+    Fit,
+    History,
+    IterationHook,
+    gauss_newton_steps,
+    solve_rounds,
 )
 from mocap_calib.core.position.windows import Windows
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.stages.figures import ResidualSeries, StageStats
 
 Array = NDArray[np.float64]
-
-IterationHook = Callable[[str, int, dict[str, Any], float], None]
-
-#: LM iterations of a round that settles the levels and weights (the last round converges).
-SETTLING_ITERATIONS = 4
-#: Rounds end when the cost moves by less than this fraction and the levels by < 5 %.
-COST_SETTLED = 1e-3
+T = TypeVar("T")
 
 
 @dataclass
@@ -91,6 +89,45 @@ class TakeFit:
         return self.take.windows
 
 
+@dataclass(frozen=True)
+class PositionFigures:
+    """How the stage's solve went, under the names the result file's ``solver`` section gives
+    them (:meth:`to_dict`)."""
+
+    batch_seconds: float  # the window factors' evaluations, s
+    evaluations: int
+    windows: int  # over every take
+    window_steps: int  # mocap steps of the longest window
+    rounds: int  # settling rounds and the final solve (Gauss-Newton: steps)
+    rounds_capped: bool  # the settling rounds ended at their cap, the levels still moving
+    mocap_noise_variance_scale: tuple[float, float]  # attitude, position: on the given levels
+    #: Per block, the sandwich's sigma over the model's, per component.
+    sandwich_over_model_sigma: dict[str, list[float]]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"position_batch_seconds": self.batch_seconds,
+                "position_evaluations": self.evaluations,
+                "windows": self.windows,
+                "window_steps": self.window_steps,
+                "position_rounds": self.rounds,
+                "position_rounds_capped": self.rounds_capped,
+                "mocap_noise_variance_scale": list(self.mocap_noise_variance_scale),
+                "sandwich_over_model_sigma": self.sandwich_over_model_sigma}
+
+
+class Memo:
+    """Values derived from one solution by the checks after it (the correlated mocap noise
+    model it prefers, ...), each computed on first use under the key its user names."""
+
+    def __init__(self) -> None:
+        self._values: dict[str, Any] = {}
+
+    def get(self, key: str, compute: Callable[[], T]) -> T:
+        if key not in self._values:
+            self._values[key] = compute()
+        return self._values[key]
+
+
 @dataclass
 class PositionResult:
     """Stage 3 estimates with covariances in GTSAM tangent spaces. The shared parameters are
@@ -111,7 +148,7 @@ class PositionResult:
     noise: NoiseModel
     cost: float  # chi^2 of the whole graph at the solution (NaN after a Gauss-Newton refit)
     dof: int  # residual dimensions minus parameters
-    solver: dict[str, Any]
+    figures: PositionFigures
     history: list[dict[str, Any]]
     covariances: Callable[[], PositionUncertainty] | None = field(default=None, repr=False)
     #: The mocap noise's shape per axis (attitude x, y, z in the IMU frame, position x, y, z in
@@ -120,6 +157,9 @@ class PositionResult:
     #: The noise model the data prefer, when it was identified (used if it contradicts the
     #: given one: then ``noise`` is it).
     identification: NoiseIdentification | None = None
+    #: What the checks compute from this solution once (shared with the copies ``replace``
+    #: makes of it, such as :meth:`with_covariance`'s).
+    memo: Memo = field(default_factory=Memo, repr=False, compare=False)
 
     @property
     def delta(self) -> float:
@@ -154,7 +194,7 @@ class PositionResult:
         return self.takes[0].series
 
     def with_covariance(self) -> PositionResult:
-        """This result with its covariances (computed now when the fit left them out)."""
+        """This result with its covariances (computed here when the fit left them out)."""
         if self.cov or self.covariances is None:
             return self
         unc = self.covariances()
@@ -167,10 +207,10 @@ class PositionResult:
 def block_value(pos: PositionResult, name: str, clock_shift: float) -> Array:
     """The parameter vector of an effect at a position-stage solution (the clock offset as
     ``t_d`` on the raw stamps, ``|g|`` as a 1-vector, the rest from the effect vectors)."""
-    kind = EFFECTS[name].acts_on
-    if kind == "clock":
+    eff = EFFECTS[name]
+    if eff.acts_on == "clock":
         return np.array([pos.delta - clock_shift])
-    if kind == "gravity":
+    if eff.acts_on == "gravity":
         return np.array([pos.g_mag])
     return np.asarray(pos.effects[name], dtype=float)
 
@@ -185,101 +225,167 @@ def effect_estimate(pos: PositionResult, name: str,
     return value, sigma
 
 
-def run_position_stage(takes: list[Take], model: Model, noise: NoiseModel,
-                       init: PositionInit, priors: list[Prior] | None = None,
-                       robust: bool = True, max_iterations: int = 30, irls_rounds: int = 6,
-                       adapt_noise: bool = True, weights: list[Array] | None = None,
-                       identify_noise: bool = False,
-                       on_iteration: IterationHook | None = None,
-                       progress: Callable[[str], None] | None = None,
-                       covariance: bool = True, one_step: bool | int = False,
-                       window_blocks: bool = True, axis_scale: Array | None = None,
-                       reweight: bool = False,
-                       settled: Callable[[Theta, Theta], bool] | None = None,
-                       series: bool = True) -> PositionResult:
-    """Refine all parameters on the window factors of every take.
+@dataclass(frozen=True)
+class Rounds:
+    """How :meth:`PositionSolver.solve` runs.
 
-    Args:
-        takes: every take's prepared session and windows (one for a single recording).
-        model: active effects; noise: noise densities (and the mocap's starting levels).
-        init: starting values.
-        priors: user priors (earlier calibrations), added as prior factors.
-        robust: down-weight mocap outliers.
-        adapt_noise: re-estimate the mocap noise levels from the innovations;
-            identify_noise: and identify every level from the windows' likelihood after the
-            first solve (:mod:`.noise`), used from then on where it contradicts ``noise``.
-        weights: per take, fixed robust weights (W, m+1) from an earlier fit: no re-weighting,
-            so that fits of different models minimise costs of the same family.
-        on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
-        progress: called with a short message as the stage advances.
-        covariance: compute the covariances (without: only the estimate; ``cov`` is empty).
+    Attributes:
+        robust: down-weight mocap outliers (Huber's kernel on the whitened innovations).
+        adapt_noise: re-estimate the mocap noise levels from the innovations between rounds.
+        identify_noise: and identify every level from the windows' likelihood after the first
+            solve (:mod:`.noise`), used from then on where it contradicts the given noise.
+        rounds: at most this many LM runs when the levels or weights move (else one).
+        max_iterations: LM iterations of the first and the last run.
+    """
+
+    robust: bool = True
+    adapt_noise: bool = True
+    identify_noise: bool = False
+    rounds: int = 6
+    max_iterations: int = 30
+
+
+@dataclass(frozen=True)
+class Steps:
+    """How :meth:`PositionSolver.refit` runs: Gauss-Newton steps from a nearby solution
+    (segments, other noise models). Between steps the mocap levels (``adapt_noise``) and the
+    robust weights (``reweight``) follow the innovations, as between the rounds of a solve;
+    ``settled(before, after)`` true ends the steps early (never before the second, the first
+    with the levels re-estimated)."""
+
+    steps: int = 1
+    adapt_noise: bool = False
+    reweight: bool = False
+    settled: Callable[[Theta, Theta], bool] | None = None
+
+
+@dataclass(frozen=True)
+class Weighting:
+    """The mocap residuals' weighting carried over from an earlier fit.
+
+    Attributes:
+        weights: per take, robust weights (W, m+1) held fixed (no down-weighting of its own,
+            so that fits of different models minimise costs of the same family); None: the
+            solve weights the samples itself.
+        axis_scale: the mocap noise's shape per axis to start from; None: even.
+    """
+
+    weights: list[Array] | None = None
+    axis_scale: Array | None = None
+
+
+@dataclass(frozen=True)
+class Keep:
+    """What a result keeps besides the estimate.
+
+    Attributes:
+        covariance: the covariances (without: ``cov`` is empty and
+            :meth:`PositionResult.with_covariance` computes them when asked).
         window_blocks: the sandwich's blocks are the windows (else their one-second parts:
             the diagnosis' tests, calibrated with those).
-        axis_scale: the mocap noise's shape per axis to start from (a refit's: its fit's).
-        one_step: Gauss-Newton steps from ``init`` instead of LM rounds (``True``: one; an
-            int: that many): for refits from a nearby solution (segments, other noise
-            models). Between steps the mocap levels (with ``adapt_noise``) and the weights
-            (with ``reweight``) follow the innovations, as between the rounds of a full run.
-        reweight: with ``one_step`` and given ``weights``, update the weights between steps.
-        settled: with ``one_step``, ``settled(before, after)`` true ends the steps early
-            (never before the second, the first with the levels re-estimated).
-        series: keep every take's residual series (for reports; a refit: none, 40 MB/h).
+        series: every take's residual series (reports; a refit needs none: 40 MB/h).
     """
-    t_start = time.perf_counter()
-    pg = build_position_graph(takes, model, noise, init, priors)
-    for pp in pg.problems:
-        pp.collect_scores = True  # cheap, and a covariance needs them
-        if axis_scale is not None:
-            pp.mocap_axis_scale = np.asarray(axis_scale, dtype=float).copy()
-    if weights is not None:
-        pg.set_weights(weights)
-        robust = False
-    history = _History(pg, on_iteration)
-    if one_step:
-        fit = _gauss_newton_steps(pg, adapt_noise, int(one_step), reweight, settled)
-    else:
-        fit = _solve_rounds(pg, max_iterations,
-                            irls_rounds if (robust or adapt_noise or identify_noise) else 1,
-                            robust, adapt_noise, history, progress, identify_noise)
-    outs = pg.evals[-1]
-    thetas = pg.thetas(fit.values)
-    # A Gauss-Newton refit keeps the linearisation it last stepped from: its covariance is
-    # that of the nearby point (no further evaluation).
-    at = fit.linearized_at if one_step else fit.values
-    blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
 
-    def covariances() -> PositionUncertainty:
-        inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes], pg.knot0,
-                               [th.knots for th in thetas], model.timed,
-                               [o.scores for o in outs], window_blocks)
-        return position_covariances(pg.graph, at, inp, pg.problem.noise)
-
-    if covariance:
-        unc = covariances()
-    else:
-        unc = PositionUncertainty({}, [TakeUncertainty(
-            {}, np.zeros((t.windows.count, 6)), _mean_bias(t.windows, th))
-            for t, th in zip(takes, thetas, strict=True)])
-    res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, one_step,
-                  series)
-    return res if covariance else replace(res, covariances=covariances, cov={})
+    covariance: bool = True
+    window_blocks: bool = True
+    series: bool = True
 
 
-def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUncertainty,
-            seconds: float, history: _History, one_step: bool | int,
+class PositionSolver:
+    """Stage 3 over the takes of one rig (one take for a single recording).
+
+    Args:
+        takes: every take's prepared session and windows.
+        model: the active effects; noise: the noise densities (and the mocap's starting
+            levels).
+        priors: user priors (earlier calibrations), added as prior factors.
+        on_iteration: ``(stage, iteration, parameter values, cost)`` after every LM iteration.
+        progress: called with a short message as the solve advances.
+    """
+
+    def __init__(self, takes: list[Take], model: Model, noise: NoiseModel,
+                 priors: list[Prior] | None = None, *,
+                 on_iteration: IterationHook | None = None,
+                 progress: Callable[[str], None] | None = None) -> None:
+        self.takes, self.model, self.noise, self.priors = takes, model, noise, priors
+        self.on_iteration, self.progress = on_iteration, progress
+
+    def solve(self, init: PositionInit, rounds: Rounds | None = None,
+              weighting: Weighting | None = None, keep: Keep | None = None) -> PositionResult:
+        """Every parameter refined from ``init`` by LM rounds; the mocap levels and robust
+        weights settle between them (given ``weighting.weights``: those, held fixed)."""
+        rounds, weighting = rounds or Rounds(), weighting or Weighting()
+        t_start = time.perf_counter()
+        pg = self._graph(init, weighting)
+        robust = rounds.robust and weighting.weights is None
+        history = History(pg, self.on_iteration)
+        n = rounds.rounds if (robust or rounds.adapt_noise or rounds.identify_noise) else 1
+        fit = solve_rounds(pg, rounds.max_iterations, n, robust, rounds.adapt_noise, history,
+                           self.progress, rounds.identify_noise)
+        return self._finish(pg, fit, fit.values, history.records, keep or Keep(), t_start,
+                            refit=False)
+
+    def refit(self, init: PositionInit, steps: Steps | None = None,
+              weighting: Weighting | None = None, keep: Keep | None = None) -> PositionResult:
+        """Gauss-Newton steps from ``init``, a nearby solution. The covariance is that of the
+        last linearisation point (no further evaluation), the cost NaN."""
+        steps = steps or Steps()
+        t_start = time.perf_counter()
+        pg = self._graph(init, weighting or Weighting())
+        fit = gauss_newton_steps(pg, steps.adapt_noise, steps.steps, steps.reweight,
+                                 steps.settled)
+        assert fit.linearized_at is not None
+        return self._finish(pg, fit, fit.linearized_at, [], keep or Keep(), t_start,
+                            refit=True)
+
+    def _graph(self, init: PositionInit, weighting: Weighting) -> PositionGraph:
+        pg = build_position_graph(self.takes, self.model, self.noise, init, self.priors)
+        for pp in pg.problems:
+            pp.collect_scores = True  # cheap, and a covariance needs them
+            if weighting.axis_scale is not None:
+                pp.mocap_axis_scale = np.asarray(weighting.axis_scale, dtype=float).copy()
+        if weighting.weights is not None:
+            pg.set_weights(weighting.weights)
+        return pg
+
+    def _finish(self, pg: PositionGraph, fit: Fit, at: gtsam.Values,
+                history: list[dict[str, Any]], keep: Keep, t_start: float,
+                refit: bool) -> PositionResult:
+        """The result at ``fit``, with its covariances at ``at`` (computed here, or on demand
+        without ``keep.covariance``)."""
+        takes, outs = self.takes, pg.evals[-1]
+        thetas = pg.thetas(fit.values)
+        blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
+
+        def covariances() -> PositionUncertainty:
+            inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes],
+                                   pg.knot0, [th.knots for th in thetas], self.model.timed,
+                                   [o.scores for o in outs], keep.window_blocks)
+            return position_covariances(pg.graph, at, inp, pg.problem.noise)
+
+        if keep.covariance:
+            unc = covariances()
+        else:
+            unc = PositionUncertainty({}, [TakeUncertainty(
+                {}, np.zeros((t.windows.count, 6)), _mean_bias(t.windows, th))
+                for t, th in zip(takes, thetas, strict=True)])
+        res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, refit,
+                      keep.series)
+        return res if keep.covariance else replace(res, covariances=covariances, cov={})
+
+
+def _result(pg: PositionGraph, fit: Fit, thetas: list[Theta], unc: PositionUncertainty,
+            seconds: float, history: list[dict[str, Any]], refit: bool,
             keep_series: bool = True) -> PositionResult:
     """The stage's result from its fit and covariances."""
     takes = pg.takes
     outs = pg.evals[-1]
     stats, series, chi2, dof = _figures(pg, fit, outs, seconds, keep_series)
-    solver = {"position_batch_seconds": round(pg.batch.seconds, 3),
-              "position_evaluations": pg.batch.evaluations,
-              "windows": sum(t.windows.count for t in takes),
-              "window_steps": max(t.windows.steps for t in takes),
-              "position_rounds": fit.rounds,
-              "position_rounds_capped": fit.capped,
-              "mocap_noise_variance_scale": [round(float(x), 4) for x in fit.noise_scale],
-              "sandwich_over_model_sigma": unc.robust_ratio}
+    figures = PositionFigures(
+        round(pg.batch.seconds, 3), pg.batch.evaluations, sum(t.windows.count for t in takes),
+        max(t.windows.steps for t in takes), fit.rounds, fit.capped,
+        (round(float(fit.noise_scale[0]), 4), round(float(fit.noise_scale[1]), 4)),
+        unc.robust_ratio)
     fits = [TakeFit(t, th.delta, th.knots, u.knot_sigma, u.bias_mean[0:3], u.bias_mean[3:6],
                     u.cov, p.weights, sr)
             for t, th, u, p, sr in zip(takes, thetas, unc.takes, pg.problems, series,
@@ -291,154 +397,17 @@ def _result(pg: PositionGraph, fit: _Fit, thetas: list[Theta], unc: PositionUnce
         unobservable=unobservable_blocks(unc.cov_model), stats=stats, chi2_per_dof=chi2,
         noise=pg.problem.noise,
         # (a Gauss-Newton refit's cost would cost an evaluation at the new values: not needed)
-        cost=float("nan") if one_step else 2.0 * pg.graph.error(fit.values), dof=int(dof),
-        solver=solver, history=history.records,
+        cost=float("nan") if refit else 2.0 * pg.graph.error(fit.values), dof=int(dof),
+        figures=figures, history=history,
         axis_scale=pg.problem.mocap_axis_scale.copy(),
-        identification=getattr(pg, "identification", None))
-
-
-class _History:
-    """Records every LM iterate (and the first evaluation's innovations, for the "before"
-    figures: only those, not the whole evaluation, are kept for the stage)."""
-
-    def __init__(self, pg: PositionGraph, on_iteration: IterationHook | None) -> None:
-        self.pg = pg
-        self.on_iteration = on_iteration
-        self.records: list[dict[str, Any]] = []
-        self.first_innovations: list[Array] | None = None
-
-    def __call__(self, it: int, v: gtsam.Values, err: float) -> None:
-        th = self.pg.theta(v)
-        rec = {"iteration": len(self.records), "cost": float(err), "R_MI": th.R_MI.tolist(),
-               "p_MI": th.p_MI.tolist(), "g_dir": th.g_dir.tolist(), "delta": th.delta,
-               "gyro_bias": th.knots[:, 0:3].mean(axis=0).tolist(),
-               "accel_bias": th.knots[:, 3:6].mean(axis=0).tolist()}
-        self.records.append(rec)
-        if self.first_innovations is None and self.pg.evals:
-            self.first_innovations = [o.innovation for o in self.pg.evals[-1]]
-        if self.on_iteration is not None:
-            self.on_iteration("position", rec["iteration"], rec, float(err))
-
-
-@dataclass
-class _Fit:
-    values: gtsam.Values
-    iterations: int
-    noise_scale: Array
-    innovations0: list[Array] | None  # per take, the innovations at the start values
-    rounds: int = 1
-    linearized_at: gtsam.Values | None = None  # Gauss-Newton: the last linearisation point
-    capped: bool = False  # the settling rounds ended at their cap, the levels still moving
-
-
-def _gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int = 1,
-                        robust: bool = False,
-                        settled: Callable[[Theta, Theta], bool] | None = None) -> _Fit:
-    """Gauss-Newton steps from the start values; between steps the mocap levels (with
-    ``adapt_noise``) and the weights (with ``robust``) follow the innovations of the last
-    linearisation, as between a full run's rounds. One evaluation per step; after the second,
-    ``settled(before, after)`` may end the steps early. The noise model's kind (white or
-    correlated) stays as given."""
-    pg.for_each("freeze_whitening", False)
-    noise_scale = np.ones(2)
-    values = pg.values
-    inn0: list[Array] | None = None
-    k = 0
-    at = values
-    for k in range(steps):
-        at = values
-        lin = pg.graph.linearize(at)
-        interrupt.check()  # a signal during the evaluation only set the request
-        outs = pg.evals[-1]
-        inn0 = [o.innovation for o in outs] if inn0 is None else inn0
-        values = values.retract(lin.optimize())
-        if k == steps - 1 or (k >= 1 and settled is not None
-                              and settled(pg.theta(at), pg.theta(values))):
-            break
-        settle(pg, outs, adapt_noise, robust, noise_scale)
-        del outs  # not alive while the next step evaluates
-        pg.batch.invalidate()
-    return _Fit(values, k + 1, noise_scale, inn0, k + 1, linearized_at=at)
-
-
-def _solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
-                  adapt_noise: bool, hook: _History,
-                  progress: Callable[[str], None] | None, identify_noise: bool = False) -> _Fit:
-    """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
-    are re-estimated from the innovations and the robust weights updated. The first run goes
-    to convergence from the start values; the settling rounds after it are short; once nothing
-    changes (or the cost moves by less than :data:`COST_SETTLED`) one LM run goes to
-    convergence."""
-    graph, batch = pg.graph, pg.batch
-    iterations, sol = 0, pg.values
-    inn0: list[Array] | None = None
-    noise_scale = np.ones(2)
-    prev_cost = None
-    final = settled = rounds <= 1
-    given = pg.problem.noise
-    ident = None
-    pg.identification = None
-    rnd = 0
-    while True:
-        rnd += 1
-        if progress is not None:
-            n = sum(p.win.count for p in pg.problems)
-            progress(f"position factors: {'final solve' if final else 'settling'} round {rnd} "
-                     f"({n} windows)")
-        pg.for_each("freeze_whitening", True)
-        batch.invalidate()
-        # The first run converges (from stages 1-2, unit weights); later ones only settle the
-        # levels and weights, until the last.
-        limit = max_iterations if (final or rnd == 1) else SETTLING_ITERATIONS
-        sol, rep = run_lm(graph, sol, limit, hook, predicted_tol=PREDICTED_TOL)
-        inn0 = hook.first_innovations if inn0 is None else inn0
-        iterations += rep.iterations
-        if final:
-            outs = evaluate_at(pg, sol)
-            break
-        outs = innovations_near(pg, sol, float(rep.final_error))
-        changed, moved = settle(pg, outs, adapt_noise and ident is None, robust, noise_scale)
-        if identify_noise and pg.identification is None:
-            # Once, after the first solve: the levels the data prefer there, used from then
-            # on when they contradict the given ones (a second identification at the final
-            # solution changed no answer by a tenth of a sigma on simulated flights).
-            pg.identification = identify(pg, sol, given)
-            if pg.identification.contradicts:
-                ident = pg.identification
-                moved_a = _noise_move(pg.problem.noise, ident.noise)
-                for pp in pg.problems:
-                    pp.noise = ident.noise
-                changed, moved = changed or moved_a > np.log(1.05), max(moved, moved_a)
-        cost = float(rep.final_error)
-        small = prev_cost is not None and abs(prev_cost - cost) < COST_SETTLED * abs(cost)
-        prev_cost = cost
-        settled = (not changed) or (small and moved < np.log(1.05))
-        final = settled or rnd >= rounds - 1
-        del outs  # not alive while the next round evaluates (60 min: 37 MB)
-        batch.invalidate()
-    require_converged("position", rep, max_iterations)
-    return _Fit(sol, iterations, noise_scale, inn0, rnd, capped=not settled)
-
-
-def identify(pg: PositionGraph, values: gtsam.Values,
-             given: NoiseModel) -> NoiseIdentification:
-    """The noise model the windows' likelihood prefers at ``values`` (every take)."""
-    problems = [(pp, pg.theta(values, k)) for k, pp in enumerate(pg.problems)]
-    return identify_noise(problems, pg.problem.noise, given)
-
-
-def _noise_move(a: NoiseModel, b: NoiseModel) -> float:
-    """The largest relative change of a level between two noise models (log of the ratio)."""
-    keys = ("accelerometer_noise_density", "gyroscope_noise_density", "mocap_position_sigma",
-            "mocap_rotation_sigma")
-    return max(abs(float(np.log(getattr(b, k) / getattr(a, k)))) for k in keys)
+        identification=fit.identification)
 
 
 def _mean_bias(windows: Windows, th: Theta) -> Array:
     return np.kron(mean_bias_weights(windows)[None, :], np.eye(6)) @ th.knots.reshape(-1)
 
 
-def _figures(pg: PositionGraph, fit: _Fit, outs: list[Any], seconds: float,
+def _figures(pg: PositionGraph, fit: Fit, outs: list[Any], seconds: float,
              keep_series: bool = True) -> tuple[StageStats, list[ResidualSeries], float, int]:
     """Stage statistics over every take, each take's residual series (empty without
     ``keep_series``), chi2/dof."""

@@ -16,9 +16,14 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.jit import kernel
 from mocap_calib.core.model import so3
-from mocap_calib.core.model.faults import ImuFaults, frozen_mocap, imu_faults, refuse_dead
 from mocap_calib.core.model.types import ImuSamples, MocapPoses, NoiseModel
 from mocap_calib.core.policy import MIN_SESSION_S, gap_threshold
+from mocap_calib.core.prepare.fault_detection import (
+    ImuFaults,
+    frozen_mocap,
+    imu_faults,
+    refuse_dead,
+)
 from mocap_calib.core.prepare.gaps import ImuGaps, find_imu_gaps
 from mocap_calib.core.prepare.noise_band import noise_band
 from mocap_calib.core.prepare.pose_flips import refuse_flips
@@ -224,7 +229,7 @@ def local_derivative(t: Array, y: Array, half: int,
 def _local_quadratic(t, y, half, seg, value, deriv, valid):  # pragma: no cover  (compiled)
     """Per sample, least squares of ``y = a + b dt + c dt^2`` over the samples within
     ``half`` of it (indices clipped at the ends; a fit at the ends or across a gap is marked
-    invalid and solved with identity normal equations, as before it was compiled)."""
+    invalid and solved with identity normal equations)."""
     M, d = y.shape
     A = np.zeros((3, 3))
     B = np.zeros((3, d))

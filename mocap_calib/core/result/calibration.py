@@ -31,7 +31,6 @@ from mocap_calib.core.model.parameters import (
     Parameter,
 )
 from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.result.estimate import Estimate, SigmaTerms, plain, read_sigma, read_value
 from mocap_calib.core.result.prior_report import PriorsReport
@@ -52,6 +51,7 @@ from mocap_calib.core.result.verdicts import (
     SensitivityReport,
 )
 from mocap_calib.core.stages.figures import ResidualSeries, StageStats
+from mocap_calib.core.versioned import check_kind, header
 from mocap_calib.errors import InputError
 
 if TYPE_CHECKING:
@@ -244,7 +244,7 @@ class CalibrationResult:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
         """Inverse of :meth:`to_dict`; raises ``KeyError``/``ValueError`` on a malformed dict
-        (:class:`~mocap_calib.core.model.versioned.KindError` for another kind of file or a newer
+        (:class:`~mocap_calib.core.versioned.KindError` for another kind of file or a newer
         version)."""
         if "kind" not in d and any(k in d for k in LEGACY_KEYS):
             missing = [k for k in LEGACY_KEYS if k not in d]

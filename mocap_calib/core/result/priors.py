@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.model.effects import EFFECTS
 from mocap_calib.core.model.parameters import PARAMETERS, PER_TAKE
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.trend import extrapolate_trend
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.stage import Prior
 from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.errors import InputError
@@ -202,7 +202,7 @@ def priors_from_results(results: Sequence[CalibrationResult], at_ns: int | None 
         times.append(int(t))
     order = np.argsort(times)
     results = [results[i] for i in order]
-    t_s = (np.array(sorted(times), dtype=np.int64) - int(at_ns)) * 1e-9  # s, relative to now
+    t_s = (np.array(sorted(times), dtype=np.int64) - int(at_ns)) * 1e-9  # s, from this session
     if np.ptp(t_s) <= 0:
         raise InputError("the --prior results are all from the same time; a trend needs "
                          "calibrations from different days")
@@ -221,7 +221,7 @@ def priors_from_results(results: Sequence[CalibrationResult], at_ns: int | None 
             ts.append(t)
         if len(xs) < 2:
             continue
-        # The line at t = 0 (now): times are relative to the new session.
+        # The line at t = 0: times are relative to the session being calibrated.
         mean, sd = extrapolate_trend(np.asarray(ts), np.stack(xs), np.stack(sig), 0.0)
         priors.append(Prior(name, _from_chart(name, mean, ref), sd))
     return priors

@@ -19,7 +19,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.graph import (
+from mocap_calib.core.gtsam_tools import (
     ABS_TOL,
     Huber,
     marginals,

@@ -5,17 +5,16 @@ Real mocap noise is far from white: marker sets change with occlusions, and the 
 its filters smooth, so consecutive poses share much of their error. The window filter can model
 a fraction of the mocap variance as an AR(1) process (:mod:`mocap_calib.core.position.engine`);
 its time constant and fraction are chosen here by the windows' exact likelihood, each candidate
-at its own best level. On EuRoC V2_03 the choice moved with the IMU densities and with where
-the white solution landed, and fed back into the point estimate moved it by several mm: it is
-now a check, the point estimate stays white.
+at its own best level. On EuRoC V2_03 the choice moves with the IMU densities and with where
+the white solution lands, and fed back into the point estimate it moves it by several mm: so
+it is a check, and the point estimate stays white.
 
 The IMU densities are not chosen here. The same likelihood, free to scale the accelerometer's,
 prefers 15-20 times the data sheet on EuRoC V2_03 (the in-flight vibration):
 ``--accel-noise-from-data`` uses that level (:func:`mocap_calib.core.position.settle.
 accel_level`); by default the densities stay as given and the sensitivity refits (x3 and x1/3)
-carry what not knowing them costs. (Before the lever arm turned with the filter's attitude, the
-data's level landed 50 mm from the ground-truth-implied lever arm; now 7.8 mm, where mocap2gt
-lands 5.3 mm.)
+carry what not knowing them costs. (With the data's level the lever arm lands 7.8 mm from the
+ground-truth-implied one on EuRoC V2_03, where mocap2gt lands 5.3 mm.)
 """
 
 from __future__ import annotations

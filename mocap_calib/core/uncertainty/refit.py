@@ -4,8 +4,8 @@ them (largest pairwise |difference| / combined sigma)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,7 +21,14 @@ from mocap_calib.core.model.parameters import (
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import Theta
 from mocap_calib.core.position.graph import PositionInit, Prior, Take, TakeStart
-from mocap_calib.core.position.stage import PositionResult, run_position_stage
+from mocap_calib.core.position.stage import (
+    Keep,
+    PositionResult,
+    PositionSolver,
+    Rounds,
+    Steps,
+    Weighting,
+)
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -38,17 +45,21 @@ def init_from(pos: PositionResult, which: list[IntArray]) -> PositionInit:
 def refit(pos: PositionResult, model: Model, which: list[IntArray], *,
           noise: NoiseModel | None = None, adapt_noise: bool = False, reweight: bool = False,
           priors: list[Prior] | None = None, max_iterations: int = 30,
-          one_step: bool | int = True, settled: Any = None) -> PositionResult:
+          one_step: bool | int = True,
+          settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
     """The solution refitted on the windows ``which`` of every take, with its robust weights
-    (and with ``noise`` instead of its noise model)."""
-    keep = [k for k, w in enumerate(which) if len(w)]
-    takes = [Take(pos.takes[k].s, pos.takes[k].windows.subset(which[k])) for k in keep]
-    weights = [pos.takes[k].weights[which[k]] for k in keep]
-    return run_position_stage(takes, model, noise or pos.noise, init_from(pos, which), priors,
-                              robust=False, adapt_noise=adapt_noise, weights=weights,
-                              max_iterations=max_iterations, one_step=one_step,
-                              reweight=reweight, settled=settled, axis_scale=pos.axis_scale,
-                              series=False)
+    (and with ``noise`` instead of its noise model): ``one_step`` Gauss-Newton steps (``True``:
+    one), or with ``one_step`` false LM rounds to convergence."""
+    kept = [k for k, w in enumerate(which) if len(w)]
+    takes = [Take(pos.takes[k].s, pos.takes[k].windows.subset(which[k])) for k in kept]
+    weighting = Weighting([pos.takes[k].weights[which[k]] for k in kept], pos.axis_scale)
+    solver = PositionSolver(takes, model, noise or pos.noise, priors)
+    init, keep = init_from(pos, which), Keep(series=False)
+    if not one_step:
+        return solver.solve(init, Rounds(robust=False, adapt_noise=adapt_noise,
+                                         max_iterations=max_iterations), weighting, keep)
+    return solver.refit(init, Steps(int(one_step), adapt_noise, reweight, settled), weighting,
+                        keep)
 
 
 def everything(pos: PositionResult) -> list[IntArray]:

@@ -38,8 +38,8 @@ from mocap_calib.core.model.parameters import (
     TRANSLATION,
     Parameter,
 )
-from mocap_calib.core.model.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.model.types import NoiseModel
+from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.engine import PositionProblem, Theta
 from mocap_calib.core.position.graph import Prior
 from mocap_calib.core.position.stage import PositionResult, effect_estimate
@@ -266,10 +266,7 @@ def correlated_mocap_model(pos: PositionResult,
     solution on up to :data:`CORRELATION_WINDOWS` windows of the take with the most, at the
     engine's rate; None when white noise fits best. Fitted once per solution (the effect
     tests and the sensitivity share it)."""
-    key = "_correlated_mocap_model"
-    if key not in pos.solver:
-        pos.solver[key] = _fit_correlated(pos, model)
-    return pos.solver[key]
+    return pos.memo.get("correlated_mocap_model", lambda: _fit_correlated(pos, model))
 
 
 def _fit_correlated(pos: PositionResult,

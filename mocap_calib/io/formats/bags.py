@@ -31,12 +31,12 @@ import numpy as np
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import InputError, input_error
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.ros.tf import chain, compose, frame, links, parse_frames
 from mocap_calib.io.formats.ros.tf_wire import Transforms, deserialise_tf, read_tf
 from mocap_calib.io.formats.ros.wire import deserialise_fixed, read_fixed
 from mocap_calib.io.reading import Format, ReadOptions, RecordingOptions
 from mocap_calib.io.streams import ImuTable, PoseTable
+from mocap_calib.io.validate import Lines
 
 __all__ = ["RecordingOptions", "open_bag", "read_bag_imu", "read_bag_mocap"]  # re-exported
 

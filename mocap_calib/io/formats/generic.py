@@ -44,18 +44,14 @@ from numpy.typing import NDArray
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS, POSITION_UNITS
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import QUAT_ORDERS, TIME_UNITS, check_unit
 from mocap_calib.io.formats.columns import (
-    BROAD,
     COLUMNS_FIX,
-    PRESETS,
     Col,
     ColumnMap,
     parse_columns,
 )
 from mocap_calib.io.formats.hints import COLUMNS_EXAMPLE, IMU_ONLY_EXAMPLE, unrecognised
 from mocap_calib.io.formats.layout import (
-    WHITESPACE,
     Layout,
     name_key,
     numeric_column,
@@ -65,12 +61,7 @@ from mocap_calib.io.formats.layout import (
 from mocap_calib.io.formats.stamps import parse_stamps
 from mocap_calib.io.reading import UNIT_OPTIONS, Format, ReadOptions, Stream
 from mocap_calib.io.streams import ImuTable, PoseTable
-from mocap_calib.io.tables import format_floats, write_table
-
-# Re-exported: the reader's building blocks used to live here.
-__all__ = ["BROAD", "PRESETS", "WHITESPACE", "ColumnMap", "Layout", "format_floats",
-           "name_key", "numeric_column", "parse_columns", "parse_stamps", "read_table",
-           "read_generic", "read_indexed", "resolve_column", "sniff_layout", "write_table"]
+from mocap_calib.io.validate import QUAT_ORDERS, TIME_UNITS, check_unit
 
 Array = NDArray[np.float64]
 

@@ -17,11 +17,11 @@ from numpy.typing import NDArray
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import TIME_UNITS, Lines, check_increasing, check_unit
 from mocap_calib.io.formats.layout import numeric_column, read_table, sniff_layout
 from mocap_calib.io.formats.stamps import parse_stamps
 from mocap_calib.io.merge import merge_on_gyro
 from mocap_calib.io.streams import ImuTable
+from mocap_calib.io.validate import TIME_UNITS, Lines, check_increasing, check_unit
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]

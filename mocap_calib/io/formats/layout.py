@@ -20,8 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.columns import COLUMNS_FIX, name_key
+from mocap_calib.io.validate import Lines
 
 __all__ = ["name_key"]  # re-exported: header names are matched by it
 
@@ -197,7 +197,7 @@ class Table:
 
 def data_lines(path: Path, skip: int, decimal: str = ".") -> list[str]:
     """The data lines of a file: after ``skip`` raw lines, comments cut, blank lines dropped
-    (the row numbering of :class:`~mocap_calib.io.checks.Lines`); a ``,`` decimal mark
+    (the row numbering of :class:`~mocap_calib.io.validate.Lines`); a ``,`` decimal mark
     becomes ``.`` (the delimiter is then ``;``).
 
     Raises:

@@ -34,10 +34,10 @@ import numpy as np
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import MocapPoses
 from mocap_calib.errors import InputError, input_error
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.layout import data_lines, parse_rows
 from mocap_calib.io.reading import ExportOptions, Format, ReadOptions
 from mocap_calib.io.streams import PoseTable
+from mocap_calib.io.validate import Lines
 
 __all__ = ["ExportOptions", "read_export", "sniff_export"]  # ExportOptions re-exported
 

@@ -6,9 +6,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.errors import InputError
-from mocap_calib.io.checks import TIME_UNITS, Lines
 from mocap_calib.io.formats.layout import NA_CELLS
 from mocap_calib.io.units import TIME_NAMES, time_unit_hint
+from mocap_calib.io.validate import TIME_UNITS, Lines
 
 IntArray = NDArray[np.int64]
 Text = NDArray[np.str_]
@@ -24,7 +24,7 @@ def parse_stamps(raw: Text, unit: str, label: str, lines: Lines,
 
     Args:
         raw: The column's cells as text ("" where empty).
-        unit: Unit of the numbers (a key of :data:`~mocap_calib.io.checks.TIME_UNITS`).
+        unit: Unit of the numbers (a key of :data:`~mocap_calib.io.validate.TIME_UNITS`).
         label: Column name for messages.
         lines: Where the rows came from.
         decimal: The file's decimal mark.

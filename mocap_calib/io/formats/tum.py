@@ -17,13 +17,13 @@ import numpy as np
 
 from mocap_calib.core.model.types import MocapPoses
 from mocap_calib.errors import InputError, input_error
-from mocap_calib.io.checks import QUAT_NORM_TOL
 from mocap_calib.io.formats.generic import indexed_tables
 from mocap_calib.io.formats.hints import headerless_euroc_poses
 from mocap_calib.io.formats.layout import WHITESPACE, Layout, read_table, sniff_layout
 from mocap_calib.io.reading import Format, ReadOptions
 from mocap_calib.io.streams import PoseTable
 from mocap_calib.io.tables import write_table
+from mocap_calib.io.validate import QUAT_NORM_TOL
 
 TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
 

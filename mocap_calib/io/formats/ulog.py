@@ -45,7 +45,6 @@ import numpy as np
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.ulog_file import (
     Instance,
     dropout_note,
@@ -61,6 +60,7 @@ from mocap_calib.io.formats.ulog_file import (
 from mocap_calib.io.merge import merge_on_gyro
 from mocap_calib.io.reading import Format, ReadOptions
 from mocap_calib.io.streams import Crop, ImuTable, PoseTable
+from mocap_calib.io.validate import Lines
 
 IMU_TOPICS = ("sensor_combined", "sensor_gyro", "sensor_accel")
 MOCAP_TOPICS = ("vehicle_mocap_odometry", "vehicle_visual_odometry")

@@ -5,8 +5,8 @@ notes) and a :class:`Provenance`; :func:`prefixed` makes the ids of sections uni
 results share one page. Per result kind: :func:`calibration_sections`,
 :func:`diagnosis_sections`, :func:`multipos_sections`, :func:`allan_sections`,
 :func:`batch_sections`. The files are read and the figures computed in the workflow layer
-(``mocap_calib.workflows.html.report``, e.g. ``write_batch_report``), and written there through
-``mocap_calib.io.atomic``.
+(``mocap_calib.workflows.report_files.pages``, e.g. ``write_batch_report``), and written there
+through ``mocap_calib.io.atomic``.
 matplotlib is imported only when a figure is drawn.
 """
 

@@ -62,7 +62,7 @@ def diagnosis_sections(report: DiagnosisRecord,
 def multipos_sections(result: MultiposResult, imu: ImuSamples,
                       residuals: PoseResiduals | None = None) -> list[Section]:
     """Intrinsics with 1-sigma, static intervals on the accel norm, per-pose residuals
-    (computed by ``workflows.html_intrinsics.pose_residuals``)."""
+    (computed by ``workflows.report_files.intrinsics.pose_residuals``)."""
     from mocap_calib.report.html.intrinsics import multipos_report_sections
 
     return multipos_report_sections(result, imu, residuals)

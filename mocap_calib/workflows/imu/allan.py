@@ -17,9 +17,9 @@ from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import save_yaml
 from mocap_calib.report.intrinsics_text import allan_summary
 from mocap_calib.workflows.calibrate import HTML_HELP
-from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.imu.imu_input import CropSpec, ImuSpec, ProgressFn, say
 from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
+from mocap_calib.workflows.report_files.provenance import RunClock
 
 _HEADER = ("mocap-calib allan noise model (Kalibr imu.yaml keys, SI units). See "
            "docs/conventions.md.")
@@ -111,7 +111,7 @@ def run_allan(request: AllanRequest, progress: ProgressFn | None = None) -> Alla
     run = AllanRun(result, imu, notes)
 
     def page() -> None:
-        from mocap_calib.workflows.html.intrinsics import write_allan_html
+        from mocap_calib.workflows.report_files.intrinsics import write_allan_html
 
         write_allan_html(html, result, [spec.imu], clock)
 

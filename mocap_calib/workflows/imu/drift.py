@@ -23,9 +23,9 @@ from mocap_calib.core.intrinsics.multipos.result import VERSION as INTRINSICS_VE
 from mocap_calib.core.intrinsics.multipos.units import RawConversion
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.core.model.versioned import KindError, check_kind
 from mocap_calib.core.params import group, param
 from mocap_calib.core.policy import GAP_FACTOR, gap_threshold
+from mocap_calib.core.versioned import KindError, check_kind
 from mocap_calib.errors import InputError
 from mocap_calib.io.formats.bags import RecordingOptions
 from mocap_calib.io.formats.mocap_exports import ExportOptions
@@ -189,9 +189,9 @@ class DriftRun:
 
 def _check_segment_options(start: float, end: float, static_window_s: float) -> None:
     if not (np.isfinite(start) and np.isfinite(end)):
-        raise InputError("--start and --end must be finite times in s")
+        raise InputError("--segment-start and --segment-end must be finite times in s")
     if not start < end:
-        raise InputError(f"--start {start:g} s must be before --end {end:g} s")
+        raise InputError(f"--segment-start {start:g} s must be before --segment-end {end:g} s")
     if not static_window_s > 0:
         raise InputError(f"--static-window {static_window_s:g}: must be positive")
 
@@ -205,7 +205,7 @@ def _refuse_gaps(imu: ImuSamples, t0: float, t1: float) -> None:
         raise InputError(
             f"{imu.source}: the segment holds {len(gaps)} IMU gap(s), the first of "
             f"{d[i]:.3f} s at {imu.t[i] - imu.t[0]:.3f} s; the gyro cannot be integrated "
-            "across a gap: choose --start/--end between the gaps")
+            "across a gap: choose --segment-start/--segment-end between the gaps")
 
 
 def _read_streams(spec: ImuSpec, mocap: Path | None, fmt: MocapFormat,
@@ -255,7 +255,8 @@ def _mocap_reference(imu: ImuSamples, poses: MocapPoses, cal: DriftCalibration, 
     """Keyword arguments of the drift check for a mocap reference (IMU attitudes on IMU
     times, gravity direction)."""
     assert cal.R_MI is not None
-    # tau = u + (origin_imu - origin_mocap) 1e-9 + t_d  (core/session.py): mocap -> IMU clock.
+    # Mocap times onto the IMU clock: tau = u + (origin_imu - origin_mocap) 1e-9 + t_d, as
+    # core/prepare/session.py relates the clocks.
     shift = (poses.time_origin_ns - imu.time_origin_ns) * 1e-9
     t_ref = poses.t + shift - cal.time_offset
     if t_ref[0] > t0 or t_ref[-1] < t1:
@@ -264,7 +265,7 @@ def _mocap_reference(imu: ImuSamples, poses: MocapPoses, cal: DriftCalibration, 
                          f"segment [{start:g}, {end:g}] s; choose a segment inside both")
     kwargs: dict[str, Any] = {"reference_series": reference_on_imu_times(
         imu.t, t_ref, poses.rotation @ cal.R_MI, t0, t1, GAP_FACTOR,
-        ("--start", "--end"))}
+        ("--segment-start", "--segment-end"))}
     if cal.gravity_dir is not None:
         kwargs["gravity_dir"] = cal.gravity_dir
     else:
@@ -278,18 +279,19 @@ class DriftRequest:
 
     calibration: Path = param(MISSING, "calibration YAML: a 'calibrate' result or 'multipos' "
                               "intrinsics", metavar="PATH")
-    start: float = param(MISSING, "segment start, s after the IMU log's first sample",
-                         unit="s", lo=0.0)
-    end: float = param(MISSING, "segment end, s after the IMU log's first sample", unit="s",
-                       lo=0.0, lo_open=True)
+    segment_start: float = param(MISSING, "start of the segment integrated, s after the IMU "
+                                 "log's first sample", unit="s", lo=0.0)
+    segment_end: float = param(MISSING, "end of the segment integrated, s after the IMU log's "
+                               "first sample", unit="s", lo=0.0, lo_open=True)
     imu: ImuSpec = group(ImuSpec, "Input")
     mocap: Path | None = param(
         None, "mocap poses T_WM of the same session (the reference attitude); without them the "
-        "accelerometer at rest at --start and --end", metavar="PATH", show_default=False)
+        "accelerometer at rest at --segment-start and --segment-end", metavar="PATH",
+        show_default=False)
     poses: MocapFormat = group(MocapFormat, "Mocap")
     static_window: float = param(
-        1.0, "without --mocap: window around --start/--end over which the accelerometer is "
-        "averaged", unit="s", lo=0.0, lo_open=True, hi=600.0)
+        1.0, "without --mocap: window around --segment-start/--segment-end over which the "
+        "accelerometer is averaged", unit="s", lo=0.0, lo_open=True, hi=600.0)
     out: Path | None = output(None, "also write the figures as YAML", metavar="PATH",
                               show_default=False)
     quiet: bool = param(False, "no progress lines", decls=("--quiet", "-q"))
@@ -301,20 +303,22 @@ class DriftRequest:
 def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> DriftRun:
     """Attitude-drift check of a calibration over a segment of an IMU log.
 
-    The gyro is integrated over ``[start, end]`` (s after the IMU log's first sample) raw and
-    calibrated, from the same initial attitude; roll and pitch are compared with the
-    reference at ``end``. With ``mocap``, the attitudes are ``R_WM R_MI`` (``R_MI`` from the
-    calibration's ``T_marker_imu``, mocap times moved onto the IMU clock with its
-    ``time_offset``, gravity along its ``gravity_in_mocap``), else roll and pitch come from
-    the accelerometer, and the IMU must rest at ``start`` and ``end``. With ``out``, the
+    The gyro is integrated over ``[segment_start, segment_end]`` (s after the IMU log's first
+    sample) raw and calibrated, from the same initial attitude; roll and pitch are compared
+    with the reference at the segment's end. With ``mocap``, the attitudes are ``R_WM R_MI``
+    (``R_MI`` from the calibration's ``T_marker_imu``, mocap times moved onto the IMU clock with
+    its ``time_offset``, gravity along its ``gravity_in_mocap``), else roll and pitch come from
+    the accelerometer, and the IMU must rest at the segment's start and end. With ``out``, the
     figures are written as YAML.
 
     Raises:
-        InputError: bad files or options, ``start >= end``, segment outside the log, mocap
-            with a calibration that has no ``T_marker_imu``.
-        ObservabilityError: no mocap and the IMU is not at rest at ``start`` or ``end``.
+        InputError: bad files or options, the segment's start not before its end, segment
+            outside the log, mocap with a calibration that has no ``T_marker_imu``.
+        ObservabilityError: no mocap and the IMU is not at rest at the segment's start or
+            end.
     """
-    spec, calibration, start, end = request.imu, request.calibration, request.start, request.end
+    spec, calibration = request.imu, request.calibration
+    start, end = request.segment_start, request.segment_end
     mocap, out, static_window_s = request.mocap, request.out, request.static_window
     request.plan().check()
     _check_segment_options(start, end, static_window_s)
@@ -335,8 +339,8 @@ def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> Drif
         notes.append("raw counts converted with the calibration's 'raw_input'")
     if start < 0 or end > imu.duration + 1e-9:
         raise InputError(f"segment [{start:g}, {end:g}] s is outside the IMU log, which spans "
-                         f"0-{imu.duration:.3f} s after its first sample; choose --start and "
-                         "--end inside it")
+                         f"0-{imu.duration:.3f} s after its first sample; choose "
+                         "--segment-start and --segment-end inside it")
     t0 = float(imu.t[0]) + start
     t1 = float(imu.t[0]) + end
     _refuse_gaps(imu, t0, t1)
@@ -349,7 +353,8 @@ def run_drift(request: DriftRequest, progress: ProgressFn | None = None) -> Drif
     say(progress, f"integrating the gyro over [{start:g}, {end:g}] s, raw and calibrated")
     result = attitude_drift_check(
         imu, t0, t1, gyro_cal,
-        not_at_rest_fix="pass --mocap or move --start/--end to where the IMU rests", **kwargs)
+        not_at_rest_fix="pass --mocap or move --segment-start/--segment-end to where the IMU "
+        "rests", **kwargs)
     # Report times relative to the log's first sample, as the options are given.
     result = replace(result, t0=result.t0 - float(imu.t[0]), t1=result.t1 - float(imu.t[0]),
                      series_t=result.series_t - float(imu.t[0]))

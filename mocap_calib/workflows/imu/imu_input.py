@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap_calib.core.model.faults import dead_channels, describe_dead, frozen
 from mocap_calib.core.model.rest import runs
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.core.params import param
+from mocap_calib.core.prepare.fault_detection import dead_channels, describe_dead, frozen
 from mocap_calib.errors import InputError
 from mocap_calib.io.loader import load_imu_file
 from mocap_calib.io.streams import Crop

@@ -26,9 +26,9 @@ from mocap_calib.io.result_files import INTRINSICS_FIX, read_intrinsics
 from mocap_calib.io.yaml_io import INTRINSICS_NUMBERS, non_finite, save_yaml
 from mocap_calib.report.intrinsics_text import multipos_summary
 from mocap_calib.workflows.calibrate import HTML_HELP
-from mocap_calib.workflows.html.provenance import RunClock
 from mocap_calib.workflows.imu.imu_input import CropSpec, ImuSpec, ProgressFn, say
 from mocap_calib.workflows.outputs import OutputPlan, Product, output, write_products
+from mocap_calib.workflows.report_files.provenance import RunClock
 
 #: Parameters a multipos prior constrains by default: the matrices. Turn-on biases change from
 #: one power-up to the next by more than a session's sigma, so they are opt-in.
@@ -251,7 +251,7 @@ def run_multipos(request: MultiposRequest, progress: ProgressFn | None = None) -
                                "solution); nothing written: check the session")
 
     def page() -> None:
-        from mocap_calib.workflows.html.intrinsics import write_multipos_html
+        from mocap_calib.workflows.report_files.intrinsics import write_multipos_html
 
         write_multipos_html(html, result, imu, [spec.imu, spec.accel, spec.gyro, *prior_files],
                             clock)

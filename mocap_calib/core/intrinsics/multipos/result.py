@@ -12,8 +12,8 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.intrinsics.multipos.params import PARAMETERS
 from mocap_calib.core.intrinsics.multipos.units import RawConversion, change_units, imu_tk_form
-from mocap_calib.core.model.versioned import check_kind, header
 from mocap_calib.core.policy import GRAVITY
+from mocap_calib.core.versioned import check_kind, header
 
 Array = NDArray[np.float64]
 

@@ -26,11 +26,11 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.policy import ACCEL_UNITS, GYRO_UNITS
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import Lines
 from mocap_calib.io.formats.crazyflie.usd_file import Event, UsdLog, is_usd_log, read_usd_log
 from mocap_calib.io.merge import merge_on_gyro
 from mocap_calib.io.reading import Format, ReadOptions
 from mocap_calib.io.streams import ImuTable, PoseTable
+from mocap_calib.io.validate import Lines
 
 GYRO_EVENT = "estGyroscope"
 ACCEL_EVENT = "estAcceleration"

@@ -23,8 +23,8 @@ from numpy.typing import NDArray
 from mocap_calib.core.model.so3 import quat_multiply
 from mocap_calib.core.policy import gap_threshold
 from mocap_calib.errors import input_error
-from mocap_calib.io.checks import QUAT_NORM_TOL
 from mocap_calib.io.formats.ros.tf_wire import Transforms
+from mocap_calib.io.validate import QUAT_NORM_TOL
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -19,13 +19,15 @@ is ever fixed silently. When no reading explains the data and the fit at the cho
 is no better than at offsets known to be wrong (chance), the two streams do not belong together.
 The check costs nothing when the base fit is good: :func:`base_fit_poor` decides from the
 stage 1-2 residuals the pipeline already has.
+
+It belongs to aligning the two streams: each reading gets its own clock search (:mod:`.search`),
+and where the data as given fit unambiguously at another offset than the search's, the
+calibration starts there (the pipeline's first fits decide when the check runs).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,9 +45,6 @@ from mocap_calib.core.prepare.kinematics import (
 from mocap_calib.core.prepare.sensor_agreement import refuse_unmeasured_motion
 from mocap_calib.core.prepare.session import PreparedSession, local_derivative
 from mocap_calib.errors import InputError, ObservabilityError
-
-if TYPE_CHECKING:
-    from mocap_calib.core.options import CalibrationOptions
 
 Array = NDArray[np.float64]
 
@@ -387,50 +386,3 @@ def base_fit_poor(s: PreparedSession, spacing: float, rms_attitude_rad: float,
     vel = float(np.sqrt(np.mean(dv**2))) if len(dv) else 0.0
     return (rot > 0 and rms_attitude_rad > POOR_ROTATION * rot) or (
         vel > 0 and rms_velocity > POOR_VELOCITY * vel)
-
-
-def explain_failure(s: PreparedSession, opts: CalibrationOptions, position_unit_m: float,
-                    say: Callable[[str], None]) -> float | None:
-    """After the clock alignment or stages 1-2 failed: raise the mistake that explains the
-    failure, if one does.
-
-    Returns:
-        The clock offset at which the data as given fit, when that is unambiguous (the next
-        best offset over a second away fits at least twice worse; periodic motion does not)
-        and the model estimates the offset: the calibration can start there. Else None (the
-        caller re-raises the original error).
-    """
-    say("checking the inputs' conventions (the first fits failed)")
-    known = [] if opts.time_offset is None else [opts.time_offset]
-    fit = check_conventions(s, known, opts.gravity, opts.max_offset, position_unit_m)
-    free = opts.model.timed and opts.time_offset is None
-    if fit is None or not free or fit.runner_up < 2.0 * fit.score:
-        return None
-    say(f"the data as given fit at clock offset {fit.t_d:.4f} s (closed-form fit)")
-    return fit.t_d
-
-
-def screen_conventions(s: PreparedSession, opts: CalibrationOptions, t_d: float,
-                       candidates: list[float], rms_attitude_deg: list[float],
-                       rms_velocity: list[float], position_unit_m: float,
-                       say: Callable[[str], None]) -> float | None:
-    """After stages 1-2: when their residuals are a large fraction of the motion, try the
-    other conventions (nothing is computed when the fit is good).
-
-    Returns:
-        A better starting clock offset, when the data as given fit well at one more than
-        :data:`CLOCK_MOVE` s from ``t_d`` (the coarse search picked a wrong lag; slow motion
-        blurs its peak) and the model estimates the offset; else None.
-    """
-    rot = float(np.radians(np.sqrt(np.mean(np.square(rms_attitude_deg)))))
-    vel = float(np.sqrt(np.mean(np.square(rms_velocity))))
-    if not base_fit_poor(s, opts.keyframe_spacing, rot, vel):
-        return None
-    say("the first fits are poor: checking the inputs' conventions")
-    fit = check_conventions(s, [t_d, *candidates], opts.gravity, opts.max_offset,
-                            position_unit_m)
-    free = opts.model.timed and opts.time_offset is None
-    if fit is None or not free or abs(fit.t_d - t_d) <= CLOCK_MOVE:
-        return None
-    say(f"the data fit at clock offset {fit.t_d:.4f} s, not {t_d:.4f} s: starting there")
-    return fit.t_d

@@ -16,7 +16,7 @@ from mocap_calib.core.result.calibration import CalibrationResult
 from mocap_calib.core.result.series import OutputSeries
 from mocap_calib.io.yaml_io import save_text
 from mocap_calib.report.html import Provenance, Section, render_html
-from mocap_calib.workflows.html.provenance import RunClock, provenance
+from mocap_calib.workflows.report_files.provenance import RunClock, provenance
 
 if TYPE_CHECKING:
     from mocap_calib.core.diagnosis.report import DiagnoseReport

@@ -1,4 +1,5 @@
-"""Sensor faults in raw streams: dead channels, saturation and frozen (repeated) samples.
+"""Detecting sensor faults in raw streams: dead channels, saturation and frozen (repeated)
+samples.
 
 A real sensor never repeats its full reading for long, and never reads exactly its extreme
 value many times in a row unless it clips. Each detector works on exact equality of the
@@ -6,9 +7,10 @@ numbers as logged (repeats of the same float), so quantised but healthy logs are
 on EuRoC V2_03 and the BROAD trials no sample is (longest repeat of the full IMU reading: 5
 samples, 17 ms; most samples at a channel's extreme: 2).
 
-Users: the readers refuse dead sensors (:func:`dead_channels`); the calibration leaves the
-saturated and frozen spans out (:mod:`mocap_calib.core.prepare.imu_faults`); the IMU-only
-tools refuse logs with frozen spans.
+Users: preparing a session refuses dead sensors (:func:`refuse_dead`) and removes frozen mocap;
+the calibration leaves the saturated and frozen IMU spans out
+(:mod:`mocap_calib.core.prepare.fault_spans`); the IMU-only tools refuse dead channels and logs
+with frozen spans.
 """
 
 from __future__ import annotations

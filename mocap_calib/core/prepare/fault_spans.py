@@ -1,7 +1,8 @@
-"""Sensor faults in a calibration session: leave the faulty IMU spans out.
+"""The faulty IMU spans of a calibration session left out.
 
 Dead sensors are refused and frozen mocap is removed when the session is prepared
-(:func:`mocap_calib.core.prepare.session.prepare`, with :mod:`mocap_calib.core.model.faults`).
+(:func:`mocap_calib.core.prepare.session.prepare`, with
+:mod:`mocap_calib.core.prepare.fault_detection`).
 Saturated or frozen IMU samples cannot simply be dropped (the preintegration needs every sample
 between two poses), so once the clock offset is known the mocap poses around them are removed:
 no factor then spans them. How much was left out goes into the notes; a session that would lose

@@ -14,8 +14,8 @@ from mocap_calib.core.model import so3
 from mocap_calib.core.model.preint import quat_increments, quat_product, sample_nodes
 from mocap_calib.core.model.types import ImuSamples
 from mocap_calib.report.html.intrinsics import PoseResiduals
-from mocap_calib.workflows.html.provenance import RunClock
-from mocap_calib.workflows.html.report import write_report
+from mocap_calib.workflows.report_files.pages import write_report
+from mocap_calib.workflows.report_files.provenance import RunClock
 
 
 def pose_residuals(result: MultiposResult, imu: ImuSamples) -> PoseResiduals:
