@@ -97,6 +97,9 @@ BEFORE = {
     "prior_translation_1e308": "1da82c7: exit 0, a result written",
     "prior_negative_sigma": "1da82c7: exit 70, internal error: ValueError (GTSAM: sigma values "
                             "must be non-negative)",
+    "prior_conflicting": "cff7924: exit 0, p_MI 48.6 mm off the truth (sigma 0.27 mm), "
+                         "nothing said of the prior",
+    "prior_consistent": "cff7924: exit 0, right, nothing said of the prior",
     "noise_1e30": "1da82c7: exit 3, 'the data do not determine every parameter (GTSAM: "
                   "indeterminate linear system)' (wrong cause)",
     "plausible_nan": "1da82c7: exit 0, the accel bias check off",

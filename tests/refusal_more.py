@@ -180,6 +180,13 @@ def _with_prior(**changes: object) -> Callable[[Path], list[str]]:
     return build
 
 
+def _prior_moved(d: Path) -> list[str]:
+    """A --prior (the truth) whose lever arm is 50 mm off along x, with a 0.2 mm sigma."""
+    t = clean().truth["T_marker_imu"]["translation"]
+    return _with_prior(**{"T_marker_imu.translation": [t[0] + 0.05, t[1], t[2]],
+                          "sigma.translation": [2e-4] * 3})(d)
+
+
 def _with_option_file(option: str, text: str) -> Callable[[Path], list[str]]:
     def build(d: Path) -> list[str]:
         _safety_mav0(d)
@@ -249,6 +256,11 @@ SAFETY_CASES: list[Case] = [
     Case("prior_negative_sigma", "priors", "a --prior with negative sigmas",
          _with_prior(**{"sigma.rotation": [-1e-3, 1e-3, 1e-3]}),
          Expect(2, ("prior.yaml", "sigma.rotation", "positive"))),
+    Case("prior_conflicting", "priors", "a --prior whose lever arm is 50 mm off (sigma 0.2 mm)",
+         _prior_moved, Expect(2, ("prior.yaml", "p_MI", "from what this session's data say",
+                                  "--trust-prior"))),
+    Case("prior_consistent", "priors", "a --prior of the same rig (its truth, 1 mm sigma)",
+         _with_prior(), Expect(0, notes=("priors used from", "agrees"))),
     Case("noise_1e30", "option files", "a --noise file with a density of 1e30",
          _with_option_file("--noise", "gyroscope_noise_density: 1.0e+30\n"),
          Expect(2, ("opt.yaml", "gyroscope_noise_density", "--gyro-noise"))),

@@ -136,7 +136,8 @@ class _Batch:
             d = self.results[j].to_dict()
             d["session"] = {**d["session"], "imu_start_ns": self.m.sessions[j].time_ns}
             history.append(d)
-        return SessionJob(s.id, s.request, tuple(history), s.time_ns)
+        return SessionJob(s.id, s.request, tuple(history), s.time_ns,
+                          tuple(str(self.result_path(j)) for j in preds))
 
     def tell(self, last: str) -> None:
         st = self.state

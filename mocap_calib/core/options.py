@@ -71,6 +71,9 @@ class CalibrationOptions:
     accept_implausible: bool = param(
         False, "write an answer that fails the plausibility checks (marked as such) instead of "
         "exiting 4", decls=("--accept-implausible",))
+    trust_prior: bool = param(
+        False, "use a --prior even where this session's data contradict it (noted, and marked "
+        "in the result's priors section) instead of exiting 2", decls=("--trust-prior",))
     noise: NoiseModel = field(default_factory=NoiseModel)
     priors: list[Prior] = field(default_factory=list)
     plausible: PlausibleLimits = field(default_factory=PlausibleLimits)

@@ -146,8 +146,8 @@ def _value_rows(label: str, val: object, sig: object) -> list[tuple[str, str, st
 
 
 def checks_lines(r: CalibrationResult) -> list[str]:
-    """One line each: the clock search, the plausibility verdict, the segments' consistency
-    and the sensitivity to the noise densities."""
+    """One line each: the clock search, the plausibility verdict, the priors, the segments'
+    consistency and the sensitivity to the noise densities."""
     out = []
     c = r.clock
     if c is not None:
@@ -165,6 +165,7 @@ def checks_lines(r: CalibrationResult) -> list[str]:
                  if fig.up_axis is not None else "")
         out.append(f"plausibility: {pl.verdict}{where}"
                    + "".join(f"; FAILED: {x}" for x in pl.failed))
+    out += priors_lines(r)
     cons = r.consistency
     if cons is not None and cons.max_pairwise_z:
         z = ", ".join(f"{p.symbol} {v:.2f}" for p, v in cons.max_pairwise_z.items())
@@ -180,6 +181,17 @@ def checks_lines(r: CalibrationResult) -> list[str]:
                    f"{', '.join(parts)} sigma")
     out += uncertainty_lines(r)
     return out
+
+
+def priors_lines(r: CalibrationResult) -> list[str]:
+    """The priors used and, per block, its largest |z| against the session's data alone."""
+    pr = r.priors
+    if pr is None:
+        return []
+    parts = [f"{b.label()} |z| {abs(b.z[b.worst]):.2g}" + (" CONFLICT" if b.conflict else "")
+             if b.z else f"{b.label()} untested" for b in pr.blocks]
+    return [f"priors ({', '.join(pr.sources)}) against the data alone: {', '.join(parts)}"
+            + (f"; conflicting ones kept ({pr.conflicts[0].label()})" if pr.conflicts else "")]
 
 
 #: The sigma rule's terms (docs/conventions.md, ``uncertainty:``; fields of

@@ -17,9 +17,9 @@ from mocap_calib.workflows.report_files.provenance import RunClock
 from mocap_calib.workflows.session import InputSpec, NoiseSpec, load_session
 
 #: Calibration options that the diagnosis sets itself (its model is --start-model plus what it
-#: finds; it compares models without the consistency segments and never writes an
-#: implausible answer).
-NOT_OPTIONS = ("model", "segments", "accept_implausible")
+#: finds; it compares models without the consistency segments, never writes an implausible
+#: answer and takes no priors).
+NOT_OPTIONS = ("model", "segments", "accept_implausible", "trust_prior")
 
 
 @dataclass

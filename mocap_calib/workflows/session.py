@@ -343,4 +343,6 @@ def load_priors(paths: list[Path] | tuple[Path, ...], at_ns: int,
         if problems:
             raise InputError(f"{p}: as a --prior, {problems[0]}; give the result of a "
                              "calibration that passed its checks")
-    return priors_from_results(results, at_ns if len(results) > 1 else None)
+    sources = tuple(str(p) for p in paths)
+    return [replace(pr, sources=sources)
+            for pr in priors_from_results(results, at_ns if len(results) > 1 else None)]

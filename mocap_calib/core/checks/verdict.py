@@ -1,6 +1,8 @@
 """The verdict on a finished calibration: plausible or refused, consistent, robust to the noise
 models, with one documented rule for every reported sigma.
 
+0. Priors (:mod:`~mocap_calib.core.checks.priors`): each prior against what the session's data
+   say without it; one they contradict is refused (exit 2), or kept and named.
 1. Consistency (:mod:`~mocap_calib.core.uncertainty.segments`): the session's time segments
    (and its takes) calibrated on their own.
 2. Sensitivity (:mod:`~mocap_calib.core.uncertainty.sensitivity`): the answer under IMU noise
@@ -39,6 +41,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.checks.degenerate import mark_undetermined, single_axis_refusal
 from mocap_calib.core.checks.plausibility import check_plausibility
+from mocap_calib.core.checks.priors import check_priors
 from mocap_calib.core.checks.reports import (
     consistency_degraded,
     consistency_report,
@@ -76,15 +79,17 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
           opts: CalibrationOptions, clocks: list[ClockSearch | None],
           say: Callable[[str], None], single_axis: Array | None = None
           ) -> tuple[CalibrationResult, dict[str, float]]:
-    """``r`` with its clock, plausibility, consistency, sensitivity and uncertainty sections
-    and its sigmas set by the rule; and the seconds the consistency and the sensitivity steps
-    took.
+    """``r`` with its clock, priors, plausibility, consistency, sensitivity and uncertainty
+    sections and its sigmas set by the rule; and the seconds the consistency and the
+    sensitivity steps took.
 
     Args:
         single_axis: the one rotation axis of degenerate motion (marker frame), if any: an
             implausible answer is then blamed on the motion, which is named.
 
     Raises:
+        InputError: a prior conflicts with the session's data and
+            ``opts.trust_prior`` is off (:mod:`~mocap_calib.core.checks.priors`).
         PlausibilityError: the answer is implausible and ``opts.accept_implausible`` is off.
         ObservabilityError: the same, on motion about one axis only; or the motion determines
             none of R_MI, p_MI and the clock offset.
@@ -92,6 +97,8 @@ def judge(r: CalibrationResult, sessions: list[PreparedSession], pos: PositionRe
     clock = clocks[0] if len(clocks) == 1 else None
     if clock is not None:
         r = replace(r, clock=ClockSummary.of(clock, r.time_offset))
+    # The priors first: one the session's data contradict is the input to blame.
+    r = check_priors(r, pos, opts, say)
     cons, takes, sens = Consistency(), Consistency(), Sensitivity()
     t0 = time.perf_counter()
     if opts.segments >= 2:

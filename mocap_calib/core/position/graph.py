@@ -60,11 +60,13 @@ class Prior:
         value: the block's value in its natural form (rotation as 3x3, gravity as unit vector,
             time offset as the IMU/mocap ``t_d``, effects as their parameter vector).
         sigma: 1-sigma per tangent component.
+        sources: the result files it comes from (two or more: their trend), as given.
     """
 
     block: str
     value: Any
     sigma: Array
+    sources: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

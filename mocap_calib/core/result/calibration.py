@@ -33,6 +33,7 @@ from mocap_calib.core.model.parameters import (
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.result.estimate import Estimate, SigmaTerms, plain, read_sigma, read_value
+from mocap_calib.core.result.prior_report import PriorsReport
 from mocap_calib.core.result.sections import (
     ClockSummary,
     Degradation,
@@ -104,6 +105,7 @@ class CalibrationResult:
     effect_tests: EffectTests | None = None
     model_selection: ModelSelection | None = None
     noise_identification: NoiseIdentification | None = None
+    priors: PriorsReport | None = None
     degraded: tuple[Degradation, ...] = ()
     version: int = RESULT_VERSION
     diagnostics: Diagnostics | None = field(default=None, repr=False, compare=False)
@@ -234,6 +236,7 @@ class CalibrationResult:
             "effect_tests": _or_empty(self.effect_tests),
             **({"model_selection": self.model_selection.to_dict()}
                if self.model_selection is not None else {}),
+            **({"priors": self.priors.to_dict()} if self.priors is not None else {}),
             **({"degraded": [x.to_dict() for x in self.degraded]} if self.degraded else {}),
             "notes": list(self.notes),
         }
@@ -275,6 +278,7 @@ class CalibrationResult:
             plausibility=Plausibility.from_dict(d.get("plausibility")),
             effect_tests=EffectTests.from_dict(d.get("effect_tests")),
             model_selection=ModelSelection.from_dict(d.get("model_selection")),
+            priors=PriorsReport.from_dict(d.get("priors")),
             degraded=tuple(Degradation.from_dict(x) for x in d.get("degraded") or []),
             version=version,
         )

@@ -119,8 +119,22 @@ def _result_sigmas(r: CalibrationResult) -> list[tuple[str, object]]:
         pairs.append(("sigma.time_offset", r.sigma_time_offset))
     for name, rec in r.effects.items():
         if isinstance(rec, dict) and rec.get("sigma") is not None:
-            pairs.append((f"effects.{name}.sigma", rec["sigma"]))
+            pairs.append((f"effects.{name}.sigma", _parameter_sigmas(name, rec["sigma"])))
     return [(k, v) for k, v in pairs if v is not None]
+
+
+def _parameter_sigmas(name: str, sigma: object) -> object:
+    """An effect's sigma as one number per parameter: a matrix term's sigmas are reported as
+    a matrix whose entries outside the term (the upper triangle of a lower-triangular one)
+    are zero, and only its own entries must be positive. Anything else as it is."""
+    eff = EFFECTS.get(name)
+    if eff is None or eff.acts_on not in ("w", "f"):
+        return sigma
+    try:
+        m = np.asarray(sigma, dtype=float).reshape(3, 3)
+    except (TypeError, ValueError):
+        return sigma
+    return np.einsum("kij,ij->k", eff.basis, m).tolist()
 
 
 def prior_problems(r: CalibrationResult, limits: PlausibleLimits) -> list[str]:
