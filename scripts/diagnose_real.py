@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -19,6 +21,7 @@ from _doc_section import add_doc_options, check, provenance, table, write  # noq
 from real_data_study import RECORDINGS  # noqa: E402
 
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose  # noqa: E402
+from mocap_calib.errors import CalibrationError, Interrupted  # noqa: E402
 from mocap_calib.workflows.session import NoiseSpec, load_session  # noqa: E402
 
 SECTIONS = ("diagnose_real",)
@@ -30,7 +33,14 @@ def run(key: str) -> dict:
     session = load_session(spec)
     opts = DiagnoseOptions()
     opts.calibration.noise = NoiseSpec().resolve(session.sensor_noise)
-    rep = diagnose(session.imu, session.mocap, opts)
+    t0 = time.perf_counter()
+    try:
+        rep = diagnose(session.imu, session.mocap, opts)
+    except Interrupted:
+        raise
+    except CalibrationError as err:  # a refusal is a result of the study, with its cause
+        return {"recording": label, "refused": f"exit {err.exit_code}: {err}",
+                "seconds": round(time.perf_counter() - t0, 1)}
     # The last step is the final calibration with the model found (clock search and noise
     # model chosen from the session, as `calibrate` does).
     steps = [{"model": s.model, "gyro_gap": round(s.residuals.ratio("gyro"), 2),
@@ -43,27 +53,39 @@ def run(key: str) -> dict:
 
 
 def markdown(reports: list[dict]) -> str:
-    """The section of docs/validation.md: one column per recording, one row per step."""
-    n_added = max(len(r["steps"]) - 2 for r in reports)  # base and final are no effect steps
+    """The section of docs/validation.md: one column per recording, one row per step (a
+    refused recording: its exit code and cause, to the first clause, in the first row)."""
+    done = [r for r in reports if "steps" in r]
+    n_added = max((len(r["steps"]) - 2 for r in done), default=0)  # base, final: no effect
 
     def gap(st: dict) -> str:
         return f"{st['gyro_gap']:.3g} / {st['accel_gap']:.3g}"
 
-    rows = [["base (no clock offset)", *(gap(r["steps"][0]) for r in reports)]]
-    clock_first = all(r["steps"][0]["added"] == "time_offset" for r in reports)
+    def refused(r: dict) -> str:
+        code, _, cause = r["refused"].partition(": ")
+        return f"{code}: {re.split(r' [(]|: ', cause, maxsplit=1)[0]}"
+
+    rows = [["base (no clock offset)", *(gap(r["steps"][0]) if "steps" in r
+                                         else f"refused, {refused(r)}" for r in reports)]]
+    clock_first = all(r["steps"][0]["added"] == "time_offset" for r in done)
     for k in range(1, n_added + 1):
         named = not (k == 1 and clock_first)
         name = "+ time_offset" if not named else f"+ {ORDINAL.get(k, f'{k}th')} effect"
         cells = []
         for r in reports:
-            st = r["steps"][k] if k < len(r["steps"]) - 1 else None
+            st = r["steps"][k] if "steps" in r and k < len(r["steps"]) - 1 else None
             added = r["steps"][k - 1]["added"] if st else None
             cells.append("-" if st is None else (f"{added}: {gap(st)}" if named else gap(st)))
         rows.append([name, *cells])
-    rows.append(["final calibration", *(gap(r["steps"][-1]) for r in reports)])
+    def final(r: dict) -> str:
+        # The last effect found enters only the final calibration: named there.
+        last = r["steps"][-2]["added"] if len(r["steps"]) > 1 else None
+        return f"+ {last}: {gap(r['steps'][-1])}" if last else gap(r["steps"][-1])
+
+    rows.append(["final calibration", *(final(r) if "steps" in r else "-" for r in reports)])
     rows.append(["significant but implausible (not in `found`)",
-                 *("; ".join(f"{x['effect']} ({x['reason']})" for x in r["implausible"]) or "-"
-                   for r in reports)])
+                 *("; ".join(f"{x['effect']} ({x['reason']})" for x in r.get("implausible", []))
+                   or "-" for r in reports)])
     rows.append(["run time", *(f"{r['seconds']:.0f} s" for r in reports)])
     return (provenance("diagnose_real.py") + "\n"
             + table(["step", *(r["recording"] for r in reports)], rows))
