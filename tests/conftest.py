@@ -1,4 +1,5 @@
-"""Shared test helpers: where the real recordings are, and loud skipping when they are absent.
+"""Shared test helpers: where the real recordings are, and loud skipping when they are absent;
+the check that a bad input is refused in one line.
 
 The recordings live in ``../shared/data`` next to the repository (never copied into it). Tests
 that need them use :func:`shared_data`: without the folder they skip, and the session summary
@@ -9,9 +10,12 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+from mocap_calib.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
@@ -56,3 +60,14 @@ def euroc_dir() -> Path:
 def broad21_csv() -> Path:
     """BROAD trial 21's one-file CSV."""
     return shared_data("broad_21_undisturbed_fast_combined", "data.csv")
+
+
+def refused(fn: Callable[[], object], *parts: str) -> str:
+    """Call ``fn``; it must raise a one-line InputError containing every part (returned)."""
+    with pytest.raises(InputError) as err:
+        fn()
+    msg = str(err.value)
+    assert "\n" not in msg
+    for part in parts:
+        assert part in msg, f"{part!r} not in {msg!r}"
+    return msg

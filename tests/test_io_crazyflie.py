@@ -10,11 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_data
+from conftest import refused, shared_data
 from usd_logs import ACCEL, BARO, GYRO, POSE, usd_bytes
 
 from mocap_calib.core.model import so3
-from mocap_calib.errors import InputError
 from mocap_calib.io.formats.crazyflie.usd_file import read_usd_log
 from mocap_calib.io.loader import load_imu_file, load_inputs, sniff_format
 
@@ -54,15 +53,6 @@ def put(tmp_path: Path, data: bytes, name: str = "log00") -> Path:
     path.write_bytes(data)
     return path
 
-
-def refused(fn, *parts: str) -> str:
-    with pytest.raises(InputError) as err:
-        fn()
-    msg = str(err.value)
-    assert "\n" not in msg
-    for part in parts:
-        assert part in msg, f"{part!r} not in {msg!r}"
-    return msg
 
 
 # --- the real flights ------------------------------------------------------------------------

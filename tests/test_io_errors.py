@@ -3,15 +3,14 @@ and the fix; occlusions (NaN mocap rows) are dropped without an error."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import refused as raises
 
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.errors import InputError
 from mocap_calib.io.formats.columns import parse_columns
 from mocap_calib.io.formats.euroc import (
     read_euroc_imu,
@@ -63,16 +62,6 @@ def set_field(lines: list[str], line: int, field: int, value: str, sep: str = ",
     parts[field] = value
     lines[line - 1] = sep.join(parts)
 
-
-def raises(fn: Callable[[], object], *parts: str) -> str:
-    """Call ``fn``; it must raise a one-line InputError containing every part."""
-    with pytest.raises(InputError) as err:
-        fn()
-    msg = str(err.value)
-    assert "\n" not in msg
-    for part in parts:
-        assert part in msg, f"{part!r} not in {msg!r}"
-    return msg
 
 
 # --- structure -------------------------------------------------------------------------------

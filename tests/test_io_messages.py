@@ -12,26 +12,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_data
+from conftest import refused, shared_data
 from recordings import write_ulog
 from refusal_corpus import clean, run_cli
 
 from mocap_calib.core.model.types import ImuSamples, MocapPoses
-from mocap_calib.errors import InputError
 from mocap_calib.io.formats.euroc import write_euroc_imu, write_euroc_poses, write_mav0
 from mocap_calib.io.formats.tum import write_tum
 from mocap_calib.io.loader import load_imu_file, load_inputs
 from mocap_calib.io.streams import Crop
-
-
-def refused(fn, *parts: str) -> str:
-    with pytest.raises(InputError) as err:
-        fn()
-    msg = str(err.value)
-    assert "\n" not in msg
-    for part in parts:
-        assert part in msg, f"{part!r} not in {msg!r}"
-    return msg
 
 
 def cli_refusal(argv: list, *parts: str, code: int = 2) -> str:
