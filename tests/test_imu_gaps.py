@@ -185,10 +185,11 @@ def test_drift_refuses_a_segment_across_an_imu_gap(tmp_path: Path,
     capsys.readouterr()
     code = main(["drift", "--imu", str(out / "mav0" / "imu0" / "data.csv"), "--mocap",
                  str(out / "mav0" / "vicon0" / "data.csv"), "--calibration",
-                 str(out / "truth.yaml"), "--start", f"{start - 3:.3f}", "--end",
+                 str(out / "truth.yaml"), "--segment-start", f"{start - 3:.3f}", "--segment-end",
                  f"{start + length + 3:.3f}"])
     err = capsys.readouterr().err
-    assert code == 2 and "IMU gap" in err and "choose --start/--end between the gaps" in err
+    assert code == 2 and "IMU gap" in err
+    assert "choose --segment-start/--segment-end between the gaps" in err
 
 
 def test_imu_samples_select_keeps_the_origin() -> None:
