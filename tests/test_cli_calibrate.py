@@ -58,6 +58,7 @@ def test_calibrate_with_two_files_and_an_effect(session: Path, tmp_path: Path, c
 
 
 
+@pytest.mark.slow  # two full calibrations through the command line
 def test_noise_from_data_and_fixed_noise(tmp_path: Path, capsys) -> None:
     """A flight whose accelerometer is 10x noisier than its data sheet (the flying preset):
     by default the calibration uses the levels the data show, with --fixed-noise the given

@@ -26,6 +26,8 @@ from mocap_calib.io.yaml_io import save_result
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.workflows.session import load_priors
 
+pytestmark = pytest.mark.slow  # full calibrations with and without priors: not in the quick subset
+
 RIG = 77
 DAY_NS = 86400 * 10**9
 #: An IMU whose accelerometer matrix every simulated session shares (M_a - I, row-major; the
