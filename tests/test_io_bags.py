@@ -61,6 +61,7 @@ def csv_result(csv_session) -> dict:
     return _calibrate(InputSpec(imu=root / "imu0/data.csv", mocap=root / "vicon0/data.csv"))
 
 
+@pytest.mark.slow  # full calibrations: in the whole suite, not the quick subset
 @pytest.mark.parametrize("kind,name", [("rosbag1", "s.bag"), ("db3", "s_db3"),
                                        ("mcap", "s_mcap"), ("bare_mcap", "s.mcap")])
 def test_calibrate_on_a_bag_gives_the_csv_numbers(kind, name, csv_session, csv_result,
@@ -144,6 +145,7 @@ def px4_session(tmp_path_factory):
     return ulg, root
 
 
+@pytest.mark.slow  # full calibrations: in the whole suite, not the quick subset
 def test_calibrate_on_a_ulog_gives_the_csv_numbers(px4_session) -> None:
     ulg, root = px4_session
     csv = _calibrate(InputSpec(imu=root / "imu0/data.csv", mocap=root / "vicon0/data.csv"))

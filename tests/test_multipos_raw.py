@@ -65,6 +65,7 @@ def assert_targets(e: dict[str, float]) -> None:
 # Raw counts
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # full calibrations: in the whole suite, not the quick subset
 @pytest.mark.parametrize("seed", [0, 1])
 def test_raw_counts_meet_the_targets(seed: int) -> None:
     """16-bit counts, no units given: the starting point comes from the data; the result,
@@ -106,6 +107,7 @@ def test_a_nominal_only_sets_the_starting_point() -> None:
         assert same.poorly_determined == auto.poorly_determined == []
 
 
+@pytest.mark.slow  # full calibrations: in the whole suite, not the quick subset
 @pytest.mark.parametrize("factor", [10.0, 0.1])
 def test_rescaled_input_gives_identical_figures(factor: float) -> None:
     """Counts of a part 10x more (or less) sensitive: the same calibrated figures (noise and
@@ -180,6 +182,7 @@ def test_threshold_is_a_multiple_of_the_variance_norm() -> None:
 # g-sensitivity
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # full calibrations: in the whole suite, not the quick subset
 def test_g_sensitivity_is_recovered_and_needed() -> None:
     """A hidden G: recovered within 5 % of its norm, the gyro-integration residual with G at
     the noise level (that of the same session without G), several times larger without."""

@@ -72,6 +72,7 @@ def test_streams_in_error_are_not_explained_by_chance() -> None:
         check_conventions(other, [0.0])
 
 
+@pytest.mark.slow  # full calibrations: in the whole suite, not the quick subset
 @pytest.mark.parametrize("name", ["euroc", "broad21"])
 def test_real_sessions_pass_the_checks(name: str) -> None:
     """Real recordings read the right way: the convention check finds the data as given
