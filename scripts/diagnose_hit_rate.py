@@ -37,12 +37,14 @@ REALISTIC_CORR_S = 0.3
 def run_case(args: tuple[tuple[str, ...], int, float, float]) -> dict:
     hidden, seed, duration, corr = args
     from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose
+    from mocap_calib.core.model.effects import Model
     from mocap_calib.sim.flight import SimConfig, simulate_flight
 
     sim = simulate_flight(SimConfig(seed=seed, duration=duration,
                                     effects={e: None for e in hidden}, mocap_noise_corr=corr))
     t0 = time.perf_counter()
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions())
+    # From the base model: a hidden clock offset is one of the effects to find.
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=Model()))
     r = rep.final_residuals
     return {"hidden": list(hidden), "seed": seed, "mocap_noise_corr": corr, "found": rep.found,
             "implausible": [x["effect"] for x in rep.implausible],

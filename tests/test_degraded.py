@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mocap_calib.core.model.effects import Model
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.pipeline.calibrate import calibrate
 from mocap_calib.core.result.calibration import CalibrationResult
@@ -122,15 +123,15 @@ def test_a_diagnosis_candidate_that_cannot_be_fitted_is_degraded(sim, monkeypatc
     real = dg._Session.fit
 
     # Only the candidates the score test finds significant are refitted: the session's clock
-    # offset is the one.
+    # offset is the one (from the base model, which lacks it).
     def fail_offset(self, m, base, nz, extra=None, covariance=True):
         if m.effects and m.effects[-1] == "time_offset" and not covariance:
             raise RuntimeError("forced: indeterminate system")
         return real(self, m, base, nz, extra, covariance)
 
     monkeypatch.setattr(dg._Session, "fit", fail_offset)
-    opts = dg.DiagnoseOptions(candidates=("time_offset", "accel_delay"), max_steps=1,
-                              calibration=QUIET)
+    opts = dg.DiagnoseOptions(start_model=Model(), candidates=("time_offset", "accel_delay"),
+                              max_steps=1, calibration=QUIET)
     report = dg.diagnose(sim.imu, sim.mocap, opts)
     (entry,) = [x for x in report.degraded if "time_offset" in x.why]
     assert entry.what == "diagnosis step 1" and "forced" in entry.why

@@ -12,8 +12,12 @@ import numpy as np
 import pytest
 
 from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS, Model
 from mocap_calib.sim.flight import SimConfig, simulate_flight
+
+#: The base model: where a hidden clock offset is something to find (the default start,
+#: ``calibrate``'s model, fits one already).
+BASE = Model()
 
 pytestmark = pytest.mark.slow  # full calibrations / diagnoses: not in the quick subset
 
@@ -36,7 +40,8 @@ def test_hidden_effect_is_named_first(effect: str) -> None:
     sim = simulate_flight(SimConfig(seed=500 + CANONICAL_EFFECTS.index(effect), duration=60.0,
                                     effects={effect: None}))
     cands = tuple(dict.fromkeys((effect, *CONFUSABLE)))
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(candidates=cands))
+    start = BASE if effect == "time_offset" else DiagnoseOptions().start_model
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=start, candidates=cands))
     assert rep.found and rep.found[0] == effect, f"found {rep.found}"
     assert rep.found == [effect], f"false alarm after the hidden effect: {rep.found}"
     _check_floor(rep)
@@ -52,13 +57,14 @@ def test_hidden_effect_is_named_first(effect: str) -> None:
 
 def test_no_hidden_effect_says_none() -> None:
     sim = simulate_flight(SimConfig(seed=600, duration=90.0))
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions())
+    opts = DiagnoseOptions()
+    rep = diagnose(sim.imu, sim.mocap, opts)
     assert rep.found == [] and rep.verdict == "none"
     _check_floor(rep)
-    # Every candidate was scored and none passed; only those the score test finds
-    # significant are refitted.
+    # Every candidate the starting model lacks was scored and none passed; only those the
+    # score test finds significant are refitted.
     cands = rep.steps[0].candidates
-    assert {c.effect for c in cands} == set(CANONICAL_EFFECTS)
+    assert {c.effect for c in cands} == set(CANONICAL_EFFECTS) - set(opts.start_model.effects)
     refitted = {c.effect for c in cands if not np.isnan(c.confirm_statistic)}
     assert refitted <= {c.effect for c in cands if c.log10_p < rep.threshold_log10_p}
 
@@ -66,7 +72,7 @@ def test_no_hidden_effect_says_none() -> None:
 def test_two_hidden_effects_are_both_found() -> None:
     pair = ("gyro_scale_misalignment", "time_offset")
     sim = simulate_flight(SimConfig(seed=601, duration=90.0, effects={e: None for e in pair}))
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions())
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=BASE))
     assert set(rep.found) == set(pair), f"found {rep.found}"
     _check_floor(rep)
     # One refit per effect added (two when a clock offset is weighed against the first), not
@@ -80,7 +86,6 @@ def test_the_checks_run_on_the_answer_only(monkeypatch) -> None:
     plausibility) only when it is the answer; with an effect found, only the final
     calibration gets them. When nothing is found the answer is what ``calibrate`` gives."""
     import mocap_calib.core.pipeline.calibrate as cal
-    from mocap_calib.core.model.effects import Model
     from mocap_calib.core.options import CalibrationOptions
 
     judged: list[str] = []
@@ -92,13 +97,14 @@ def test_the_checks_run_on_the_answer_only(monkeypatch) -> None:
 
     monkeypatch.setattr(cal, "judge", judge)
     sim = simulate_flight(SimConfig(seed=4, duration=60.0, effects={"time_offset": [0.006]}))
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(candidates=("time_offset",
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=BASE,
+                                                       candidates=("time_offset",
                                                                    "accel_delay")))
     assert rep.found == ["time_offset"] and judged == ["base+time_offset"]
     judged.clear()
-    timed = Model(("time_offset",))
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=timed,
-                                                       candidates=("accel_delay",)))
+    # The default start is calibrate's model: with nothing to add, the answer is its own.
+    timed = CalibrationOptions().model
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(candidates=("accel_delay",)))
     assert rep.found == [] and judged == ["base+time_offset"]
     ref = cal.calibrate(sim.imu, sim.mocap, CalibrationOptions(model=timed))
     got = rep.final
@@ -108,11 +114,31 @@ def test_the_checks_run_on_the_answer_only(monkeypatch) -> None:
     assert got.notes == ref.notes and got.effect_tests == ref.effect_tests
 
 
+def test_the_final_calibration_is_calibrates_with_the_model_found() -> None:
+    """With an effect found, the final calibration reuses the starting fit's clock and
+    stages 1-2 (they do not depend on the effects added): its answer is exactly what
+    ``calibrate`` gives with the model found."""
+    from mocap_calib.core.options import CalibrationOptions
+    from mocap_calib.core.pipeline.calibrate import calibrate
+
+    sim = simulate_flight(SimConfig(seed=5, duration=60.0, effects={"accel_delay": [0.004]}))
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(candidates=("accel_delay",
+                                                                   "gravity_magnitude")))
+    assert rep.found == ["accel_delay"]
+    ref = calibrate(sim.imu, sim.mocap, CalibrationOptions(model=Model.parse(rep.final_model)))
+    got = rep.final
+    for p, e in ref.estimates.items():
+        np.testing.assert_array_equal(got.estimates[p].value, e.value, err_msg=p.name)
+        np.testing.assert_array_equal(got.estimates[p].sigma, e.sigma, err_msg=p.name)
+    assert got.effects == ref.effects and got.notes == ref.notes
+
+
 def test_report_round_trips_through_yaml(tmp_path) -> None:
     from mocap_calib.io.yaml_io import load_yaml, save_yaml
 
     sim = simulate_flight(SimConfig(seed=602, duration=40.0, effects={"time_offset": [0.006]}))
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(candidates=("time_offset",
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=BASE,
+                                                       candidates=("time_offset",
                                                                    "gravity_magnitude")))
     save_yaml(tmp_path / "r.yaml", rep.to_dict())
     d = load_yaml(tmp_path / "r.yaml")
@@ -164,7 +190,7 @@ def test_diagnose_runs_when_the_start_model_leaves_a_parameter_unobservable() ->
 def test_time_offset_and_clock_drift_are_both_found() -> None:
     sim = simulate_flight(SimConfig(seed=610, duration=60.0,
                                     effects={"time_offset": None, "clock_drift": None}))
-    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(candidates=CONFUSABLE))
+    rep = diagnose(sim.imu, sim.mocap, DiagnoseOptions(start_model=BASE, candidates=CONFUSABLE))
     assert set(rep.found) == {"time_offset", "clock_drift"}, rep.found
 
 

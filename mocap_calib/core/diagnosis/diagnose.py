@@ -1,8 +1,10 @@
 """Model diagnosis: find what the calibrated model misses, name it, add it, repeat; or say
 honestly that the cause is none of the effects it knows.
 
-1. Calibrate the starting model (default: the base model, no time offset) as ``calibrate``
-   does: its noise model identified from the data, its robust weights settled.
+1. Calibrate the starting model (default: ``calibrate``'s default model, base with the clock
+   offset) as ``calibrate`` does: its noise model identified from the data, its robust weights
+   settled. The diagnosis thus names what the default calibration lacks; when it finds
+   nothing, the starting calibration is the answer.
 2. Predict what the IMU should have measured from the mocap through the calibrated model and
    compare with what it measured (:mod:`mocap_calib.core.diagnosis.predict`): residual RMS per
    sensor and axis in a low band, against the noise floor that noise alone (IMU noise, bias
@@ -69,6 +71,7 @@ from mocap_calib.core.pipeline.calibrate import (
     calibrate_takes,
     conclude,
     fit_takes,
+    same_first_fits,
 )
 from mocap_calib.core.plausible import PlausibleLimits, effect_problem
 from mocap_calib.core.position.graph import PositionInit, Take, TakeStart
@@ -105,7 +108,8 @@ class DiagnoseOptions:
     """How to diagnose.
 
     Attributes:
-        start_model: the starting model (default: base, no time offset).
+        start_model: the starting model (default: ``calibrate``'s, base with the clock
+            offset).
         candidates: effects to try.
         alpha: family-wise false-alarm rate per step (Bonferroni over the candidates).
         max_steps: most effects to add.
@@ -119,8 +123,9 @@ class DiagnoseOptions:
             absorbs (it raises the floor too, so the ratio alone would not show it).
     """
 
-    start_model: Model = param(Model(), "the model the diagnosis starts from, e.g. base or "
-                               "base+time_offset", parse=Model.parse, metavar="MODEL")
+    start_model: Model = param(CalibrationOptions().model, "the model the diagnosis starts from "
+                               "(default: calibrate's), e.g. base", parse=Model.parse,
+                               metavar="MODEL")
     candidates: tuple[str, ...] = param(
         CANONICAL_EFFECTS, "effects to try, joined by '+' (default: every canonical effect)",
         parse=_effect_names, metavar="EFFECTS", show_default=False)
@@ -470,8 +475,11 @@ def _finish(recordings: list[Recording], ds: _Session, model: Model,
         final, final_res = conclude(start), start_res
     else:
         say(f"final calibration with {model}")
-        final = calibrate_takes(recordings, replace(opts.calibration, model=model,
-                                                    accept_implausible=True))
+        # From the starting fit's clock and stages 1-2 when the model found gives the same
+        # ones (the effects start at zero there): only the position stage and checks differ.
+        final_opts = replace(opts.calibration, model=model, accept_implausible=True)
+        first = start.fits if same_first_fits(start.opts, final_opts) else None
+        final = calibrate_takes(recordings, final_opts, first=first)
     fx = final.diagnostics.trace
     pos = fx.position
     assert pos is not None

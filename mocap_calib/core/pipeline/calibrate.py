@@ -107,15 +107,17 @@ def calibrate(imu: ImuSamples, mocap: MocapPoses, options: CalibrationOptions | 
 
 def calibrate_takes(recordings: list[Recording], options: CalibrationOptions | None = None,
                     progress: ProgressFn | None = None,
-                    on_iteration: IterationFn | None = None) -> CalibrationResult:
+                    on_iteration: IterationFn | None = None,
+                    first: list[FirstFits] | None = None) -> CalibrationResult:
     """Calibrate one rig from several takes (recordings) together: one ``T_MI``, one mocap
     world (gravity direction), one set of IMU effects; every take its own clock offset and
     biases (a power cycle changes both). One take is :func:`calibrate`.
 
     The result keeps the shared quantities under their usual keys; with several takes, their
-    own (clock offset, biases) are under ``takes``, in input order.
+    own (clock offset, biases) are under ``takes``, in input order. ``first``: see
+    :func:`fit_takes`.
     """
-    return conclude(fit_takes(recordings, options, progress, on_iteration), progress)
+    return conclude(fit_takes(recordings, options, progress, on_iteration, first), progress)
 
 
 @dataclass(frozen=True)
@@ -140,9 +142,12 @@ class Fitted:
 
 def fit_takes(recordings: list[Recording], options: CalibrationOptions | None = None,
               progress: ProgressFn | None = None,
-              on_iteration: IterationFn | None = None) -> Fitted:
+              on_iteration: IterationFn | None = None,
+              first: list[FirstFits] | None = None) -> Fitted:
     """The fitting part of :func:`calibrate_takes`: the clock, stages 1-2 and the position
-    stage over every take, packaged as a result without its checks."""
+    stage over every take, packaged as a result without its checks. ``first``: every take's
+    clock and stages 1-2 from an earlier fit whose options gave the same ones (see
+    :func:`same_first_fits`), reused instead of fitted again."""
     opts = options or CalibrationOptions()
     opts.validate()
     model = opts.model
@@ -152,8 +157,8 @@ def fit_takes(recordings: list[Recording], options: CalibrationOptions | None = 
     for pr in opts.priors:
         if pr.block in effects0:
             effects0[pr.block] = np.asarray(pr.value, dtype=float)
-    fits: list[FirstFits] = []
-    for k, rec in enumerate(recordings):
+    fits: list[FirstFits] = [] if first is None else list(first)
+    for k, rec in enumerate(recordings if first is None else []):
         if len(recordings) == 1:
             fits.append(first_fits(rec.imu, rec.mocap, opts, effects0, on_iteration, say))
             continue
@@ -198,6 +203,21 @@ def fit_takes(recordings: list[Recording], options: CalibrationOptions | None = 
     t_pos = time.perf_counter()
     return Fitted(result, pos, fits, opts, {"clock_and_stages_1_2": round(t_first - t0, 3),
                                             "position_stage": round(t_pos - t_first, 3)})
+
+
+def same_first_fits(a: CalibrationOptions, b: CalibrationOptions) -> bool:
+    """Whether two option sets give the same clock search and stages 1-2: these see the
+    model only through whether it has a clock offset and through the effects' starting values
+    (zero, or a prior's), so options that differ in the model's other effects alone give the
+    same ones."""
+    def rest(o: CalibrationOptions) -> CalibrationOptions:
+        return replace(o, model=Model())
+
+    def effect_priors(o: CalibrationOptions) -> bool:
+        return any(pr.block in EFFECTS for pr in o.priors)
+
+    return (a.model.timed == b.model.timed and rest(a) == rest(b)
+            and not effect_priors(a) and not effect_priors(b))
 
 
 def conclude(fitted: Fitted, progress: ProgressFn | None = None) -> CalibrationResult:
