@@ -47,7 +47,7 @@ def run(key: str) -> dict:
               "accel_gap": round(s.residuals.ratio("accel"), 2), "added": s.added,
               "final_calibration": k == len(rep.steps) - 1}
              for k, s in enumerate(rep.steps)]
-    return {"recording": label, "found": rep.found,
+    return {"recording": label, "start": rep.start_model, "found": rep.found,
             "implausible": [{k: x[k] for k in ("effect", "reason")} for x in rep.implausible],
             "steps": steps, "unexplained": rep.unexplained, "seconds": round(rep.seconds, 1)}
 
@@ -65,8 +65,10 @@ def markdown(reports: list[dict]) -> str:
         code, _, cause = r["refused"].partition(": ")
         return f"{code}: {re.split(r' [(]|: ', cause, maxsplit=1)[0]}"
 
-    rows = [["base (no clock offset)", *(gap(r["steps"][0]) if "steps" in r
-                                         else f"refused, {refused(r)}" for r in reports)]]
+    starts = sorted({r["start"] for r in done}) or ["the starting model"]
+    rows = [[f"start: {' / '.join(starts)}", *(gap(r["steps"][0]) if "steps" in r
+                                                else f"refused, {refused(r)}"
+                                                for r in reports)]]
     clock_first = all(r["steps"][0]["added"] == "time_offset" for r in done)
     for k in range(1, n_added + 1):
         named = not (k == 1 and clock_first)
