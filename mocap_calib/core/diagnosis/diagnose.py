@@ -1,10 +1,9 @@
 """Model diagnosis: find what the calibrated model misses, name it, add it, repeat; or say
 honestly that the cause is none of the effects it knows.
 
-1. Calibrate the starting model (default: ``calibrate``'s default model, base with the clock
-   offset) as ``calibrate`` does: its noise model identified from the data, its robust weights
-   settled. The diagnosis thus names what the default calibration lacks; when it finds
-   nothing, the starting calibration is the answer.
+1. Calibrate the starting model (default: ``calibrate``'s, base with the clock offset: what
+   the default calibration lacks is named) as ``calibrate`` does: its noise model identified
+   from the data, its robust weights settled.
 2. Predict what the IMU should have measured from the mocap through the calibrated model and
    compare with what it measured (:mod:`mocap_calib.core.diagnosis.predict`): residual RMS per
    sensor and axis in a low band, against the noise floor that noise alone (IMU noise, bias
@@ -108,8 +107,7 @@ class DiagnoseOptions:
     """How to diagnose.
 
     Attributes:
-        start_model: the starting model (default: ``calibrate``'s, base with the clock
-            offset).
+        start_model: the starting model (default: ``calibrate``'s, base+time_offset).
         candidates: effects to try.
         alpha: family-wise false-alarm rate per step (Bonferroni over the candidates).
         max_steps: most effects to add.
@@ -475,11 +473,10 @@ def _finish(recordings: list[Recording], ds: _Session, model: Model,
         final, final_res = conclude(start), start_res
     else:
         say(f"final calibration with {model}")
-        # From the starting fit's clock and stages 1-2 when the model found gives the same
-        # ones (the effects start at zero there): only the position stage and checks differ.
+        # The starting fit's clock and stages 1-2 when the model found gives the same ones.
         final_opts = replace(opts.calibration, model=model, accept_implausible=True)
-        first = start.fits if same_first_fits(start.opts, final_opts) else None
-        final = calibrate_takes(recordings, final_opts, first=first)
+        final = calibrate_takes(recordings, final_opts, first=start.fits if same_first_fits(
+            start.opts, final_opts) else None)
     fx = final.diagnostics.trace
     pos = fx.position
     assert pos is not None
