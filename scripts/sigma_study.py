@@ -14,7 +14,8 @@ a mean near 0 and few exceed 3. Two simulators:
   calibrated with the data sheet's densities (what a user gives).
 
 Also printed: the worst |error| per parameter (largest axis; rotations in deg, lengths in mm,
-time in ms). The sessions run on the batch engine: a local process pool, or Dask
+time in ms), and the sessions whose effect tests show an effect the model lacks (none is
+hidden: each is a false alarm). The sessions run on the batch engine: a local process pool, or Dask
 (`pip install 'mocap-calib[cluster]'`; a LocalCluster, or the cluster at --scheduler).
 
 Prints the table of docs/validation.md, one per simulator (``--write-doc`` rewrites its
@@ -72,8 +73,9 @@ UNITS = {"R_MI": ("deg", np.degrees(1.0)), "p_MI": ("mm", 1e3), "gyro_bias": ("r
          "time_offset": ("ms", 1e3)}
 
 
-def z_scores(simulator: str, seed: int) -> dict[str, dict[str, list[float]]]:
-    """Per-axis error / sigma and |error| (display units) of one simulated session."""
+def z_scores(simulator: str, seed: int) -> dict[str, Any]:
+    """Per-axis error / sigma and |error| (display units) of one simulated session, and the
+    effects its effect tests show."""
     sim = simulate_flight(config(simulator, seed))
     r = calibrate(sim.imu, sim.mocap, CalibrationOptions())
     tr = sim.truth
@@ -92,16 +94,18 @@ def z_scores(simulator: str, seed: int) -> dict[str, dict[str, list[float]]]:
            "gyro_bias": r.sigma_gyro_bias, "accel_bias": r.sigma_accel_bias,
            "gravity": r.sigma_gravity, "time_offset": np.array([r.sigma_time_offset])}
     return {"z": {k: (np.asarray(err[k]) / np.asarray(sig[k])).tolist() for k in PARAMS},
-            "err": {k: (np.abs(err[k]) * UNITS[k][1]).tolist() for k in PARAMS}}
+            "err": {k: (np.abs(err[k]) * UNITS[k][1]).tolist() for k in PARAMS},
+            "shown": list(r.effect_tests.shown) if r.effect_tests is not None else []}
 
 
-def _job(args: tuple[str, int]) -> tuple[str, int, dict[str, dict[str, list[float]]]]:
+def _job(args: tuple[str, int]) -> tuple[str, int, dict[str, Any]]:
     simulator, seed = args
     return simulator, seed, z_scores(simulator, seed)
 
 
-def summarise(results: list[dict[str, dict[str, list[float]]]]) -> dict[str, dict[str, float]]:
-    out = {}
+def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {"shown": sorted({e for r in results for e in r["shown"]}),
+                           "sessions_shown": sum(bool(r["shown"]) for r in results)}
     for k in PARAMS:
         z = np.concatenate([np.asarray(r["z"][k]) for r in results])
         e = np.concatenate([np.asarray(r["err"][k]) for r in results])
@@ -119,7 +123,7 @@ def _error(x: float, unit: str) -> str:
     return f"{x:.2g} {unit}"
 
 
-def markdown(table_by_sim: dict[str, dict[str, dict[str, float]]], counts: dict[str, int],
+def markdown(table_by_sim: dict[str, dict[str, Any]], counts: dict[str, int],
              seeds: int, first: int) -> str:
     """The section of docs/validation.md: one table per simulator."""
     out = [provenance("sigma_study.py")]
@@ -131,6 +135,9 @@ def markdown(table_by_sim: dict[str, dict[str, dict[str, float]]], counts: dict[
                          [[LABELS[k], SPECIFIED[k], _error(t[k]["worst_error"], t[k]["unit"]),
                            f"{t[k]['rms']:.2f}", f"{t[k]['mean']:.2f}", f"{t[k]['max_abs']:.2f}"]
                           for k in PARAMS]))
+        shown = ", ".join(f"`{e}`" for e in t["shown"]) or "none"
+        out.append(f"\nEffect tests showing an effect the model lacks (none is hidden): "
+                   f"{t['sessions_shown']}/{counts[sim]} sessions ({shown}).\n")
     return "".join(out)
 
 
@@ -169,7 +176,8 @@ def main() -> None:
         print(f"{k:<12}" + "".join(f"{table[s][k]['worst_error']:>16.3g}" for s in sims)
               + f"  {table['clean'][k]['unit'] if 'clean' in table else ''}")
     for s in sims:
-        print(f"{s}: {len(by_sim[s])}/{a.seeds} sessions calibrated")
+        print(f"{s}: {len(by_sim[s])}/{a.seeds} sessions calibrated; effect tests show an "
+              f"effect in {table[s]['sessions_shown']} ({', '.join(table[s]['shown'])})")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(table, fh, indent=1)
