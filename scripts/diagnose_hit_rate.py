@@ -25,7 +25,7 @@ import time
 from _doc_section import add_doc_options, check, provenance, table, write
 
 from mocap_calib.batch.engine import map_jobs
-from mocap_calib.core.model.effects import CANONICAL_EFFECTS
+from mocap_calib.core.model.effects import CANONICAL_EFFECTS, EFFECTS
 
 SECTIONS = ("diagnose_hit_rate",)
 
@@ -132,7 +132,7 @@ def main() -> None:
 
 def markdown(results: list[dict], first: int, seeds: int, duration: float) -> str:
     """The section of docs/validation.md (counts over the cases that ran)."""
-    from mocap_calib.sim.flight import DEFAULT_MAGNITUDE
+    from mocap_calib.sim.injected import sim_of
 
     rows, singles, nulls, pairs = [], {}, {}, {}
     for r in results:
@@ -148,7 +148,7 @@ def markdown(results: list[dict], first: int, seeds: int, duration: float) -> st
         first_ok = sum(bool(r["found"]) and r["found"][0] == e for r in rs)
         alone = sum(r["found"] == [e] for r in rs)
         hits, total = hits + first_ok, total + len(rs)
-        rows.append([f"`{e}` ({DEFAULT_MAGNITUDE[e]:g})", f"{first_ok}/{len(rs)}",
+        rows.append([f"`{e}` ({sim_of(EFFECTS[e]).default:g})", f"{first_ok}/{len(rs)}",
                      f"{alone}/{len(rs)}"])
     rows.append(["**hit rate**", f"**{hits}/{total} = {hits / max(total, 1):.0%}**", ""])
     for c, rs in sorted(nulls.items()):
