@@ -209,15 +209,13 @@ def same_first_fits(a: CalibrationOptions, b: CalibrationOptions) -> bool:
     """Whether two option sets give the same clock search and stages 1-2: these see the
     model only through whether it has a clock offset and through the effects' starting values
     (zero, or a prior's), so options that differ in the model's other effects alone give the
-    same ones."""
-    def rest(o: CalibrationOptions) -> CalibrationOptions:
-        return replace(o, model=Model())
-
-    def effect_priors(o: CalibrationOptions) -> bool:
-        return any(pr.block in EFFECTS for pr in o.priors)
-
-    return (a.model.timed == b.model.timed and rest(a) == rest(b)
-            and not effect_priors(a) and not effect_priors(b))
+    same ones (with the same prior objects, none on an effect)."""
+    if a.model.timed != b.model.timed or any(pr.block in EFFECTS for pr in (*a.priors,
+                                                                             *b.priors)):
+        return False
+    if [id(x) for x in a.priors] != [id(x) for x in b.priors]:
+        return False
+    return replace(a, model=Model(), priors=[]) == replace(b, model=Model(), priors=[])
 
 
 def conclude(fitted: Fitted, progress: ProgressFn | None = None) -> CalibrationResult:
