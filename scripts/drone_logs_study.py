@@ -89,12 +89,13 @@ def two_takes() -> dict:
 
 def diagnose_two_takes() -> dict:
     from mocap_calib.core.diagnosis.diagnose import DiagnoseOptions, diagnose_takes
+    from mocap_calib.core.model.effects import Model
 
     sims = [simulate_flight(SimConfig(seed=s, duration=40.0, rig_seed=91, effects={
         "time_offset": [td], "accel_delay": [0.004]})) for s, td in ((31, 0.004), (32, -0.009))]
     t0 = time.perf_counter()
     rep = diagnose_takes([Recording(s.imu, s.mocap, f"take{i + 1}")
-                          for i, s in enumerate(sims)], DiagnoseOptions())
+                          for i, s in enumerate(sims)], DiagnoseOptions(start_model=Model()))
     out = {"found": rep.found, "seconds": round(time.perf_counter() - t0, 1),
            "set_aside": rep.implausible,
            "added": [{"effect": st.added, "value": st.added_params, "sigma": st.added_sigma,
