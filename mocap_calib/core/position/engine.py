@@ -28,6 +28,7 @@ steps' increments and attitudes it was built from.
 from __future__ import annotations
 
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -125,6 +126,7 @@ class PositionProblem:
         self._ops: dict[int, Whitening] = {}
         self._motion: tuple[Array, Array] | None = None  # see motion_samples
         self._motion_lock = threading.Lock()
+        self._lag_cache: dict[tuple[str, float, float, float], Array] = {}
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
@@ -214,7 +216,9 @@ class PositionProblem:
         win = self.win
         out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
 
-        def chunk(c: NDArray[np.int64]) -> None:  # writes only its windows' entries
+        def chunk(c: NDArray[np.int64], models: ThreadPoolExecutor | None = None) -> None:
+            """Windows ``c`` under every model (with ``models``: the models on its threads);
+            writes only their entries."""
             tau, (R_WM, p_WM) = win.tau[c], win.poses(c)
             h = np.diff(tau, axis=1)
             inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
@@ -223,16 +227,25 @@ class PositionProblem:
                                     win.v0[c], th.g_mag * th.g_dir)
             r = self._residuals(th, R_WM, p_WM, Rbar, pbar).r
             packed = inc.pack()
-            for i, nz in enumerate(noises):
-                wh = self._whitening(th, c, packed, R0, nz)
+
+            def model(i: int) -> None:
+                wh = self._whitening(th, c, packed, R0, noises[i])
                 out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, Rbar, r)
 
+            if models is not None and len(noises) > 1:
+                list(models.map(model, range(len(noises))))
+            else:
+                for i in range(len(noises)):
+                    model(i)
+
+        # Chunks on the threads; a problem of one chunk (the noise searches' few windows) runs
+        # its models on them instead.
         pool = chunk_pool()
         if len(self.chunks) > 1 and pool is not None:
             list(pool.map(chunk, self.chunks))
         else:
             for c in self.chunks:
-                chunk(c)
+                chunk(c, pool)
         return out
 
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
@@ -250,7 +263,7 @@ class PositionProblem:
         # of the lag), so the pieces stay aligned with the samples and the cost smooth in it.
         accel = s.accel
         if model.has_kind("accel_lag"):
-            accel = hermite(ut, ut + lag)(s.accel)
+            accel = self._lagged("accel", ut, lag)
         rates = any(e.acts_on == "size" for e in model.units)  # terms in w and dw/dt
         # IMU signals on pieces between IMU samples (see preint.Pieces), corrected with each
         # window's knot biases.
@@ -295,7 +308,7 @@ class PositionProblem:
                 df[:, :, :, sl] = -f_rate * lever
             elif kind == "accel_lag":  # accel resampled at x + lag: its step mean, exactly
                 # A raw accel change acts like an accel bias of the opposite sign.
-                a_dot = hermite(ut, ut + lag).derivative(self.motion_samples()[1])
+                a_dot = self._lagged("motion_accel_rate", ut, lag)
                 a_mean = step_mean(pc(a_dot), pc.hs, h)[..., None]
                 dw[:, :, :, sl] = -cm.dw["accel_bias"] @ a_mean
                 df[:, :, :, sl] = -cm.df["accel_bias"] @ a_mean
@@ -324,13 +337,38 @@ class PositionProblem:
                 self._motion = motion_signals(s.u, s.gyro, s.accel, 0.5 * rate)
             return self._motion
 
+    def _lagged(self, what: str, ut: Array, lag: float) -> Array:
+        """The session's accelerometer series ``what`` resampled at ``ut + lag`` (``accel``:
+        the samples; ``motion_accel``: the motion's signal; ``motion_accel_rate``: its time
+        derivative), once per evaluation: every chunk of windows reads the same series. The
+        key holds the lag and the ends of ``ut`` (an affine map of the stamps: its ends fix
+        it)."""
+        key = (what, float(lag), float(ut[0]), float(ut[-1]))
+        with self._motion_lock:
+            hit = self._lag_cache.get(key)
+        if hit is not None:
+            return hit
+        interp = hermite(ut, ut + lag)
+        if what == "accel":
+            out = interp(self.s.accel)
+        elif what == "motion_accel":
+            out = interp(self.motion_samples()[1])
+        else:
+            out = interp.derivative(self.motion_samples()[1])
+        out.flags.writeable = False
+        with self._motion_lock:
+            if len(self._lag_cache) >= 6:  # the last evaluation's few series
+                self._lag_cache.clear()
+            self._lag_cache[key] = out
+        return out
+
     def _motion_at(self, th: Theta, c: NDArray[np.int64], x: Array, ut: Array, lag: float,
                    rates: bool) -> tuple[Array, Array]:
         """The motion's corrected rate and specific force (the accelerometer resampled at the
         gyro's stamps with its lag) at IMU-clock times ``x`` (W, m+1) of windows ``c``."""
         gyro, accel = self.motion_samples()
         if self.model.has_kind("accel_lag"):
-            accel = hermite(ut, ut + lag)(accel)
+            accel = self._lagged("motion_accel", ut, lag)
         intr = Intrinsics(th.knots[c, None, 0:3], th.knots[c, None, 3:6], th.effects, th.t_mid)
         cm = correct(self.model, intr, *signals_at(gyro, accel, hermite(ut, x), x, rates),
                      sensitivities=False)

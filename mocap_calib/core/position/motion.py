@@ -21,6 +21,10 @@ columns as ``Z``; the covariance (model and sandwich) is theirs.
 
 from __future__ import annotations
 
+import threading
+import weakref
+from collections import OrderedDict
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -30,6 +34,12 @@ Array = NDArray[np.float64]
 ALIAS_GAIN = 0.01
 #: The kernel is cut at this many standard deviations.
 KERNEL_SIGMAS = 4.0
+#: Sessions whose smoothed signals are kept (every refit of a session reads the same ones).
+CACHED_SESSIONS = 4
+
+_cache: OrderedDict[tuple[int, int, int, float], tuple[list[weakref.ref], tuple[Array, Array]]]
+_cache = OrderedDict()
+_cache_lock = threading.Lock()
 
 
 def kernel_sigma(nyquist_hz: float) -> float:
@@ -41,7 +51,32 @@ def kernel_sigma(nyquist_hz: float) -> float:
 def motion_signals(u: Array, gyro: Array, accel: Array, nyquist_hz: float) -> tuple[Array, Array]:
     """Gyro and accelerometer samples smoothed by the Gaussian kernel of
     :func:`kernel_sigma` in time (weights from the samples' own stamps, normalised: a gap or
-    the stream's end leaves a one-sided average, nothing is extrapolated)."""
+    the stream's end leaves a one-sided average, nothing is extrapolated).
+
+    Computed once per session: the answer is kept for the same sample arrays (the same
+    objects, held by weak reference) and band, which every refit of a session passes."""
+    arrays = (u, gyro, accel)
+    key = (id(u), id(gyro), id(accel), float(nyquist_hz))
+    with _cache_lock:
+        hit = _cache.get(key)
+        if hit is not None and all(r() is a for r, a in zip(hit[0], arrays, strict=True)):
+            _cache.move_to_end(key)
+            return hit[1]
+    out = _smooth(u, gyro, accel, nyquist_hz)
+    for a in out:
+        a.flags.writeable = False  # shared by every caller
+    try:
+        refs = [weakref.ref(a) for a in arrays]
+    except TypeError:  # not weakly referenceable (not an ndarray): nothing kept
+        return out
+    with _cache_lock:
+        _cache[key] = (refs, out)
+        while len(_cache) > CACHED_SESSIONS:
+            _cache.popitem(last=False)
+    return out
+
+
+def _smooth(u: Array, gyro: Array, accel: Array, nyquist_hz: float) -> tuple[Array, Array]:
     u = np.asarray(u, dtype=float)
     y = np.concatenate([gyro, accel], axis=1)
     n = len(u)
