@@ -82,7 +82,7 @@ def time_engine(path: Path, repeat: int) -> list[float]:
     import gtsam
 
     from mocap_calib.core.position.engine import PositionProblem, Theta
-    from mocap_calib.core.position.threads import set_chunk_threads
+    from mocap_calib.core.threads import set_chunk_threads
     from mocap_calib.core.uncertainty.mocap_noise import fit_mocap_correlation
 
     d = pickle.loads(path.read_bytes())

@@ -14,8 +14,8 @@ from mocap_calib.core.model.preint import hermite, search_sorted
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position import motion
 from mocap_calib.core.position.engine import PositionProblem, Theta, make_windows
-from mocap_calib.core.position.threads import set_chunk_threads
 from mocap_calib.core.prepare.session import local_derivative, prepare
+from mocap_calib.core.threads import set_chunk_threads
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 

@@ -14,8 +14,9 @@ from mocap_calib.core.model.effects import Model
 from mocap_calib.core.model.preint import hermite
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import PositionProblem, Theta, compress, make_windows
-from mocap_calib.core.position.threads import MIN_CHUNK_WINDOWS, set_chunk_threads
+from mocap_calib.core.position.threads import MIN_CHUNK_WINDOWS
 from mocap_calib.core.prepare.session import local_derivative, prepare
+from mocap_calib.core.threads import set_chunk_threads
 from mocap_calib.sim.flight import SimConfig, simulate_flight
 from mocap_calib.sim.presets import preset_config
 

@@ -125,7 +125,7 @@ def _init_worker(started: Any, chunk_threads: int = 1, parent: int | None = None
     _started = started
     # The pool already runs one session per core: the window engine's own threads would only
     # contend with the other workers.
-    from mocap_calib.core.position.threads import set_chunk_threads
+    from mocap_calib.core.threads import set_chunk_threads
 
     set_chunk_threads(chunk_threads)
     # Ctrl-C is handled by the parent, which stops the workers itself; a worker interrupted
@@ -134,7 +134,7 @@ def _init_worker(started: Any, chunk_threads: int = 1, parent: int | None = None
 
 
 def _one_thread_call(fn: Callable[[Any], Any], job: Any) -> tuple[bool, Any, str, float]:
-    from mocap_calib.core.position.threads import set_chunk_threads
+    from mocap_calib.core.threads import set_chunk_threads
 
     set_chunk_threads(1)
     return guarded_call(fn, job)

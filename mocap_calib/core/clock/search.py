@@ -35,6 +35,7 @@ from mocap_calib.core.clock.filters import Spectra, correlate_full, peaks_apart
 from mocap_calib.core.clock.signals import ClockSignal, signals
 from mocap_calib.core.policy import GRAVITY
 from mocap_calib.core.prepare.noise_band import Smoothing
+from mocap_calib.core.threads import map_blocks
 from mocap_calib.errors import ObservabilityError
 
 Array = NDArray[np.float64]
@@ -173,17 +174,23 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     curves: dict[str, tuple[Array, Array]] = {}
     # The specific force's IMU side is one array for every up axis (alive in sigs): its
     # transforms and correlation time are computed once.
+    # Their first signal fills those caches; the others then run on the threads.
     x_spectra: dict[tuple[int, int, int], tuple[Array, ...]] = {}
     x_time: dict[int, float] = {}
     tau_cs: dict[str, float] = {}
-    for sg in sigs:
+
+    def curve(sg: ClockSignal) -> tuple[Array, Array, Array, float]:
         interrupt.check()
         corr, n, lags = _correlation(sg.x, sg.y, dt, x_spectra)
-        td = (sg.start_m - clock_shift) - sg.start_i + lags * dt
         if id(sg.x) not in x_time:
             x_time[id(sg.x)] = _correlation_time(sg.x, dt)
-        tau_cs[sg.name] = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
-        curves[sg.name] = (td, _statistic(corr, n, tau_cs[sg.name], dt))
+        tau_c = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
+        return (sg.start_m - clock_shift) - sg.start_i + lags * dt, corr, n, tau_c
+
+    done = [curve(sg) for sg in sigs[:1]] + map_blocks(curve, sigs[1:])
+    for sg, (td, corr, n, tau_c) in zip(sigs, done, strict=True):
+        tau_cs[sg.name] = tau_c
+        curves[sg.name] = (td, _statistic(corr, n, tau_c, dt))
     # Specific force: keep the up axis whose curve has the highest peak.
     force = {k: v for k, v in curves.items() if k.startswith("specific force")}
     if force:
@@ -220,8 +227,9 @@ def _fine_peak(sigs: list[ClockSignal], tau_c: dict[str, float], t_d: float,
     smooth, slowly varying signals have flat tops that a parabola through three points
     places off by several milliseconds.)"""
     offsets = t_d + np.arange(-10, 11) * (dt / 10.0)
-    score = np.zeros(len(offsets))
-    for sg in sigs:
+
+    def scores(sg: ClockSignal) -> Array:  # one signal's, on the threads
+        out = np.zeros(len(offsets))
         t_y = sg.start_m + np.arange(len(sg.y)) * dt
         for j, offset in enumerate(offsets):  # one offset at a time: no (offsets x n) arrays
             pos = (t_y - clock_shift - offset - sg.start_i) / dt
@@ -231,7 +239,12 @@ def _fine_peak(sigs: list[ClockSignal], tau_c: dict[str, float], t_d: float,
             xi = (1.0 - a[ok]) * sg.x[k[ok]] + a[ok] * sg.x[k[ok] + 1]
             r = _pearson(xi, sg.y[ok])
             n_eff = max(ok.sum() * dt / tau_c[sg.name], 4.0)
-            score[j] += np.arctanh(np.clip(r, -0.9999, 0.9999)) * np.sqrt(n_eff - 3.0)
+            out[j] = np.arctanh(np.clip(r, -0.9999, 0.9999)) * np.sqrt(n_eff - 3.0)
+        return out
+
+    score = np.zeros(len(offsets))
+    for part in map_blocks(scores, sigs):  # summed in the signals' order
+        score += part
     return _refine(offsets, score, int(np.argmax(score)))
 
 

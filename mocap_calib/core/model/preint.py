@@ -29,8 +29,12 @@ from numpy.typing import NDArray
 
 from mocap_calib.core.jit import kernel
 from mocap_calib.core.model import so3
+from mocap_calib.core.threads import map_blocks
 
 Array = NDArray[np.float64]
+
+#: Fewest pieces in a block of :func:`integrate_pieces` on the threads.
+MIN_BLOCK_PIECES = 16384
 
 
 @dataclass(frozen=True)
@@ -184,7 +188,11 @@ def integrate_pieces(w_nodes: Array, f_nodes: Array, hs_all: Array) -> StepIncre
     f = np.ascontiguousarray(f_nodes, dtype=float).reshape(S, 2 * n_sub + 1, 3)
     hs = np.ascontiguousarray(hs_all, dtype=float).reshape(S, n_sub)
     out = np.empty((S, 51))
-    _integrate_kernel(w, f, hs, out)
+    # A session's steps at once (the first fits) in two blocks on the threads; the engine's
+    # chunks already run there, one block each.
+    per = -(-S // 2) if S * n_sub >= 2 * MIN_BLOCK_PIECES else max(S, 1)
+    map_blocks(lambda a: _integrate_kernel(w[a:a + per], f[a:a + per], hs[a:a + per],
+                                           out[a:a + per]), range(0, max(S, 1), per))
     m3 = lead + (3, 3)
     return StepIncrements(out[:, 0:9].reshape(m3), out[:, 9:12].reshape(lead + (3,)),
                           out[:, 12:15].reshape(lead + (3,)), out[:, 15:24].reshape(m3),

@@ -9,9 +9,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.threads import map_blocks
+
 Array = NDArray[np.float64]
 
 _SMALL = 1e-8
+#: Rotations per block of :func:`log` on the threads (more than two blocks' worth are split).
+LOG_BLOCK = 32768
 
 
 def hat(v: Array) -> Array:
@@ -49,9 +53,20 @@ def exp(phi: Array) -> Array:
 
 
 def log(R: Array) -> Array:
-    """Rotation vectors ``Log(R)``, robust near 0 and pi."""
+    """Rotation vectors ``Log(R)``, robust near 0 and pi (a session's worth in blocks on the
+    threads: each rotation on its own, so the same numbers)."""
     R = np.asarray(R, dtype=float)
-    return quat_to_rotvec(rotmat_to_quat(R))
+    n = R.size // 9
+    if n < 2 * LOG_BLOCK:
+        return quat_to_rotvec(rotmat_to_quat(R))
+    flat = R.reshape(n, 3, 3)
+    out = np.empty((n, 3))
+
+    def block(a: int) -> None:
+        out[a:a + LOG_BLOCK] = quat_to_rotvec(rotmat_to_quat(flat[a:a + LOG_BLOCK]))
+
+    map_blocks(block, range(0, n, LOG_BLOCK))
+    return out.reshape(R.shape[:-2] + (3,))
 
 
 def right_jacobian(phi: Array) -> Array:

@@ -66,7 +66,7 @@ from mocap_calib.core.position.kalman import (
     step_mean,
 )
 from mocap_calib.core.position.motion import motion_signals
-from mocap_calib.core.position.threads import chunk_pool, split_windows
+from mocap_calib.core.position.threads import split_windows
 from mocap_calib.core.position.windows import (  # noqa: F401  (re-exported)
     EvalOut,
     Layout,
@@ -76,6 +76,7 @@ from mocap_calib.core.position.windows import (  # noqa: F401  (re-exported)
     make_windows,
 )
 from mocap_calib.core.prepare.session import PreparedSession
+from mocap_calib.core.threads import chunk_pool
 
 Array = NDArray[np.float64]
 

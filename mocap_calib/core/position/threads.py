@@ -1,4 +1,5 @@
-"""The threads that evaluate a position problem's window chunks.
+"""How a position problem's windows are split into chunks for the threads
+(:mod:`mocap_calib.core.threads`).
 
 The window engine's loops are compiled and release the GIL (so does most of its numpy work), so
 chunks of windows evaluate in parallel on the cores. Each window is computed on its own, so the
@@ -9,39 +10,12 @@ that run the chunks does.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 from numpy.typing import NDArray
 
 #: Fewest windows per chunk when a problem is split in two for the threads: on fewer, the
 #: per-chunk overhead (a few ms of numpy calls) outweighs the second core.
 MIN_CHUNK_WINDOWS = 4
-_POOL: list[ThreadPoolExecutor | None] = []
-_THREADS = [min(2, os.cpu_count() or 1)]
-
-
-def set_chunk_threads(n: int) -> int:
-    """Evaluate chunks on ``n`` threads (1: in the calling thread); returns the previous count.
-    A batch that already runs one session per core sets 1 in its workers: nested threads would
-    only contend."""
-    previous, _THREADS[0] = _THREADS[0], max(1, int(n))
-    _POOL.clear()
-    return previous
-
-
-def chunk_pool() -> ThreadPoolExecutor | None:
-    """The threads that evaluate chunks (None with one)."""
-    if not _POOL:
-        n = _THREADS[0]
-        _POOL.append(ThreadPoolExecutor(n, thread_name_prefix="window-chunks") if n > 1
-                     else None)
-    return _POOL[0]
-
-
-# A forked child has none of the parent's threads: it starts its own pool.
-os.register_at_fork(after_in_child=_POOL.clear)
 
 
 def split_windows(W: int, steps: int, chunk_steps: int, split: bool) -> list[NDArray[np.int64]]:

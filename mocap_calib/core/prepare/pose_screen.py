@@ -22,12 +22,13 @@ late pose, not a swap.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model import so3
+from mocap_calib.core.threads import map_blocks
 
 Array = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -97,25 +98,35 @@ class Neighbourhoods:
         self.x = (t[self.idx] - t[self.rows, None]) / self.step  # well-conditioned fits
         self.yp = p[self.idx] - p[self.rows, None, :]
         self.yr = np.empty(self.yp.shape)
-        for a in range(0, len(self.rows), _CHUNK_ROWS):  # bounded temporaries of the logs
+
+        def logs(a: int) -> None:  # a block of rows (bounded temporaries), on the threads
             b = a + _CHUNK_ROWS
             Rt = np.transpose(R[self.rows[a:b]], (0, 2, 1))
             self.yr[a:b] = so3.log(np.einsum("mij,mnjk->mnik", Rt, R[self.idx[a:b]])
                                    .reshape(-1, 3, 3)).reshape(len(Rt), len(offs), 3)
 
+        map_blocks(logs, range(0, len(self.rows), _CHUNK_ROWS))
+
     def fit(self, use: Mask) -> Deviations:
         """Leave-one-out quadratic fits (see :class:`Deviations`) from the neighbours in
-        ``use``."""
-        wt = (self.inside & use[self.idx]).astype(float)
-        x = self.x
+        ``use`` (row blocks on the threads)."""
+        parts = map_blocks(lambda a: self._fit(use, slice(a, a + _CHUNK_ROWS)),
+                           range(0, max(len(self.rows), 1), _CHUNK_ROWS))
+        return Deviations(*(np.concatenate([getattr(d, f.name) for d in parts])
+                            for f in fields(Deviations)))
+
+    def _fit(self, use: Mask, rows: slice) -> Deviations:
+        """The fits of the rows ``rows``."""
+        wt = (self.inside[rows] & use[self.idx[rows]]).astype(float)
+        x = self.x[rows]
         V = np.stack([np.ones_like(x), x, x * x], axis=2)  # (M, n, 3)
         Vt = np.transpose(V * wt[..., None], (0, 2, 1))  # weights 0 or 1
         N = Vt @ V
         valid = wt.sum(axis=1) >= MIN_NEIGHBOURS  # (one-sided near ends and gaps)
         N[~valid] = np.eye(3)
         Ninv = np.linalg.inv(N)
-        cp = Ninv @ (Vt @ self.yp)
-        cr = Ninv @ (Vt @ self.yr)
+        cp = Ninv @ (Vt @ self.yp[rows])
+        cr = Ninv @ (Vt @ self.yr[rows])
         out = [-cp[:, 0, :], -cr[:, 0, :], cp[:, 1, :] / self.step, cr[:, 1, :] / self.step]
         for a in out:
             a[~valid] = 0.0
