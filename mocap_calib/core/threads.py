@@ -50,3 +50,17 @@ def map_blocks(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
 
 # A forked child has none of the parent's threads: it starts its own pool.
 os.register_at_fork(after_in_child=_POOL.clear)
+
+
+def beside(background: Callable[[], T], foreground: Callable[[], R]) -> tuple[T, R]:
+    """``(background(), foreground())``, the first on a thread of its own while the calling
+    thread runs the second (each may still run blocks on the threads); an error of either
+    is raised, the foreground's first."""
+    with ThreadPoolExecutor(1, thread_name_prefix="beside") as ex:
+        job = ex.submit(background)
+        try:
+            out = foreground()
+        except BaseException:
+            job.cancel()
+            raise
+        return job.result(), out

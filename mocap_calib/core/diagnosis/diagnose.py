@@ -67,7 +67,6 @@ from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import (
     Fitted,
     Recording,
-    calibrate_takes,
     conclude,
     fit_takes,
     same_first_fits,
@@ -85,6 +84,7 @@ from mocap_calib.core.position.stage import (
 )
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.sections import Degradation
+from mocap_calib.core.threads import beside
 from mocap_calib.errors import CalibrationError, InputError, Interrupted
 
 Array = NDArray[np.float64]
@@ -475,14 +475,14 @@ def _finish(recordings: list[Recording], ds: _Session, model: Model,
         say(f"final calibration with {model}")
         # The starting fit's clock and stages 1-2 when the model found gives the same ones.
         final_opts = replace(opts.calibration, model=model, accept_implausible=True)
-        final = calibrate_takes(recordings, final_opts, first=start.fits if same_first_fits(
+        fitted = fit_takes(recordings, final_opts, first=start.fits if same_first_fits(
             start.opts, final_opts) else None)
+        # Its residuals (under its own noise model's floor) run beside its checks.
+        final_res, final = beside(partial(ds.residuals, fitted.pos, model, ds.floor_noise(
+            fitted.pos.noise)), partial(conclude, fitted))
     fx = final.diagnostics.trace
     pos = fx.position
     assert pos is not None
-    if not nothing_added:
-        # The floor under the final calibration's own noise model (identified from the data).
-        final_res = ds.residuals(pos, model, ds.floor_noise(pos.noise))
     steps.append(DiagnoseStep(str(model), final_res, current.cost, current.dof, [],
                               series={"position": current.series}))
     unexplained = None

@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import CubicSpline
 
 from mocap_calib.core.diagnosis.filters import ar1, butter_lowpass, sosfiltfilt, welch
+from mocap_calib.core.diagnosis.spline import CubicSpline
 from mocap_calib.core.model import so3
 from mocap_calib.core.model.imu_model import Intrinsics, accel_lag, forward, imu_times
 from mocap_calib.core.model.types import NoiseModel
@@ -45,7 +45,7 @@ def _pose_splines(tau: Array, R_WI: Array, p_WI: Array,
         sos = butter_lowpass(4, smooth_hz, rate)
         q = sosfiltfilt(sos, q)
         p = sosfiltfilt(sos, p_WI)
-    return CubicSpline(tau, q, axis=0), CubicSpline(tau, p, axis=0)
+    return CubicSpline(tau, q), CubicSpline(tau, p)
 
 
 def _rate_and_accel(qs: CubicSpline, ps: CubicSpline,
