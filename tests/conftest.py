@@ -1,5 +1,6 @@
 """Shared test helpers: where the real recordings are, and loud skipping when they are absent;
-the check that a bad input is refused in one line.
+the check that a bad input is refused in one line; a short prepared flight for the window
+engine's tests.
 
 The recordings live in ``../shared/data`` next to the repository (never copied into it). Tests
 that need them use :func:`shared_data`: without the folder they skip, and the session summary
@@ -15,7 +16,9 @@ from pathlib import Path
 
 import pytest
 
+from mocap_calib.core.prepare.session import local_derivative, prepare
 from mocap_calib.errors import InputError
+from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
@@ -71,3 +74,13 @@ def refused(fn: Callable[[], object], *parts: str) -> str:
     for part in parts:
         assert part in msg, f"{part!r} not in {msg!r}"
     return msg
+
+
+@pytest.fixture(scope="module")
+def short_session():
+    """A 12 s simulated flight (seed 11, a 3 ms clock offset) prepared, with the mocap
+    velocities the windows start from: (simulation, session, velocities)."""
+    sim = simulate_flight(SimConfig(seed=11, duration=12.0, effects={"time_offset": [0.003]}))
+    s = prepare(sim.imu, sim.mocap)
+    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
+    return sim, s, v

@@ -14,9 +14,7 @@ from mocap_calib.core.model.preint import hermite, search_sorted
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position import motion
 from mocap_calib.core.position.engine import PositionProblem, Theta, make_windows
-from mocap_calib.core.prepare.session import local_derivative, prepare
 from mocap_calib.core.threads import set_chunk_threads
-from mocap_calib.sim.flight import SimConfig, simulate_flight
 
 
 @pytest.mark.parametrize("right", [False, True])
@@ -66,14 +64,6 @@ def test_smoothed_signals_are_kept_per_session_arrays() -> None:
     np.testing.assert_allclose(flat[1], 9.81, rtol=1e-14)
 
 
-@pytest.fixture(scope="module")
-def session():
-    sim = simulate_flight(SimConfig(seed=4, duration=12.0, effects={"time_offset": [0.003]}))
-    s = prepare(sim.imu, sim.mocap)
-    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
-    return sim, s, v
-
-
 def _theta(sim, s, W: int, lag: float) -> Theta:
     tr = sim.truth
     g = np.array(tr["gravity_in_mocap"])
@@ -83,11 +73,11 @@ def _theta(sim, s, W: int, lag: float) -> Theta:
                  s.clock_shift + 0.003, {"accel_delay": np.array([lag])}, knots, 6.0)
 
 
-def test_the_lagged_accelerometer_is_the_resampled_one(session) -> None:
+def test_the_lagged_accelerometer_is_the_resampled_one(short_session) -> None:
     """With an accelerometer lag in the model, every chunk reads the series resampled once per
     lag: an evaluation equals one whose problem resamples afresh at every call, and a new lag
     is resampled again."""
-    sim, s, v = session
+    sim, s, v = short_session
     model = Model.parse("base+time_offset+accel_delay")
     win = make_windows(s, s.clock_shift + 0.003, 0.5, 200.0, v, min_samples=10)
     cached = PositionProblem(s, model, NoiseModel(), win)
@@ -102,10 +92,10 @@ def test_the_lagged_accelerometer_is_the_resampled_one(session) -> None:
                                   hermite(ut, ut + 0.002)(s.accel))
 
 
-def test_noise_models_on_threads_do_not_change_the_likelihoods(session) -> None:
+def test_noise_models_on_threads_do_not_change_the_likelihoods(short_session) -> None:
     """A problem of one chunk runs its noise models on the threads: bit for bit the numbers of
     one thread."""
-    sim, s, v = session
+    sim, s, v = short_session
     win = make_windows(s, s.clock_shift + 0.003, 0.5, 200.0, v, min_samples=10)
     pp = PositionProblem(s, Model.parse("base+time_offset"), NoiseModel(), win, split=False)
     assert len(pp.chunks) == 1

@@ -27,14 +27,6 @@ ALL_IMU_EFFECTS = ("base+time_offset+gravity_magnitude+gyro_scale_misalignment+"
                    "clock_drift+accel_delay+accel_size_effect")
 
 
-@pytest.fixture(scope="module")
-def short_session():
-    sim = simulate_flight(SimConfig(seed=11, duration=12.0, effects={"time_offset": [0.003]}))
-    s = prepare(sim.imu, sim.mocap)
-    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
-    return sim, s, v
-
-
 def _theta(sim, s, W, rng, R=None, p=None, g=None, gm=9.81, delta=None, eff=None, knots=None):
     tr = sim.truth
     R = so3.quat_to_rotmat(np.array(tr["T_marker_imu"]["rotation_wxyz"])) if R is None else R
