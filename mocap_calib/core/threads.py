@@ -48,10 +48,6 @@ def map_blocks(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
     return list(pool.map(fn, items))
 
 
-# A forked child has none of the parent's threads: it starts its own pool.
-os.register_at_fork(after_in_child=_POOL.clear)
-
-
 def beside(background: Callable[[], T], foreground: Callable[[], R]) -> tuple[T, R]:
     """``(background(), foreground())``, the first on a thread of its own while the calling
     thread runs the second (each may still run blocks on the threads); an error of either
@@ -64,3 +60,7 @@ def beside(background: Callable[[], T], foreground: Callable[[], R]) -> tuple[T,
             job.cancel()
             raise
         return job.result(), out
+
+
+# A forked child has none of the parent's threads: it starts its own pool.
+os.register_at_fork(after_in_child=_POOL.clear)

@@ -174,7 +174,6 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
     curves: dict[str, tuple[Array, Array]] = {}
     # The specific force's IMU side is one array for every up axis (alive in sigs): its
     # transforms and correlation time are computed once.
-    # Their first signal fills those caches; the others then run on the threads.
     x_spectra: dict[tuple[int, int, int], tuple[Array, ...]] = {}
     x_time: dict[int, float] = {}
     tau_cs: dict[str, float] = {}
@@ -187,8 +186,13 @@ def search_clock(u: Array, gyro: Array, accel: Array, tau: Array, R_WM: Array, p
         tau_c = max(x_time[id(sg.x)], _correlation_time(sg.y, dt))
         return (sg.start_m - clock_shift) - sg.start_i + lags * dt, corr, n, tau_c
 
-    done = [curve(sg) for sg in sigs[:1]] + map_blocks(curve, sigs[1:])
-    for sg, (td, corr, n, tau_c) in zip(sigs, done, strict=True):
+    # The first signal of each IMU-side array fills its caches; the rest run on the threads.
+    first = [k for k, sg in enumerate(sigs) if all(sigs[j].x is not sg.x for j in range(k))]
+    rest = [k for k in range(len(sigs)) if k not in first]
+    done = dict(zip(first, [curve(sigs[k]) for k in first], strict=True))
+    done.update(zip(rest, map_blocks(curve, [sigs[k] for k in rest]), strict=True))
+    for k, sg in enumerate(sigs):
+        td, corr, n, tau_c = done[k]
         tau_cs[sg.name] = tau_c
         curves[sg.name] = (td, _statistic(corr, n, tau_c, dt))
     # Specific force: keep the up axis whose curve has the highest peak.

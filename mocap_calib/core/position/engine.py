@@ -28,7 +28,6 @@ steps' increments and attitudes it was built from.
 from __future__ import annotations
 
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -76,7 +75,7 @@ from mocap_calib.core.position.windows import (  # noqa: F401  (re-exported)
     make_windows,
 )
 from mocap_calib.core.prepare.session import PreparedSession
-from mocap_calib.core.threads import chunk_pool
+from mocap_calib.core.threads import chunk_pool, map_blocks
 
 Array = NDArray[np.float64]
 
@@ -217,9 +216,7 @@ class PositionProblem:
         win = self.win
         out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
 
-        def chunk(c: NDArray[np.int64], models: ThreadPoolExecutor | None = None) -> None:
-            """Windows ``c`` under every model (with ``models``: the models on its threads);
-            writes only their entries."""
+        def chunk(c: NDArray[np.int64]) -> None:  # writes only its windows' entries
             tau, (R_WM, p_WM) = win.tau[c], win.poses(c)
             h = np.diff(tau, axis=1)
             inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
@@ -233,20 +230,16 @@ class PositionProblem:
                 wh = self._whitening(th, c, packed, R0, noises[i])
                 out[i][0][c], out[i][1][c] = likelihood_pass(h, win.mask[c], wh, Rbar, r)
 
-            if models is not None and len(noises) > 1:
-                list(models.map(model, range(len(noises))))
-            else:
-                for i in range(len(noises)):
-                    model(i)
+            # On the threads when this chunk is the problem's only one (the noise searches'
+            # few windows); in a chunk's own thread, one model after the other.
+            map_blocks(model, range(len(noises)))
 
-        # Chunks on the threads; a problem of one chunk (the noise searches' few windows) runs
-        # its models on them instead.
         pool = chunk_pool()
         if len(self.chunks) > 1 and pool is not None:
             list(pool.map(chunk, self.chunks))
         else:
             for c in self.chunks:
-                chunk(c, pool)
+                chunk(c)
         return out
 
     def _imu_steps(self, th: Theta, c: NDArray[np.int64], tau: Array,
