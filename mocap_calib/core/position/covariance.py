@@ -86,7 +86,8 @@ def mean_bias_weights(windows: Windows) -> Array:
 
 def _bridge(windows: Windows, noise: NoiseModel) -> Array:
     """(6,) variance of the bias random walk's wander inside the windows around the
-    interpolation between knots (Brownian bridge), in the session-mean bias."""
+    interpolation between knots (Brownian bridge), in the session-mean bias: the windows'
+    scores do not see it, so the sandwich adds it."""
     lengths = windows.end - windows.start
     weights = lengths / lengths.sum()
     rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2),
@@ -134,7 +135,10 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
         C = np.zeros((n, 6))
         for key, Ck in combos[k].items():
             C[offsets[key]:offsets[key] + 6] = Ck.T
-        bias_cov = C.T @ lu.solve(C) + np.diag(_bridge(win, noise))
+        # The knots' posterior already holds the bias wander inside the windows (the filter's
+        # process noise): the model's covariance of the mean adds no bridge term, which would
+        # count that wander twice (docs/validation.md, bias walk study).
+        bias_cov = C.T @ lu.solve(C)
         own = {GYRO_BIAS.name: bias_cov[0:3, 0:3], ACCEL_BIAS.name: bias_cov[3:6, 3:6]}
         if inp.timed:
             own[TIME_OFFSET.name] = np.asarray(marg.marginalCovariance(key_time(k)))
