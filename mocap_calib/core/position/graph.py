@@ -248,8 +248,8 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
     # The bias random walk between consecutive knots of a take. Each window's filter also lets
     # the bias wander from its own knot, and nothing ties a window's end to the next knot: the
     # same wander counts twice, which pads the biases' model sigma and lets a walk's trend pass
-    # for a drift (docs/validation.md, bias walk study; the remedy: a window's bias bridged
-    # between its knot and the next).
+    # for a drift (docs/validation.md, bias walk study; the remedy: a window's end bias meeting
+    # the next knot, with the walk over the gap, in place of this factor).
     for k, t in enumerate(takes):
         starts = t.windows.start
         for w in range(t.windows.count - 1):
