@@ -23,11 +23,13 @@ The rule, per parameter and component (``uncertainty`` in the result lists every
   sigma covers the disagreement the session itself shows (never a failed check with the sigmas
   it contradicted);
 - ``d_imu``, ``d_mocap``: how far the answer moves under the other IMU densities and under the
-  correlated mocap noise model, beyond what the reweighting explains by chance (Hausman);
+  correlated mocap noise model, beyond what the reweighting explains by chance (Hausman),
+  counted only when the move is significant (beyond 2 chance sigmas): a chance move is no
+  systematic, and its positive part would pad every sigma of a correct model;
 - ``d_effects``: the same for the model with the effects the data show but the model lacks
   (the score tests at the solution; none shown, no term);
-- ``m``: the largest plain move under any of those models: a user who assumed it would get
-  that answer, and the sigma covers it.
+- ``m``: the largest plain move under any of those models that moved beyond chance: a user
+  who assumed it would get that answer, and the sigma covers it.
 """
 
 from __future__ import annotations

@@ -60,6 +60,11 @@ CORRELATION_WINDOWS = 60
 #: Its candidates (time constant s, correlated fraction); (0, 0) is white noise.
 CORRELATION_GRID: tuple[tuple[float, float], ...] = (
     (0.0, 0.0), *((T, rho) for T in (0.1, 0.3, 1.0, 3.0) for rho in (0.5, 0.9)))
+#: A shift counts as systematic only when its square exceeds this many times the variance the
+#: reweighting explains by chance (a 2-sigma difference, the 5 % level): the positive part of
+#: every chance difference would pad a correct model's sigmas (on simulations with the noise
+#: model right, by ~0.4 of the chance variance per component and alternative).
+SIGNIFICANT = 4.0
 #: The key of the correlated mocap model among the alternatives.
 MOCAP_AR1 = "mocap_ar1"
 #: The key of the model with the effects the data show (the effect tests) among them.
@@ -71,7 +76,8 @@ class Sensitivity:
 
     Attributes:
         shift: alternative -> parameter -> |change| per component beyond what the reweighting
-            explains by chance (parameter units; rotation and gravity in rad).
+            explains by chance (parameter units; rotation and gravity in rad); zero where the
+            change is within chance (:data:`SIGNIFICANT`).
         raw: alternative -> parameter -> |change|.
         moved: alternative -> compared parameter -> largest |change| / the statistical sigma.
         mocap_model: the correlated mocap model fitted (time constant, fraction, likelihood
@@ -107,8 +113,11 @@ class Sensitivity:
         return np.max(np.stack(shifts), axis=0) if shifts else None
 
     def largest_move(self, p: Parameter) -> Array | None:
-        """Per component, the largest plain |change| over the alternatives."""
-        moves = [d[p] for d in self.raw.values() if p in d]
+        """Per component, the largest plain |change| over the alternatives, of the changes
+        beyond chance (a chance difference is no answer a user of that model would get more
+        than this one)."""
+        moves = [np.where(self.shift[k][p] > 0.0, d[p], 0.0) for k, d in self.raw.items()
+                 if p in d and p in self.shift.get(k, {})]
         return np.max(np.stack(moves), axis=0) if moves else None
 
     def of_take(self, k: int) -> Sensitivity:
@@ -151,14 +160,15 @@ def _shifts(alt: PositionResult, pos: PositionResult
 
 def _beyond_chance(raw: dict[Parameter, Array], cov_alt: dict[str, Array],
                    cov: dict[str, Array]) -> tuple[dict[Parameter, Array], dict[Parameter, Array]]:
-    """The part of each difference that the reweighting does not explain by chance, and the
-    plain |difference|."""
+    """The part of each difference that the reweighting does not explain by chance (zero
+    unless the difference is significant, :data:`SIGNIFICANT`), and the plain |difference|."""
     excess = {}
     for p, d in raw.items():
         chance = 0.0
         if p.name in cov and p.name in cov_alt:
             chance = np.abs(np.diag(cov_alt[p.name]) - np.diag(cov[p.name]))
-        excess[p] = np.sqrt(np.maximum(d**2 - chance, 0.0))
+        excess[p] = np.where(d**2 > SIGNIFICANT * chance,
+                             np.sqrt(np.maximum(d**2 - chance, 0.0)), 0.0)
     return excess, {k: np.abs(v) for k, v in raw.items()}
 
 
