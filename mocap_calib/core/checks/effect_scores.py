@@ -235,14 +235,22 @@ def _window_scores(pg: Any, offsets: dict[int, int], n: int) -> tuple[Array, Arr
         keys = pg.block_keys(k)
         glob = np.concatenate([offsets[keys[name]] + np.arange(dim)
                                for name, dim in layout.blocks if name != "knot"])
+        ts = out.extras.get("term_scores")
         for w, s in enumerate(out.scores):
             idx = np.concatenate([glob, offsets[key_knot(pg.knot0[k] + w)] + np.arange(6)])
             row = np.zeros(n)
             np.add.at(row, idx, s.sum(axis=0))
-            rows.append(row)
             part = np.zeros((s.shape[0], n))
             for b in range(s.shape[0]):
                 np.add.at(part[b], idx, s[b])
+            if ts is not None and w < len(ts):  # where the window's end meets the next knot
+                nxt = np.concatenate([idx, offsets[key_knot(pg.knot0[k] + w + 1)] + np.arange(6)])
+                end = np.zeros(n)
+                np.add.at(end, nxt, ts[w])
+                row += end
+                used = np.flatnonzero(np.any(s != 0.0, axis=1))
+                part[used[-1] if len(used) else -1] += end
+            rows.append(row)
             parts.append(part)
     return np.array(rows), np.concatenate(parts)
 

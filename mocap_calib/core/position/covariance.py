@@ -4,7 +4,8 @@ and which parameters the data did not determine.
 Two covariances are computed. The model-based one (``H^-1``, GTSAM's marginals) is right when
 the noise model is. The sandwich ``H^-1 B H^-1`` takes the spread of the data's own scores
 instead: ``B`` sums, over the windows, the outer products of each window's whitened score
-``J^T r``, plus the information of the factors that are not data (bias random walk, priors).
+``J^T r`` (its end rows, where the window's end bias meets the next knot, included), plus the
+information of the factors that are not data (priors).
 A window is a block of at least five seconds: longer than the correlation of real mocap noise
 (vibration, marker-body flex), and its diffuse start makes windows nearly independent (a
 session of fewer than :data:`MIN_BLOCKS` windows uses their one-second parts instead). When
@@ -29,7 +30,6 @@ from mocap_calib.core.model.parameters import (
     TIME_OFFSET,
     UNOBSERVABLE_RATIO,
 )
-from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.graph import key_knot, key_time
 from mocap_calib.core.position.windows import Windows
 
@@ -84,17 +84,6 @@ def mean_bias_weights(windows: Windows) -> Array:
     return (lengths / lengths.sum()) @ coef
 
 
-def _bridge(windows: Windows, noise: NoiseModel) -> Array:
-    """(6,) variance of the bias random walk's wander inside the windows around the
-    interpolation between knots (Brownian bridge), in the session-mean bias: the windows'
-    scores do not see it, so the sandwich adds it."""
-    lengths = windows.end - windows.start
-    weights = lengths / lengths.sum()
-    rw2 = np.r_[np.full(3, noise.gyroscope_random_walk**2),
-                np.full(3, noise.accelerometer_random_walk**2)]
-    return rw2 * (weights**2 * lengths).sum() / 12.0
-
-
 @dataclass(frozen=True)
 class CovarianceInputs:
     """What :func:`position_covariances` needs of the stage.
@@ -118,10 +107,12 @@ class CovarianceInputs:
     timed: bool
     scores: list[Array] | None = None
     window_blocks: bool = True
+    #: every take's (W-1, p+6) scores of the rows where a window's end meets the next knot
+    term_scores: list[Array | None] | None = None
 
 
 def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
-                         inp: CovarianceInputs, noise: NoiseModel) -> PositionUncertainty:
+                         inp: CovarianceInputs) -> PositionUncertainty:
     """Marginals of every shared block, every take's clock offset, knots and session-mean
     bias; with the scores, the sandwich too (the larger of the two per component)."""
     marg = marginals(graph, sol)
@@ -135,9 +126,8 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
         C = np.zeros((n, 6))
         for key, Ck in combos[k].items():
             C[offsets[key]:offsets[key] + 6] = Ck.T
-        # The knots' posterior already holds the bias wander inside the windows (the filter's
-        # process noise): the model's covariance of the mean adds no bridge term, which would
-        # count that wander twice (docs/validation.md, bias walk study).
+        # The knots' posterior holds the bias wander inside and between the windows (the
+        # filters' process noise, the end rows): the covariance of the mean adds no term.
         bias_cov = C.T @ lu.solve(C)
         own = {GYRO_BIAS.name: bias_cov[0:3, 0:3], ACCEL_BIAS.name: bias_cov[3:6, 3:6]}
         if inp.timed:
@@ -149,7 +139,7 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
     cov_model = {**cov, **takes[0].cov}
     unc = PositionUncertainty(cov, takes, cov_model, {})
     if inp.scores is not None:
-        _with_sandwich(unc, graph, sol, inp, noise, combos, (H, offsets, n, lu))
+        _with_sandwich(unc, graph, sol, inp, combos, (H, offsets, n, lu))
     return unc
 
 
@@ -160,7 +150,7 @@ def _combo(windows: Windows, knot0: int) -> dict[int, Array]:
 
 
 def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
-                   sol: gtsam.Values, inp: CovarianceInputs, noise: NoiseModel,
+                   sol: gtsam.Values, inp: CovarianceInputs,
                    combos: list[dict[int, Array]], lin: tuple) -> None:
     """``H^-1 B H^-1`` for every block, raised to where it exceeds the model's (in place)."""
     H, offsets, n, lu = lin
@@ -187,9 +177,9 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
         if inp.timed:
             r[TIME_OFFSET.name] = meat[o:o + 1, o:o + 1]
             o += 1
-        bridge = _bridge(inp.windows[k], noise)
-        r[GYRO_BIAS.name] = meat[o:o + 3, o:o + 3] + np.diag(bridge[0:3])
-        r[ACCEL_BIAS.name] = meat[o + 3:o + 6, o + 3:o + 6] + np.diag(bridge[3:6])
+        # The windows' end rows carry the wander between knots: no bridge term.
+        r[GYRO_BIAS.name] = meat[o:o + 3, o:o + 3]
+        r[ACCEL_BIAS.name] = meat[o + 3:o + 6, o + 3:o + 6]
         o += 6
         tu.cov, ratio = _larger(tu.cov, r)
         if k == 0:
@@ -227,12 +217,21 @@ def _score_rows(inp: CovarianceInputs, offsets: dict[int, int], Z: Array,
     for k, (sc, k0) in enumerate(zip(inp.scores or [], inp.knot0, strict=True)):
         keys = {**inp.shared_keys, **({TIME_OFFSET.name: key_time(k)} if inp.timed else {})}
         glob = np.concatenate([offsets[keys[name]] + np.arange(d) for name, d in inp.blocks])
+        ts = None if inp.term_scores is None else inp.term_scores[k]
         for w in range(sc.shape[0]):
             idx = np.concatenate([glob, offsets[key_knot(k0 + w)] + np.arange(6)])
+            end = None
+            if ts is not None and w < len(ts):
+                nxt = np.concatenate([idx, offsets[key_knot(k0 + w + 1)] + np.arange(6)])
+                end = ts[w] @ Z[nxt]
             if whole:
-                rows.append(sc[w].sum(axis=0) @ Z[idx])
+                rows.append(sc[w].sum(axis=0) @ Z[idx] + (0.0 if end is None else end))
             else:
-                rows.extend(sc[w] @ Z[idx])
+                part = sc[w] @ Z[idx]
+                if end is not None:  # the end rows belong to the window's last part
+                    used = np.flatnonzero(np.any(sc[w] != 0.0, axis=1))
+                    part[used[-1] if len(used) else -1] += end
+                rows.extend(part)
     T = np.array(rows)
     return T[np.any(T != 0.0, axis=1)]  # padding blocks of short windows hold no samples
 

@@ -205,7 +205,8 @@ class PositionGraph:
 def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
                          init: PositionInit,
                          priors: list[Prior] | None = None) -> PositionGraph:
-    """Variables, window factors, bias random-walk factors, range priors and user priors."""
+    """Variables, window factors (with the end rows that tie each window to the next knot), range
+    priors and user priors."""
     problems = [PositionProblem(t.s, model, noise, t.windows) for t in takes]
     layout = problems[0].layout
     shared = _shared_keys(model)
@@ -217,10 +218,15 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
         cols = [(blocks[n] if n != "knot" else None, layout.slice(n))
                 for n, _ in layout.blocks]
         for w in range(t.windows.count):
-            # A factor's keys in the order of its Jacobian's column blocks (the layout's).
-            factor_keys.append([key if key is not None else key_knot(knot0[k] + w)
-                                for key, _ in cols])
-            col_keys.append(cols)
+            # A factor's keys in the order of its Jacobian's column blocks (the layout's);
+            # then the next knot, which the window's end bias meets (all but a take's last).
+            keys = [key if key is not None else key_knot(knot0[k] + w) for key, _ in cols]
+            sls = [sl for _, sl in cols]
+            if w + 1 < t.windows.count:
+                keys.append(key_knot(knot0[k] + w + 1))
+                sls.append(slice(layout.dim, layout.dim + 6))
+            factor_keys.append(keys)
+            col_keys.append(sls)
     # A weak reference: the graph (C++) holds the factors' callbacks, which hold this
     # closure; a strong one would be a cycle through C++ that the collector cannot see, and
     # every refit's arrays would live until the process ends.
@@ -234,35 +240,65 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
         outs = [pp.evaluate(th) for pp, th in zip(problems, _alive(pg_ref[0]).thetas(values),
                                                    strict=True)]
         evals.append(outs)
-        e = np.concatenate([compress(o.gram)[0] for o in outs])
-        H = np.concatenate([compress(o.gram)[1] for o in outs])
-        jac = [[H[w][:, sl] for _, sl in col_keys[w]] for w in range(len(col_keys))]
-        return BatchOutput(list(e), jac)
+        errs: list[Array] = []
+        Hs: list[Array] = []
+        for pp, th, o, t in zip(problems, _alive(pg_ref[0]).thetas(values), outs, takes,
+                                strict=True):
+            G = _bridged(o, th.knots, t.windows, pp.noise, layout.slice("knot"))
+            for g in (G, o.gram[-1:]):
+                if len(g) == 0:
+                    continue
+                e, H = compress(g)
+                errs += list(e)
+                Hs += list(H)
+        jac = [[Hs[w][:, sl] for sl in col_keys[w]] for w in range(len(col_keys))]
+        return BatchOutput(errs, jac)
 
-    batch = BatchFactors(evaluate, factor_keys, gtsam.noiseModel.Unit.Create(layout.dim + 1))
+    noises = [gtsam.noiseModel.Unit.Create(layout.dim + (7 if len(c) > len(layout.blocks) else 1))
+              for c in col_keys]
+    batch = BatchFactors(evaluate, factor_keys, noises)
     graph = gtsam.NonlinearFactorGraph()
     for f in batch.factors():
         graph.add(f)
-    sig = np.r_[np.full(3, noise.gyroscope_random_walk),
-                np.full(3, noise.accelerometer_random_walk)]
-    # The bias random walk between consecutive knots of a take. Each window's filter also lets
-    # the bias wander from its own knot, and nothing ties a window's end to the next knot: the
-    # same wander counts twice, which pads the biases' model sigma and lets a walk's trend pass
-    # for a drift (docs/validation.md, bias walk study; the remedy: a window's end bias meeting
-    # the next knot, with the walk over the gap, in place of this factor).
-    for k, t in enumerate(takes):
-        starts = t.windows.start
-        for w in range(t.windows.count - 1):
-            dt = float(starts[w + 1] - starts[w])
-            graph.add(gtsam.BetweenFactorVector(
-                key_knot(knot0[k] + w), key_knot(knot0[k] + w + 1), np.zeros(6),
-                gtsam.noiseModel.Diagonal.Sigmas(sig * np.sqrt(dt))))
+    # No walk factor between consecutive knots: each window's filter lets the bias wander from
+    # its knot, and its end rows (_bridged) tie the end bias to the next knot with the walk over
+    # the gap, so the wander between knots counts once (docs/validation.md, bias walk study).
     values = _start_values(model, init, takes, knot0)
     _add_range_priors(graph, model, init, knot0)
     _add_user_priors(graph, priors or [], shared, model, takes, knot0)
     pg = PositionGraph(graph, values, batch, problems, takes, knot0, model, init, shared, evals)
     pg_ref.append(weakref.ref(pg))
     return pg
+
+
+def _bridged(o: Any, knots: Array, win: Any, nz: NoiseModel, ks: slice) -> Array:
+    """Every window's Gram matrix but the last's, extended by the next knot's 6 columns
+    (before ``r``) and the rows where its end bias meets that knot: ``r_T = b_next - b``,
+    ``J_T`` +I (next knot) and -I (this knot), minus the filter's end-state mean, whitened by
+    the end bias covariance plus the walk over the gap to the next window."""
+    gram, tX, tP = o.gram[:-1], o.term_X[:-1], o.term_P[:-1]
+    n, p = gram.shape[0], gram.shape[-1] - 1
+    G = np.zeros((n, p + 7, p + 7))
+    if n == 0:
+        return G
+    G[:, :p, :p] = gram[:, :p, :p]
+    G[:, :p, p + 6] = gram[:, :p, p]
+    G[:, p + 6, :p] = gram[:, p, :p]
+    G[:, p + 6, p + 6] = gram[:, p, p]
+    N = np.zeros((n, 6, p + 7))
+    N[:, :, ks] -= np.eye(6)
+    N[:, :, p:p + 6] += np.eye(6)
+    N[:, :, p + 6] = knots[1:] - knots[:-1]
+    N[:, :, :p] -= tX[:, :, :p]
+    N[:, :, p + 6] -= tX[:, :, p]
+    q = np.r_[np.full(3, nz.gyroscope_random_walk**2), np.full(3, nz.accelerometer_random_walk**2)]
+    gap = np.maximum(win.start[1:] - win.end[:-1], 0.0)
+    S = tP + q[None, :, None] * np.eye(6)[None] * gap[:, None, None] + 1e-14 * np.eye(6)
+    L = np.linalg.cholesky(S)
+    Nw = np.linalg.solve(L, N)
+    # The end rows' whitened scores (the sandwich's): parameters, then the next knot.
+    o.extras["term_scores"] = np.einsum("nic,ni->nc", Nw[:, :, :p + 6], Nw[:, :, p + 6])
+    return G + np.swapaxes(Nw, 1, 2) @ Nw
 
 
 def _alive(ref: weakref.ref[PositionGraph]) -> PositionGraph:

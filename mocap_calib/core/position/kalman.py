@@ -102,7 +102,8 @@ def empty_output(W: int, m1: int, p: int, n_blocks: int | None, store: bool) -> 
                    None if n_blocks is None else np.zeros((W, n_blocks, p)),
                    np.zeros((W, m1, 6)) if store else None,
                    np.zeros((W, m1, 6, p)) if store else None,
-                   np.zeros((W, m1, 6, p + 1)) if store else None)
+                   np.zeros((W, m1, 6, p + 1)) if store else None,
+                   term_X=np.zeros((W, 6, p + 1)), term_P=np.zeros((W, 6, 6)))
 
 
 def output_slice(out: EvalOut, sl: slice) -> EvalOut:
@@ -111,7 +112,8 @@ def output_slice(out: EvalOut, sl: slice) -> EvalOut:
         return None if x is None else x[sl]
     return EvalOut(out.gram[sl], out.innovation[sl], out.d_raw[sl], out.chi2[sl],
                    out.logdet[sl], out.e_white[sl], cut(out.scores), cut(out.raw_r),
-                   cut(out.raw_J), cut(out.whitened))
+                   cut(out.raw_J), cut(out.whitened), term_X=cut(out.term_X),
+                   term_P=cut(out.term_P))
 
 
 def filter_pass(h: Array, mask: NDArray[np.bool_], current: Whitening, Rbar: Array,
@@ -134,7 +136,9 @@ def filter_pass(h: Array, mask: NDArray[np.bool_], current: Whitening, Rbar: Arr
         out.gram, out.innovation, out.e_white, out.d_raw, out.logdet,
         np.zeros((W, 0, p)) if out.scores is None else out.scores,
         out.raw_J if store else np.zeros((0, 0, 6, p)),
-        out.whitened if store else np.zeros((0, 0, 6, p + 1)))
+        out.whitened if store else np.zeros((0, 0, 6, p + 1)),
+        out.term_X if out.term_X is not None else np.zeros((0, 6, p + 1)),
+        out.term_P if out.term_P is not None else np.zeros((0, 6, 6)))
     out.chi2[:] = np.einsum("wki,wki->w", out.e_white, out.e_white)
     if store:
         out.raw_r[:] = rows.r

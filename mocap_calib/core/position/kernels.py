@@ -347,7 +347,8 @@ def chain(R, inc, Rnext):  # pragma: no cover  (compiled)
 @kernel
 def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, dg, gcols,
                    r, Jinv, Pm_rot, Jp, Hq, R_WM0, M_op, par, rs, ts, blocks, gram, innov,
-                   e_white, d_raw, logdet, scores, raw_J, whitened):  # pragma: no cover
+                   e_white, d_raw, logdet, scores, raw_J, whitened, term_X,
+                   term_P):  # pragma: no cover
     """The filter pass over every window (outputs zeroed by the caller). With ``frozen`` the
     filter (mean transition, covariance, gains, whitening) runs on the whitening's own
     increments ``op_inc`` (its attitudes chained from ``op_R0`` as ``compose`` does), noise
@@ -397,6 +398,9 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
                           ts, white, wts[w, k], op_wts[w, k], par, r, Jinv, Pm_rot, Jp, Hq,
                           blocks, gram, innov, e_white, d_raw, scores, raw_J, whitened)
         logdet[w] = ld
+        if term_X.shape[0] > 0:  # the bias states at the window's end (mean per column, cov)
+            term_X[w] = X[9:15, :p + 1]
+            term_P[w] = P[9:15, 9:15]
         for a in range(p + 1):
             for b in range(a):
                 gram[w, a, b] = gram[w, b, a]

@@ -360,8 +360,9 @@ class PositionSolver:
         def covariances() -> PositionUncertainty:
             inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes],
                                    pg.knot0, [th.knots for th in thetas], self.model.timed,
-                                   [o.scores for o in outs], keep.window_blocks)
-            return position_covariances(pg.graph, at, inp, pg.problem.noise)
+                                   [o.scores for o in outs], keep.window_blocks,
+                                   [o.extras.get("term_scores") for o in outs])
+            return position_covariances(pg.graph, at, inp)
 
         if keep.covariance:
             unc = covariances()

@@ -206,6 +206,8 @@ class EvalOut:
     raw_J: Array | None = None
     whitened: Array | None = None
     extras: dict[str, Array] = field(default_factory=dict)
+    term_X: Array | None = None  # (W, 6, p+1) bias states' mean per column at the end
+    term_P: Array | None = None  # (W, 6, 6) their covariance
 
     @property
     def q_rot(self) -> Array:
