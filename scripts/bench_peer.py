@@ -16,12 +16,19 @@ t + time_offset); ``run: {wall_s}`` is shown when present (the peer's own timing
 wrapper (``run_mocap2gt.sh`` where it was built) has this interface. Without ``--peer`` only
 mocap-calib runs, and the table says so.
 
+The peer does not change with mocap-calib: ``--peer-from DIR`` takes its result for a flight from
+an earlier run's ``--out`` folder when that folder holds the same flight (its IMU and mocap
+files byte for byte identical to the new simulation's) and the peer's ``peer.yaml``; a flight
+without one runs the peer (``--peer``). Reused results have no wall time, and the table names
+how many were reused.
+
 Printed: per seed and as means, the R_MI (deg), p_MI (mm) and t_d (ms) errors of both tools
 side by side and their wall times; mocap-calib's |err|/sigma (largest axis) per parameter and
 seed, and its maximum over the seeds.
 
 Usage: python scripts/bench_peer.py [--seeds 4] [--first-seed 1] [--duration 90]
-                                    [--peer 'CMD ...'] [--out DIR] [--json FILE]
+                                    [--peer 'CMD ...'] [--peer-from DIR ...] [--out DIR]
+                                    [--json FILE]
 """
 
 from __future__ import annotations
@@ -67,6 +74,7 @@ class Run:
     own_wall_s: float | None = None  # the tool's own timing, when it reports one
     z: dict[str, float] = field(default_factory=dict)
     failure: str = ""
+    reused: bool = False  # the peer's result taken from an earlier run of the same flight
 
 
 def errors(truth: dict[str, Any], rotation_wxyz: Any, translation: Any,
@@ -133,6 +141,28 @@ def run_peer(peer: list[str], session: Path, seed: int, truth: dict[str, Any]) -
     return run
 
 
+#: The flight's input files that must match for a peer result to be reused.
+FLIGHT_FILES = ("mav0/imu0/data.csv", "mav0/vicon0/data.csv")
+
+
+def reused_peer(earlier: list[Path], session: Path, seed: int,
+                truth: dict[str, Any]) -> Run | None:
+    """The peer's result for this flight from an earlier run's folder, when one holds the same
+    flight (byte-identical input files) and the peer's result; else None."""
+    for root in earlier:
+        old = root / session.name
+        if not (old / "peer.yaml").exists() or not all(
+                (old / f).exists() and (old / f).read_bytes() == (session / f).read_bytes()
+                for f in FLIGHT_FILES):
+            continue
+        d = yaml.safe_load((old / "peer.yaml").read_text())
+        run = Run("peer", seed, reused=True)
+        run.errors = errors(truth, d["R_MI"], d["p_MI"], d["time_offset"])
+        run.own_wall_s = (d.get("run") or {}).get("wall_s")
+        return run
+    return None
+
+
 def _fmt(x: float | None, width: int = 10, digits: int = 3) -> str:
     return f"{'-':>{width}}" if x is None or not np.isfinite(x) else f"{x:>{width}.{digits}f}"
 
@@ -153,7 +183,8 @@ def print_table(runs: list[Run], seeds: list[int], peer_name: str | None) -> Non
         done = [r for r in runs if r.tool == tool and r.errors]
         means = "".join(_fmt(float(np.mean([r.errors[m] for r in done])) if done else None, 11)
                         for m, _ in METRICS)
-        wall = float(np.mean([r.wall_s for r in done])) if done else None
+        walls = [r.wall_s for r in done if not r.reused]
+        wall = float(np.mean(walls)) if walls else None
         print(f"{'mean':<6}{label[tool]:<14}{means}{_fmt(wall, 10, 1)}"
               f"{'':>8}  {len(done)}/{len(seeds)} flights")
     if not peer_name:
@@ -178,10 +209,13 @@ def markdown(runs: list[Run], seeds: list[int], duration: float, peer_name: str 
         rows.append([peer_name if tool == "peer" else tool,
                      *(f"{np.mean([r.errors[m] for r in done]):.3f}" if done else "-"
                        for m, _ in METRICS),
-                     f"{np.mean([r.wall_s for r in done]):.1f}" if done else "-",
-                     f"{len(done)}/{len(seeds)}"])
+                     _mean_wall(done), f"{len(done)}/{len(seeds)}"])
     ours = [r for r in runs if r.tool == "mocap-calib" and r.z]
     worst = {k: max((r.z[k] for r in ours if k in r.z), default=float("nan")) for k in Z_PARAMS}
+    n_reused = sum(r.reused for r in runs)
+    reused = (f"\n{peer_name}'s results for {n_reused} of the flights are those of an earlier "
+              "run of the same flights (byte-identical inputs; `--peer-from`); its wall time is "
+              "over the flights it ran here (none: `-`).\n" if n_reused else "")
     return (provenance("bench_peer.py") + "\n"
             + f"{len(seeds)} simulated flights of {duration:g} s (`--preset flying`, seeds "
             f"{seeds[0]}-{seeds[-1]}), both tools given the data sheet's noise; mean errors "
@@ -189,7 +223,12 @@ def markdown(runs: list[Run], seeds: list[int], duration: float, peer_name: str 
             + table(["tool", "`R_MI` (deg)", "`p_MI` (mm)", "`t_d` (ms)", "wall (s)",
                      "flights"], rows)
             + "\nmocap-calib's largest \\|err\\|/sigma over the flights: "
-            + ", ".join(f"{k} {v:.2f}" for k, v in worst.items()) + ".\n")
+            + ", ".join(f"{k} {v:.2f}" for k, v in worst.items()) + ".\n" + reused)
+
+
+def _mean_wall(done: list[Run]) -> str:
+    walls = [r.wall_s for r in done if not r.reused]
+    return f"{np.mean(walls):.1f}" if walls else "-"
 
 
 def main() -> None:
@@ -200,6 +239,9 @@ def main() -> None:
     ap.add_argument("--peer", default=None,
                     help="the peer's command (see the module doc); absent: mocap-calib only")
     ap.add_argument("--peer-name", default="mocap2gt", help="the peer's name in the table")
+    ap.add_argument("--peer-from", type=Path, nargs="*", default=[],
+                    help="earlier runs' --out folders whose peer results are reused for the "
+                         "same flights (see the module doc)")
     ap.add_argument("--out", type=Path, default=None,
                     help="folder for the sessions and results (default: a temporary one)")
     ap.add_argument("--json", type=Path, default=None, help="also write every run here")
@@ -207,6 +249,7 @@ def main() -> None:
     a = ap.parse_args()
     check(a, list(SECTIONS))
     peer = shlex.split(a.peer) if a.peer else None
+    peer_name = a.peer_name if peer or a.peer_from else None
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     with tempfile.TemporaryDirectory() as tmp:
         root = a.out or Path(tmp)
@@ -216,18 +259,24 @@ def main() -> None:
             simulate_to_folder(session, seed=seed, duration=a.duration, preset="flying")
             truth = yaml.safe_load((session / "truth.yaml").read_text())
             runs.append(run_ours(session, seed, truth))
-            if peer:
+            old = reused_peer(a.peer_from, session, seed, truth)
+            if old is not None:
+                runs.append(old)
+            elif peer:
                 runs.append(run_peer(peer, session, seed, truth))
+            elif a.peer_from:
+                runs.append(Run("peer", seed, failure="not in --peer-from and no --peer"))
             print(f"seed {seed}: " + "; ".join(
-                f"{r.tool} {r.wall_s:.1f} s {r.failure}".strip() for r in runs[-2:]
+                f"{r.tool} {'reused' if r.reused else f'{r.wall_s:.1f} s'} {r.failure}".strip()
+                for r in runs[-2:]
                 if r.seed == seed), flush=True)
     print(f"\nflying preset: {len(seeds)} flights of {a.duration:g} s (seeds {seeds[0]}-"
           f"{seeds[-1]}); both tools given the data sheet's noise (NoiseModel defaults); "
           "errors against the simulator's truth")
-    print_table(runs, seeds, a.peer_name if peer else None)
+    print_table(runs, seeds, peer_name)
     if a.json:
         a.json.write_text(json.dumps([asdict(r) for r in runs], indent=1))
-    md = markdown(runs, seeds, a.duration, a.peer_name if peer else None)
+    md = markdown(runs, seeds, a.duration, peer_name)
     print(md)
     write(a, {"bench_peer": md})
 
