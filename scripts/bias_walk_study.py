@@ -1,4 +1,4 @@
-"""Why the session-mean biases' sigmas are conservative: the model covariance and the bias walk.
+"""The session-mean biases' sigmas under the bias random walk: the model's and the sandwich's.
 
 The position stage reports, per component, the larger of two statistical sigmas: the model's
 (``H^-1``) and the sandwich's (the windows' own score spread). On simulated sessions the biases'
@@ -12,10 +12,10 @@ sandwich / model sigma ratio. And the same sessions' score test of an accelerome
 (which none has): how often its p-value falls below 5 % (model-based and as reported, the weaker
 of the model's and the windows' evidence); a calibrated test: about 5 %.
 
-The model lets the bias wander twice over the same time: inside each window (the filter's
-process noise from the window's knot) and between consecutive knots (the random-walk factor),
-and nothing ties a window's end to the next knot. If the model covariance were right, switching
-the walk off would leave its RMS where it was.
+Each window's filter lets the bias wander from the window's knot, and the window's end bias
+meets the next knot with the walk over the gap (the end rows), so the wander counts once. If
+the model covariance of the session-mean bias were right, switching the walk off would leave
+its RMS where it was.
 
 Usage: python scripts/bias_walk_study.py [--seeds 40] [--first-seed 2000] [--workers 2]
        [--write-doc] [--doc PATH]

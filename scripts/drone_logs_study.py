@@ -59,8 +59,9 @@ def gap_acceptance() -> dict:
                                         effects={"time_offset": [0.006], **extra}))
         t0 = time.perf_counter()
         res = calibrate(sim.imu, sim.mocap, OPTS)
+        gaps = res.imu_gaps.to_dict() if res.imu_gaps is not None else {}
         out[name] = {**_errors(res, sim.truth), "seconds": round(time.perf_counter() - t0, 1),
-                     "imu_gaps": {k: v for k, v in res.imu_gaps.items() if k != "gaps"}}
+                     "imu_gaps": {k: v for k, v in gaps.items() if k != "gaps"}}
         print(name, json.dumps(out[name]), flush=True)
     return out
 
