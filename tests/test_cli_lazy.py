@@ -33,7 +33,7 @@ NOT_FOR_CALIBRATE = {
     "rerun": "~60 MB, 0.4 s (--rrd, view)",
     "scipy.stats": "with scipy.signal ~45 MB, 0.3 s",
     "scipy.signal": "the diagnosis' filters",
-    "pandas": "64 MB", "pyarrow": "65 MB",
+    "pandas": "64 MB", "pyarrow": "28 MB (only CSV files of 8 MiB and more, io/tables.py)",
     "dask": "batch --engine dask", "distributed": "batch --engine dask",
     "mocap_calib.sim": "simulate",
     "mocap_calib.core.diagnosis": "--model auto, diagnose",
@@ -82,6 +82,40 @@ def test_reading_a_csv_loads_neither_pandas_nor_pyarrow(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     n, pandas, pyarrow = proc.stdout.split()
     assert int(n) > 900 and pandas == "False" and pyarrow == "False"
+
+
+def test_the_command_line_starts_without_pyarrow() -> None:
+    code = ("import sys\nimport mocap_calib.cli.main\nimport mocap_calib.io.formats.layout\n"
+            "import mocap_calib.io.tables\n"
+            "print('pyarrow' in sys.modules, 'pandas' in sys.modules)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["False", "False"]
+
+
+@pytest.mark.parametrize("cell,pyarrow", [("0.5", True), ("nan", False)])
+def test_a_large_csv_loads_pyarrow_only_when_it_is_plain(tmp_path: Path, cell: str,
+                                                        pyarrow: bool) -> None:
+    """pyarrow reads large files of numbers only (never pulling in pandas); a file it would
+    leave to numpy (here a NaN cell) is found out before pyarrow is imported."""
+    from mocap_calib.io.formats.euroc import write_euroc_imu
+    from mocap_calib.sim.flight import SimConfig, simulate_flight
+
+    csv = write_euroc_imu(tmp_path / "imu.csv", simulate_flight(SimConfig(duration=5.0)).imu)
+    with open(csv, "a") as f:
+        f.write(f"99999999999999999,0.1,0.2,0.3,{cell},0.5,9.8\n")
+    code = ("import sys\nfrom mocap_calib.io import tables\n"
+            "from mocap_calib.io.formats.layout import read_table, sniff_layout\n"
+            "tables.PYARROW_MIN_BYTES = 0\n"
+            f"layout = sniff_layout({str(csv)!r})\n"
+            "n = len(read_table(layout, range(7), 0).text[0])\n"
+            "print(n, 'pyarrow' in sys.modules, 'pandas' in sys.modules)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    n, loaded, pandas = proc.stdout.split()
+    assert int(n) > 900 and loaded == str(pyarrow) and pandas == "False"
 
 
 _ENDING = """

@@ -25,7 +25,7 @@ CORE_DIR = PACKAGE_DIR / "core"
 #: Every layer may import the standard library, ``mocap_calib.errors`` and itself.
 LAYERS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "core": ((), ("numpy", "scipy", "gtsam", "allantools", "numba")),
-    "io": (("core",), ("numpy", "yaml", "rosbags", "pyulog")),
+    "io": (("core",), ("numpy", "yaml", "rosbags", "pyulog", "pyarrow")),
     "sim": (("core",), ("numpy", "scipy")),
     "report": (("core",), ("numpy", "matplotlib")),
     "export": (("core", "io"), ("numpy", "yaml")),

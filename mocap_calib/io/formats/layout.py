@@ -7,7 +7,11 @@ fifth of a short session's whole run. Clean files go through numpy's C parser; a
 (an empty cell, ``NA``, a word in a column, a short row) is read again row by row, so that each
 problem is named at its line. The rules: a ``#`` starts a comment, blank lines are skipped, a row
 with more fields than the first data row is an error, missing trailing fields and empty or
-``NA``-like cells are NaN."""
+``NA``-like cells are NaN.
+
+Large files of numbers only (from 8 MiB: tens of MB of IMU readings) are read by pyarrow's parser
+instead (:func:`mocap_calib.io.tables.read_plain`), into the same table several times faster; a
+file that is not plain, or that it refuses, is read as above."""
 
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ from numpy.typing import NDArray
 
 from mocap_calib.errors import input_error
 from mocap_calib.io.formats.columns import COLUMNS_FIX, name_key
+from mocap_calib.io.tables import read_plain
 from mocap_calib.io.validate import Lines
 
 __all__ = ["name_key"]  # re-exported: header names are matched by it
@@ -307,8 +312,12 @@ def read_table(layout: Layout, indices: Collection[int], time_index: int) -> Tab
             raise input_error(f"column {i} does not exist (the first data row has "
                               f"{layout.n_fields} columns)", COLUMNS_FIX, layout.source,
                               layout.skip + 1)
-    lines = data_lines(layout.path, layout.skip, layout.decimal)
     sep = None if layout.sep == WHITESPACE else layout.sep
+    plain = read_plain(layout.path, layout.skip, sep, layout.decimal, layout.n_fields, indices,
+                       [time_index])
+    if plain is not None:  # a large file of numbers only: the same table, faster
+        return Table(plain[0], {}, plain[1])
+    lines = data_lines(layout.path, layout.skip, layout.decimal)
     try:
         # All columns are parsed (not only those asked for) so that a longer row is an error.
         return parse_rows(lines, sep, layout.n_fields, indices, text=[time_index])
