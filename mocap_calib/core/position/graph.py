@@ -21,7 +21,7 @@ from mocap_calib.core.gtsam_tools import BatchFactors, BatchOutput
 from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, GRAVITY_MAGNITUDE, Model
 from mocap_calib.core.model.parameters import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel
-from mocap_calib.core.position.engine import PositionProblem, Theta, Windows, compress
+from mocap_calib.core.position.engine import EvalOut, PositionProblem, Theta, Windows, compress
 from mocap_calib.core.prepare.session import PreparedSession
 
 Array = NDArray[np.float64]
@@ -271,11 +271,12 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
     return pg
 
 
-def _bridged(o: Any, knots: Array, win: Any, nz: NoiseModel, ks: slice) -> Array:
+def _bridged(o: EvalOut, knots: Array, win: Windows, nz: NoiseModel, ks: slice) -> Array:
     """Every window's Gram matrix but the last's, extended by the next knot's 6 columns
     (before ``r``) and the rows where its end bias meets that knot: ``r_T = b_next - b``,
     ``J_T`` +I (next knot) and -I (this knot), minus the filter's end-state mean, whitened by
     the end bias covariance plus the walk over the gap to the next window."""
+    assert o.term_X is not None and o.term_P is not None  # every filter pass fills them
     gram, tX, tP = o.gram[:-1], o.term_X[:-1], o.term_P[:-1]
     n, p = gram.shape[0], gram.shape[-1] - 1
     G = np.zeros((n, p + 7, p + 7))
