@@ -31,6 +31,7 @@ from mocap_calib.core.model.parameters import (
     UNOBSERVABLE_RATIO,
 )
 from mocap_calib.core.position.graph import key_knot, key_time
+from mocap_calib.core.position.session_mean import SessionMean
 from mocap_calib.core.position.windows import Windows
 
 Array = NDArray[np.float64]
@@ -68,22 +69,6 @@ class PositionUncertainty:
     robust_ratio: dict[str, list[float]] = field(default_factory=dict)
 
 
-def mean_bias_weights(windows: Windows) -> Array:
-    """(W,) weights of the knots in the session-mean bias: each window's mean bias is its knot
-    interpolated towards the next one, weighted by the window's length."""
-    W = windows.count
-    starts, lengths = windows.start, windows.end - windows.start
-    coef = np.zeros((W, W))
-    for w in range(W):
-        if w + 1 < W:
-            a = 0.5 * lengths[w] / max(starts[w + 1] - starts[w], 1e-9)
-            coef[w, w] = 1.0 - a
-            coef[w, w + 1] = a
-        else:
-            coef[w, w] = 1.0
-    return (lengths / lengths.sum()) @ coef
-
-
 @dataclass(frozen=True)
 class CovarianceInputs:
     """What :func:`position_covariances` needs of the stage.
@@ -93,6 +78,7 @@ class CovarianceInputs:
         blocks: (name, dim) of a window's Jacobian columns in order, the knot excluded.
         windows: every take's windows; knot0: every take's first knot index.
         knots: every take's (W, 6) knots.
+        means: every take's session-mean bias (see :mod:`.session_mean`).
         timed: the model estimates each take's clock offset.
         scores: every take's (W, B, p) per-window-and-block whitened scores, or None.
         window_blocks: the sandwich's blocks are whole windows when there are enough of them
@@ -104,6 +90,7 @@ class CovarianceInputs:
     windows: list[Windows]
     knot0: list[int]
     knots: list[Array]
+    means: list[SessionMean]
     timed: bool
     scores: list[Array] | None = None
     window_blocks: bool = True
@@ -120,21 +107,18 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
            for name, key in inp.shared_keys.items()}
     takes: list[TakeUncertainty] = []
     H, offsets, n = information_matrix(graph, sol)
-    combos = [_combo(w, k0) for w, k0 in zip(inp.windows, inp.knot0, strict=True)]
+    combos = [_mean_columns(inp, k, offsets, n) for k in range(len(inp.windows))]
     lu = spd_factor(H)
     for k, (win, k0) in enumerate(zip(inp.windows, inp.knot0, strict=True)):
-        C = np.zeros((n, 6))
-        for key, Ck in combos[k].items():
-            C[offsets[key]:offsets[key] + 6] = Ck.T
-        # The knots' posterior holds the bias wander inside and between the windows (the
-        # filters' process noise, the end rows): the covariance of the mean adds no term.
-        bias_cov = C.T @ lu.solve(C)
+        C = combos[k]
+        # The parameters' part through the mean's Jacobian, and the integrals' own given them.
+        bias_cov = C.T @ lu.solve(C) + inp.means[k].cov_given
         own = {GYRO_BIAS.name: bias_cov[0:3, 0:3], ACCEL_BIAS.name: bias_cov[3:6, 3:6]}
         if inp.timed:
             own[TIME_OFFSET.name] = np.asarray(marg.marginalCovariance(key_time(k)))
         knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(k0 + w))))
                                for w in range(win.count)])
-        mean = np.kron(mean_bias_weights(win)[None, :], np.eye(6)) @ inp.knots[k].reshape(-1)
+        mean = inp.means[k].value(inp.knots[k])
         takes.append(TakeUncertainty(own, knot_sigma, mean))
     cov_model = {**cov, **takes[0].cov}
     unc = PositionUncertainty(cov, takes, cov_model, {})
@@ -143,15 +127,31 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
     return unc
 
 
-def _combo(windows: Windows, knot0: int) -> dict[int, Array]:
-    """The session-mean bias as a combination of a take's knots: key -> (6, 6) block."""
-    c = mean_bias_weights(windows)
-    return {key_knot(knot0 + w): c[w] * np.eye(6) for w in range(windows.count)}
+def _window_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int]) -> list[Array]:
+    """Per window of ``take``, the global indices of its Jacobian's columns (layout order, its
+    knot last)."""
+    keys = {**inp.shared_keys, **({TIME_OFFSET.name: key_time(take)} if inp.timed else {})}
+    glob = np.concatenate([offsets[keys[name]] + np.arange(d) for name, d in inp.blocks])
+    k0 = inp.knot0[take]
+    return [np.concatenate([glob, offsets[key_knot(k0 + w)] + np.arange(6)])
+            for w in range(inp.windows[take].count)]
+
+
+def _mean_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int], n: int) -> Array:
+    """(n, 6) the session-mean bias's derivative by every variable of the graph."""
+    sm, k0 = inp.means[take], inp.knot0[take]
+    E = np.zeros((n, 6))
+    for w, idx in enumerate(_window_columns(inp, take, offsets)):
+        E[idx] += sm.d_window[w].T
+        if w + 1 < inp.windows[take].count:
+            nxt = offsets[key_knot(k0 + w + 1)]
+            E[nxt:nxt + 6] += sm.d_next[w].T
+    return E
 
 
 def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
                    sol: gtsam.Values, inp: CovarianceInputs,
-                   combos: list[dict[int, Array]], lin: tuple) -> None:
+                   combos: list[Array], lin: tuple) -> None:
     """``H^-1 B H^-1`` for every block, raised to where it exceeds the model's (in place)."""
     H, offsets, n, lu = lin
     n_windows = sum(w.count for w in inp.windows)
@@ -178,8 +178,9 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
             r[TIME_OFFSET.name] = meat[o:o + 1, o:o + 1]
             o += 1
         # The windows' end rows carry the wander between knots: no bridge term.
-        r[GYRO_BIAS.name] = meat[o:o + 3, o:o + 3]
-        r[ACCEL_BIAS.name] = meat[o + 3:o + 6, o + 3:o + 6]
+        given = inp.means[k].cov_given
+        r[GYRO_BIAS.name] = meat[o:o + 3, o:o + 3] + given[0:3, 0:3]
+        r[ACCEL_BIAS.name] = meat[o + 3:o + 6, o + 3:o + 6] + given[3:6, 3:6]
         o += 6
         tu.cov, ratio = _larger(tu.cov, r)
         if k == 0:
@@ -187,7 +188,7 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
 
 
 def _targets(inp: CovarianceInputs, offsets: dict[int, int], n: int,
-             combos: list[dict[int, Array]]) -> tuple[Array, list[tuple[str, int]]]:
+             combos: list[Array]) -> tuple[Array, list[tuple[str, int]]]:
     """The columns the sandwich is wanted for: every shared block's components, then per take
     its clock offset and mean bias. Returns them and the shared blocks' (name, dim)."""
     dims = dict(inp.blocks)
@@ -202,10 +203,7 @@ def _targets(inp: CovarianceInputs, offsets: dict[int, int], n: int,
             e = np.zeros((n, 1))
             e[offsets[key_time(k)], 0] = 1.0
             parts.append(e)
-        e = np.zeros((n, 6))
-        for key, Ck in combos[k].items():
-            e[offsets[key]:offsets[key] + 6] = Ck.T
-        parts.append(e)
+        parts.append(combos[k])
     return np.concatenate(parts, axis=1), shared
 
 
@@ -215,11 +213,10 @@ def _score_rows(inp: CovarianceInputs, offsets: dict[int, int], Z: Array,
     one of its one-second parts."""
     rows = []
     for k, (sc, k0) in enumerate(zip(inp.scores or [], inp.knot0, strict=True)):
-        keys = {**inp.shared_keys, **({TIME_OFFSET.name: key_time(k)} if inp.timed else {})}
-        glob = np.concatenate([offsets[keys[name]] + np.arange(d) for name, d in inp.blocks])
+        cols = _window_columns(inp, k, offsets)
         ts = None if inp.term_scores is None else inp.term_scores[k]
         for w in range(sc.shape[0]):
-            idx = np.concatenate([glob, offsets[key_knot(k0 + w)] + np.arange(6)])
+            idx = cols[w]
             end = None
             if ts is not None and w < len(ts):
                 nxt = np.concatenate([idx, offsets[key_knot(k0 + w + 1)] + np.arange(6)])

@@ -129,13 +129,14 @@ class PositionProblem:
         self._lag_cache: dict[tuple[str, float, float, float], Array] = {}
 
     # ------------------------------------------------------------------ evaluation
-    def evaluate(self, th: Theta, store: bool = False) -> EvalOut:
+    def evaluate(self, th: Theta, store: bool = False, integral: bool = False) -> EvalOut:
         """Every window's whitened system and statistics at ``th`` (with ``store``: also the
-        raw residuals and Jacobians and the filter's model, for tests). Chunks write their
-        windows' slices of one set of arrays: an evaluation holds nothing twice."""
+        raw residuals and Jacobians and the filter's model, for tests; with ``integral`` the
+        windows' bias integrals). Chunks write their windows' slices of one set of arrays: an
+        evaluation holds nothing twice."""
         W, m1 = self.win.mask.shape
         n_blocks = int(self._score_blocks(m1 - 1)[-1]) + 1 if self.collect_scores else None
-        out = empty_output(W, m1, self.layout.dim, n_blocks, store)
+        out = empty_output(W, m1, self.layout.dim, n_blocks, store, integral)
         pool = chunk_pool()
         jobs = list(enumerate(self.chunks))
         if len(jobs) > 1 and pool is not None:

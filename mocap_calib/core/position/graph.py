@@ -22,6 +22,7 @@ from mocap_calib.core.model.effects import CLOCK_OFFSET, EFFECTS, GRAVITY_MAGNIT
 from mocap_calib.core.model.parameters import RANGE_SIGMA
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import EvalOut, PositionProblem, Theta, Windows, compress
+from mocap_calib.core.position.session_mean import SessionMean, end_covariance, session_mean
 from mocap_calib.core.prepare.session import PreparedSession
 
 Array = NDArray[np.float64]
@@ -184,6 +185,15 @@ class PositionGraph:
     def thetas(self, values: gtsam.Values) -> list[Theta]:
         return [self.theta(values, k) for k in range(len(self.takes))]
 
+    def session_means(self, values: gtsam.Values) -> list[SessionMean]:
+        """Every take's session-mean bias from one filter pass with the bias integrals at
+        ``values`` (not kept as the graph's latest evaluation)."""
+        out = []
+        for pp, th, t in zip(self.problems, self.thetas(values), self.takes, strict=True):
+            o = pp.evaluate(th, integral=True)
+            out.append(session_mean(o, th.knots, t.windows, pp.noise))
+        return out
+
     def block_keys(self, take: int) -> dict[str, int]:
         """Block name -> key of every parameter block a window of ``take`` depends on (the
         window's knot aside)."""
@@ -277,7 +287,7 @@ def _bridged(o: EvalOut, knots: Array, win: Windows, nz: NoiseModel, ks: slice) 
     ``J_T`` +I (next knot) and -I (this knot), minus the filter's end-state mean, whitened by
     the end bias covariance plus the walk over the gap to the next window."""
     assert o.term_X is not None and o.term_P is not None  # every filter pass fills them
-    gram, tX, tP = o.gram[:-1], o.term_X[:-1], o.term_P[:-1]
+    gram, tX = o.gram[:-1], o.term_X[:-1]
     n, p = gram.shape[0], gram.shape[-1] - 1
     G = np.zeros((n, p + 7, p + 7))
     if n == 0:
@@ -292,10 +302,7 @@ def _bridged(o: EvalOut, knots: Array, win: Windows, nz: NoiseModel, ks: slice) 
     N[:, :, p + 6] = knots[1:] - knots[:-1]
     N[:, :, :p] -= tX[:, :, :p]
     N[:, :, p + 6] -= tX[:, :, p]
-    q = np.r_[np.full(3, nz.gyroscope_random_walk**2), np.full(3, nz.accelerometer_random_walk**2)]
-    gap = np.maximum(win.start[1:] - win.end[:-1], 0.0)
-    S = tP + q[None, :, None] * np.eye(6)[None] * gap[:, None, None] + 1e-14 * np.eye(6)
-    L = np.linalg.cholesky(S)
+    L = np.linalg.cholesky(end_covariance(o.term_P, win, nz))
     Nw = np.linalg.solve(L, N)
     # The end rows' whitened scores (the sandwich's): parameters, then the next knot.
     o.extras["term_scores"] = np.einsum("nic,ni->nc", Nw[:, :, :p + 6], Nw[:, :, p + 6])

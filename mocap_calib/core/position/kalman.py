@@ -95,15 +95,19 @@ def _c(x: Array) -> Array:
     return np.ascontiguousarray(x, dtype=float)
 
 
-def empty_output(W: int, m1: int, p: int, n_blocks: int | None, store: bool) -> EvalOut:
-    """Zeroed outputs of a filter pass over ``W`` windows (chunks write their slices)."""
+def empty_output(W: int, m1: int, p: int, n_blocks: int | None, store: bool,
+                 integral: bool = False) -> EvalOut:
+    """Zeroed outputs of a filter pass over ``W`` windows (chunks write their slices); with
+    ``integral`` the windows' bias integrals too."""
     return EvalOut(np.zeros((W, p + 1, p + 1)), np.zeros((W, m1, 6)), np.zeros((W, m1)),
                    np.zeros(W), np.zeros(W), np.zeros((W, m1, 6)),
                    None if n_blocks is None else np.zeros((W, n_blocks, p)),
                    np.zeros((W, m1, 6)) if store else None,
                    np.zeros((W, m1, 6, p)) if store else None,
                    np.zeros((W, m1, 6, p + 1)) if store else None,
-                   term_X=np.zeros((W, 6, p + 1)), term_P=np.zeros((W, 6, 6)))
+                   term_X=np.zeros((W, 6, p + 1)), term_P=np.zeros((W, 6, 6)),
+                   int_X=np.zeros((W, 6, p + 1)) if integral else None,
+                   int_P=np.zeros((W, 6, 12)) if integral else None)
 
 
 def output_slice(out: EvalOut, sl: slice) -> EvalOut:
@@ -113,7 +117,7 @@ def output_slice(out: EvalOut, sl: slice) -> EvalOut:
     return EvalOut(out.gram[sl], out.innovation[sl], out.d_raw[sl], out.chi2[sl],
                    out.logdet[sl], out.e_white[sl], cut(out.scores), cut(out.raw_r),
                    cut(out.raw_J), cut(out.whitened), term_X=cut(out.term_X),
-                   term_P=cut(out.term_P))
+                   term_P=cut(out.term_P), int_X=cut(out.int_X), int_P=cut(out.int_P))
 
 
 def filter_pass(h: Array, mask: NDArray[np.bool_], current: Whitening, Rbar: Array,
@@ -138,7 +142,9 @@ def filter_pass(h: Array, mask: NDArray[np.bool_], current: Whitening, Rbar: Arr
         out.raw_J if store else np.zeros((0, 0, 6, p)),
         out.whitened if store else np.zeros((0, 0, 6, p + 1)),
         out.term_X if out.term_X is not None else np.zeros((0, 6, p + 1)),
-        out.term_P if out.term_P is not None else np.zeros((0, 6, 6)))
+        out.term_P if out.term_P is not None else np.zeros((0, 6, 6)),
+        out.int_X if out.int_X is not None else np.zeros((0, 6, p + 1)),
+        out.int_P if out.int_P is not None else np.zeros((0, 6, 12)))
     out.chi2[:] = np.einsum("wki,wki->w", out.e_white, out.e_white)
     if store:
         out.raw_r[:] = rows.r

@@ -68,9 +68,10 @@ def transition_blocks(inc, Rk, Fb):  # pragma: no cover  (compiled)
 
 
 @kernel
-def phi_rows(Mx, nc, Fb, hk, ns, a, tmp):  # pragma: no cover  (compiled)
+def phi_rows(Mx, nc, Fb, hk, ns, ni, a, tmp):  # pragma: no cover  (compiled)
     """``Mx[:, :nc] <- Phi Mx[:, :nc]`` in place: the error-state rows through the transition
-    blocks ``Fb``; with AR(1) mocap states (ns 21) those decay by ``a``."""
+    blocks ``Fb``; with AR(1) mocap states (ns 21) those decay by ``a``; the ``ni`` bias
+    integral rows after them (see :func:`filter_windows`) add the step times the bias rows."""
     for i in range(3):
         for c in range(nc):
             tmp[i, c] = 0.0
@@ -92,6 +93,9 @@ def phi_rows(Mx, nc, Fb, hk, ns, a, tmp):  # pragma: no cover  (compiled)
         for i in range(15, 21):
             for c in range(nc):
                 Mx[i, c] *= a
+    for i in range(ni):  # the bias rows are unchanged by the step
+        for c in range(nc):
+            Mx[ns + i, c] += hk * Mx[9 + i, c]
 
 
 @kernel
@@ -130,15 +134,16 @@ def accel_noise(par, R, Qa):  # pragma: no cover  (compiled)
 
 
 @kernel
-def predict_cov(P, ns, Fb, hk, a, par, tmp, cov, R):  # pragma: no cover  (compiled)
+def predict_cov(P, ns, ni, Fb, hk, a, par, tmp, cov, R):  # pragma: no cover  (compiled)
     """Filter covariance through a step: ``Phi P Phi^T`` plus the process noise (the
     accelerometer's at the step's start attitude ``R``) and the AR(1) states' innovation,
     ``rho (1 - a^2)`` of the mocap noise at the step's end sample."""
-    phi_rows(P, ns, Fb, hk, ns, a, tmp)
-    for i in range(ns):
-        for j in range(i + 1, ns):
+    nt = ns + ni
+    phi_rows(P, nt, Fb, hk, ns, ni, a, tmp)
+    for i in range(nt):
+        for j in range(i + 1, nt):
             P[i, j], P[j, i] = P[j, i], P[i, j]
-    phi_rows(P, ns, Fb, hk, ns, a, tmp)
+    phi_rows(P, nt, Fb, hk, ns, ni, a, tmp)
     for i in range(3):
         P[i, i] += par[Q_GYRO] * hk
         P[9 + i, 9 + i] += par[Q_GYRO_WALK] * hk
@@ -193,7 +198,7 @@ def forward(Lc, B, nc, out):  # pragma: no cover  (compiled)
 
 
 @kernel
-def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp, cov,
+def propagate(Y, X, P, p, ns, ni, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp, cov,
               R):  # pragma: no cover  (compiled)
     """One step: the sensitivities ``S`` (rows 0:9 of ``Y``) through the current transition
     ``Fc`` with the parameters' inputs (``-d(w, f)/dtheta`` as bias rows, gravity directly),
@@ -203,14 +208,14 @@ def propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp, cov,
         for i in range(6):
             for c in range(p):
                 Y[9 + i, c] = -dwf[i, c]
-        phi_rows(Y, p, Fc, hk, min(ns, 15), 0.0, tmp)  # (no literal: one compile)
+        phi_rows(Y, p, Fc, hk, min(ns, 15), 0 * ni, 0.0, tmp)  # (no literal: one compile)
         for g in range(gcols.shape[0]):
             col = gcols[g]
             for i in range(3):
                 Y[3 + i, col] += 0.5 * hk * hk * dg[i, g]
                 Y[6 + i, col] += hk * dg[i, g]
-    phi_rows(X, p + 1, Fo, hk, ns, a, tmp)
-    predict_cov(P, ns, Fo, hk, a, par, tmp, cov, R)
+    phi_rows(X, p + 1, Fo, hk, ns, ni, a, tmp)
+    predict_cov(P, ns, ni, Fo, hk, a, par, tmp, cov, R)
 
 
 @kernel
@@ -232,16 +237,16 @@ def residual_rows(N, Y, X, p, ns, rs, ts, r, Jinv, Pm_rot, Jp, Hq):  # pragma: n
 
 
 @kernel
-def innovate(N, X, P, PHt, S, ns, p, Lk):  # pragma: no cover  (compiled)
-    """``N -= H X``; ``PHt = P H^T``; ``S = H P H^T``. ``H`` picks the error state's attitude
-    for the attitude rows and position plus ``Lk`` times attitude for the position rows, and
-    adds the AR(1) mocap states."""
+def innovate(N, X, P, PHt, S, ns, nt, p, Lk):  # pragma: no cover  (compiled)
+    """``N -= H X``; ``PHt = P H^T`` (all ``nt`` states); ``S = H P H^T``. ``H`` picks the
+    error state's attitude for the attitude rows and position plus ``Lk`` times attitude for the
+    position rows, and adds the AR(1) mocap states."""
     for c in range(p + 1):
         for i in range(3):
             N[i, c] -= X[i, c] + (X[15 + i, c] if ns == 21 else 0.0)
             N[3 + i, c] -= (X[3 + i, c] + Lk[i, 0] * X[0, c] + Lk[i, 1] * X[1, c]
                             + Lk[i, 2] * X[2, c] + (X[18 + i, c] if ns == 21 else 0.0))
-    for i in range(ns):
+    for i in range(nt):
         for j in range(3):
             PHt[i, j] = P[i, j] + (P[i, 15 + j] if ns == 21 else 0.0)
             PHt[i, 3 + j] = (P[i, 3 + j] + P[i, 0] * Lk[j, 0] + P[i, 1] * Lk[j, 1]
@@ -347,21 +352,28 @@ def chain(R, inc, Rnext):  # pragma: no cover  (compiled)
 @kernel
 def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, dg, gcols,
                    r, Jinv, Pm_rot, Jp, Hq, R_WM0, M_op, par, rs, ts, blocks, gram, innov,
-                   e_white, d_raw, logdet, scores, raw_J, whitened, term_X,
-                   term_P):  # pragma: no cover
+                   e_white, d_raw, logdet, scores, raw_J, whitened, term_X, term_P, int_X,
+                   int_P):  # pragma: no cover
     """The filter pass over every window (outputs zeroed by the caller). With ``frozen`` the
     filter (mean transition, covariance, gains, whitening) runs on the whitening's own
     increments ``op_inc`` (its attitudes chained from ``op_R0`` as ``compose`` does), noise
     ``par``/``M_op`` and weights ``op_wts`` while the sensitivities follow the current ones, so
-    the cost is a fixed weighted least squares."""
+    the cost is a fixed weighted least squares.
+
+    With ``int_X`` (W, 6, p+1) non-empty the state also carries the time integral of the bias
+    error over the window (6 more states after the others, zero at the start): its mean per
+    column goes to ``int_X`` and, into ``int_P`` (W, 6, 12), its covariance and its covariance
+    with the end bias."""
     W, m = h.shape
     p = dwf.shape[3]
     ns = 21 if (par[RHO] > 0.0 and par[T_CORR] > 0.0) else 15
+    ni = 6 if int_X.shape[0] > 0 else 0
+    nt = ns + ni
     white = 1.0 - par[RHO] if ns == 21 else 1.0
-    Y, X = np.zeros((15, max(p, 1))), np.zeros((ns, p + 1))
-    P, PHt, K = np.zeros((ns, ns)), np.zeros((ns, 6)), np.zeros((ns, 6))
+    Y, X = np.zeros((15, max(p, 1))), np.zeros((nt, p + 1))
+    P, PHt, K = np.zeros((nt, nt)), np.zeros((nt, 6)), np.zeros((nt, 6))
     N, Nw = np.zeros((6, p + 1)), np.zeros((6, p + 1))
-    tmp = np.zeros((9, max(p + 1, ns)))
+    tmp = np.zeros((9, max(p + 1, nt)))
     Fc, Fo = np.zeros((8, 3, 3)), np.zeros((8, 3, 3))
     HPHt, Sk, Lc, Li, cov = (np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)),
                              np.zeros((6, 6)), np.zeros((6, 6)))
@@ -390,24 +402,28 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
                     Fo[:, :, :] = Fc
                     Rop[:, :] = Rbar[w, k]
                 a = step_lever(Rop, M_op, Lk, hk, ns, par)
-                propagate(Y, X, P, p, ns, hk, Fc, Fo, dwf[w, j], dg, gcols, a, par, tmp, cov,
-                          Rstart)
+                propagate(Y, X, P, p, ns, ni, hk, Fc, Fo, dwf[w, j], dg, gcols, a, par, tmp,
+                          cov, Rstart)
             if not mask[w, k]:
                 continue
-            ld += measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs,
-                          ts, white, wts[w, k], op_wts[w, k], par, r, Jinv, Pm_rot, Jp, Hq,
+            ld += measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, ni,
+                          rs, ts, white, wts[w, k], op_wts[w, k], par, r, Jinv, Pm_rot, Jp, Hq,
                           blocks, gram, innov, e_white, d_raw, scores, raw_J, whitened)
         logdet[w] = ld
         if term_X.shape[0] > 0:  # the bias states at the window's end (mean per column, cov)
             term_X[w] = X[9:15, :p + 1]
             term_P[w] = P[9:15, 9:15]
+        if ni > 0:
+            int_X[w] = X[ns:nt, :p + 1]
+            int_P[w, :, 0:6] = P[ns:nt, ns:nt]
+            int_P[w, :, 6:12] = P[ns:nt, 9:15]
         for a in range(p + 1):
             for b in range(a):
                 gram[w, a, b] = gram[w, b, a]
 
 
 @kernel
-def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, ts, white,
+def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, ni, rs, ts, white,
             wt, op_wt, par, r, Jinv, Pm_rot, Jp, Hq, blocks, gram, innov, e_white, d_raw,
             scores, raw_J, whitened):  # pragma: no cover  (compiled)
     """Sample ``k`` of window ``w``: residual rows, whitening, sums, filter update; returns
@@ -418,7 +434,7 @@ def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, 
         for i in range(6):
             for c in range(p):
                 raw_J[w, k, i, c] = N[i, c]
-    innovate(N, X, P, PHt, HPHt, ns, p, Lk)
+    innovate(N, X, P, PHt, HPHt, ns, ns + ni, p, Lk)
     mocap_cov(par[SIG2:SIG2 + 6], white, cov)
     for i in range(6):
         for j in range(6):
@@ -443,7 +459,7 @@ def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, rs, 
         for i in range(6):
             q += Sk[i, 0] * Sk[i, 0]
         d_raw[w, k] = np.sqrt(q)
-    gain_update(X, P, Nw, PHt, Lc, K, ns, p)
+    gain_update(X, P, Nw, PHt, Lc, K, ns + ni, p)
     return ld
 
 

@@ -37,7 +37,6 @@ from mocap_calib.core.position.covariance import (
     CovarianceInputs,
     PositionUncertainty,
     TakeUncertainty,
-    mean_bias_weights,
     position_covariances,
     unobservable_blocks,
 )
@@ -356,10 +355,14 @@ class PositionSolver:
         takes, outs = self.takes, pg.evals[-1]
         thetas = pg.thetas(fit.values)
         blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
+        # The session-mean biases: one more filter pass (with the bias integrals) at the point
+        # of the covariances; the knots' part at the solution.
+        means = pg.session_means(at)
 
         def covariances() -> PositionUncertainty:
             inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes],
-                                   pg.knot0, [th.knots for th in thetas], self.model.timed,
+                                   pg.knot0, [th.knots for th in thetas], means,
+                                   self.model.timed,
                                    [o.scores for o in outs], keep.window_blocks,
                                    [o.extras.get("term_scores") for o in outs])
             return position_covariances(pg.graph, at, inp)
@@ -368,8 +371,8 @@ class PositionSolver:
             unc = covariances()
         else:
             unc = PositionUncertainty({}, [TakeUncertainty(
-                {}, np.zeros((t.windows.count, 6)), _mean_bias(t.windows, th))
-                for t, th in zip(takes, thetas, strict=True)])
+                {}, np.zeros((t.windows.count, 6)), sm.value(th.knots))
+                for t, th, sm in zip(takes, thetas, means, strict=True)])
         res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, refit,
                       keep.series)
         return res if keep.covariance else replace(res, covariances=covariances, cov={})
@@ -402,10 +405,6 @@ def _result(pg: PositionGraph, fit: Fit, thetas: list[Theta], unc: PositionUncer
         figures=figures, history=history,
         axis_scale=pg.problem.mocap_axis_scale.copy(),
         identification=fit.identification)
-
-
-def _mean_bias(windows: Windows, th: Theta) -> Array:
-    return np.kron(mean_bias_weights(windows)[None, :], np.eye(6)) @ th.knots.reshape(-1)
 
 
 def _figures(pg: PositionGraph, fit: Fit, outs: list[Any], seconds: float,

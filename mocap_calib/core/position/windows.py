@@ -208,6 +208,10 @@ class EvalOut:
     extras: dict[str, Array] = field(default_factory=dict)
     term_X: Array | None = None  # (W, 6, p+1) bias states' mean per column at the end
     term_P: Array | None = None  # (W, 6, 6) their covariance
+    #: (W, 6, p+1) the window's time integral of the bias error (s), mean per column, and
+    #: (W, 6, 12) its covariance and its covariance with the end bias (only when asked for)
+    int_X: Array | None = None
+    int_P: Array | None = None
 
     @property
     def q_rot(self) -> Array:
