@@ -12,6 +12,7 @@ session of fewer than :data:`MIN_BLOCKS` windows uses their one-second parts ins
 the model is right, ``B`` estimates ``H`` and both agree; when the residuals hold structure the
 model lacks, the windows' scores scatter more than the model says and the sandwich grows with
 them. The statistical sigma of every component is the larger of the two.
+A take's session-mean bias is judged against the bias's time mean (see :mod:`.session_mean`).
 """
 
 from __future__ import annotations
@@ -111,20 +112,29 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
     lu = spd_factor(H)
     for k, (win, k0) in enumerate(zip(inp.windows, inp.knot0, strict=True)):
         C = combos[k]
-        # The parameters' part through the mean's Jacobian, and the integrals' own given them.
-        bias_cov = C.T @ lu.solve(C) + inp.means[k].cov_given
+        # Against the bias's time mean: its posterior (the parameters' part through its
+        # Jacobian, the integrals' own given them) and the reported mean's distance from it.
+        bias_cov = C.T @ lu.solve(C) + _given(inp, k)
         own = {GYRO_BIAS.name: bias_cov[0:3, 0:3], ACCEL_BIAS.name: bias_cov[3:6, 3:6]}
         if inp.timed:
             own[TIME_OFFSET.name] = np.asarray(marg.marginalCovariance(key_time(k)))
         knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(k0 + w))))
                                for w in range(win.count)])
-        mean = inp.means[k].value(inp.knots[k])
+        mean = inp.means[k].knots_mean(inp.knots[k])
         takes.append(TakeUncertainty(own, knot_sigma, mean))
     cov_model = {**cov, **takes[0].cov}
     unc = PositionUncertainty(cov, takes, cov_model, {})
     if inp.scores is not None:
         _with_sandwich(unc, graph, sol, inp, combos, (H, offsets, n, lu))
     return unc
+
+
+def _given(inp: CovarianceInputs, take: int) -> Array:
+    """What the session mean's covariance adds to its parameters' part: the filters'
+    integrals' own covariance, and the reported mean's distance from the posterior mean."""
+    sm = inp.means[take]
+    d = sm.knots_mean(inp.knots[take]) - sm.value(inp.knots[take])
+    return sm.cov_given + np.outer(d, d)
 
 
 def _window_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int]) -> list[Array]:
@@ -138,7 +148,8 @@ def _window_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int]) -
 
 
 def _mean_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int], n: int) -> Array:
-    """(n, 6) the session-mean bias's derivative by every variable of the graph."""
+    """(n, 6) the derivative of the session's time-mean bias (its posterior mean) by every
+    variable of the graph."""
     sm, k0 = inp.means[take], inp.knot0[take]
     E = np.zeros((n, 6))
     for w, idx in enumerate(_window_columns(inp, take, offsets)):
@@ -177,8 +188,9 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
         if inp.timed:
             r[TIME_OFFSET.name] = meat[o:o + 1, o:o + 1]
             o += 1
-        # The windows' end rows carry the wander between knots: no bridge term.
-        given = inp.means[k].cov_given
+        # The windows' end rows carry the wander between knots: no bridge term; the
+        # integrals' own covariance and the reported mean's distance are not the scores'.
+        given = _given(inp, k)
         r[GYRO_BIAS.name] = meat[o:o + 3, o:o + 3] + given[0:3, 0:3]
         r[ACCEL_BIAS.name] = meat[o + 3:o + 6, o + 3:o + 6] + given[3:6, 3:6]
         o += 6

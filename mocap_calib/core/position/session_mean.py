@@ -1,14 +1,22 @@
-"""A take's session-mean bias from its windows' filters, and how it depends on the parameters.
+"""A take's session-mean bias and its uncertainty against the bias's true time mean.
 
-Each window's filter starts its bias at the window's knot and lets it wander (the bias random
-walk); the data it sees tell where the bias went. The session mean is the time mean of that
-bias: every window's knot times its length plus the time integral of its filter's bias error,
-which the filter carries as six more states in one pass at the solution. Where a window's end
-bias meets the next knot (the end rows), the integral is conditioned on that meeting too. So the
-mean is what the data say of the bias over the whole session, not of the bias at the knots'
-instants: the data pin the former better (a drift of the position tells the mean bias, less
-when it was there), and its covariance is the knots' and the parameters' through the mean's
-Jacobian plus the integrals' own, given all parameters.
+The reported session mean is the knots' time-weighted mean (each window's knot interpolated
+towards the next). What it is compared with is the time mean of a bias that wanders (the bias
+random walk), which the data pin better than the bias at the knots' instants: the drift of the
+position tells the mean bias more than when it was where. So the covariance is that of the
+time mean's posterior plus the reported mean's distance from it:
+
+- the posterior: each window's filter starts its bias at the knot and lets it wander; six more
+  states carry the time integral of its bias error, in one filter pass at the solution, and the
+  integral is conditioned on where the window's end bias meets the next knot (the end rows).
+  The time mean is the knots times the windows' lengths plus the integrals, over the session's
+  time; its covariance is the parameters' (through its Jacobian, ``d_window``/``d_next``) plus
+  the integrals' own given every parameter (``cov_given``);
+- the distance: the knots' mean is not the posterior mean, and its error is the sum of both.
+
+Why not report the posterior mean itself: it rests on the accelerometer's white-noise level,
+which a 90 s session identifies only to +-40 % (5-95 %, realistic simulator); the knots' mean
+does not, and the distance term grows where the two disagree (docs/validation.md, sigma study).
 """
 
 from __future__ import annotations
@@ -26,8 +34,9 @@ Array = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class SessionMean:
-    """A take's session-mean bias (gyro then accel, rad/s and m/s^2) as a function of its knots
-    and the windows' columns, linearised at a filter pass.
+    """A take's session-mean bias (gyro then accel, rad/s and m/s^2): the time mean's posterior
+    as a function of the knots and the windows' columns, linearised at a filter pass, and the
+    reported mean's weights.
 
     Attributes:
         span_s: (W,) each window's length (s), the weights of its knot.
@@ -36,7 +45,8 @@ class SessionMean:
         d_window: (W, 6, p) the mean's derivative by each window's Jacobian columns (the
             layout's order, the window's own knot last).
         d_next: (W, 6, 6) its derivative by the knot after each window (zero after the last).
-        cov_given: (6, 6) the mean's covariance given every parameter and knot.
+        cov_given: (6, 6) the time mean's covariance given every parameter and knot.
+        knot_weights: (W,) the knots' weights in the reported mean.
     """
 
     span_s: Array
@@ -44,11 +54,31 @@ class SessionMean:
     d_window: Array
     d_next: Array
     cov_given: Array
-    end_white: Array | None = None
+    knot_weights: Array
 
     def value(self, knots: Array) -> Array:
-        """(6,) the session mean with the knots ``knots`` (W, 6)."""
+        """(6,) the time mean's posterior mean with the knots ``knots`` (W, 6)."""
         return self.span_s @ knots / self.span_s.sum() + self.correction
+
+    def knots_mean(self, knots: Array) -> Array:
+        """(6,) the reported session mean: the knots' weighted mean."""
+        return self.knot_weights @ knots
+
+
+def knot_weights(windows: Windows) -> Array:
+    """(W,) weights of the knots in the session-mean bias: each window's mean bias is its knot
+    interpolated towards the next one, weighted by the window's length."""
+    W = windows.count
+    starts, lengths = windows.start, windows.end - windows.start
+    coef = np.zeros((W, W))
+    for w in range(W):
+        if w + 1 < W:
+            a = 0.5 * lengths[w] / max(starts[w + 1] - starts[w], 1e-9)
+            coef[w, w] = 1.0 - a
+            coef[w, w + 1] = a
+        else:
+            coef[w, w] = 1.0
+    return (lengths / lengths.sum()) @ coef
 
 
 def end_covariance(term_P: Array, windows: Windows, noise: NoiseModel) -> Array:
@@ -85,8 +115,5 @@ def session_mean(out: EvalOut, knots: Array, windows: Windows,
     d_window = (iX[:, :, :p] - K @ tX[:, :, :p]) / T
     d_window[:, :, p - 6:] += (span[:, None, None] * np.eye(6) - K) / T
     cov_given = (iP - K @ np.swapaxes(iPb, 1, 2)).sum(axis=0) / T**2
-    ew = None
-    if W > 1:
-        L = np.linalg.cholesky(S)
-        ew = np.linalg.solve(L, e_r[:-1, :, None])[..., 0]
-    return SessionMean(span, correction, d_window, K / T, 0.5 * (cov_given + cov_given.T), ew)
+    return SessionMean(span, correction, d_window, K / T, 0.5 * (cov_given + cov_given.T),
+                       knot_weights(windows))

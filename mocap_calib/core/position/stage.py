@@ -49,6 +49,7 @@ from mocap_calib.core.position.graph import (
     build_position_graph,
 )
 from mocap_calib.core.position.noise import NoiseIdentification
+from mocap_calib.core.position.session_mean import knot_weights
 from mocap_calib.core.position.settle import (
     Fit,
     History,
@@ -355,13 +356,11 @@ class PositionSolver:
         takes, outs = self.takes, pg.evals[-1]
         thetas = pg.thetas(fit.values)
         blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
-        # The session-mean biases: one more filter pass (with the bias integrals) at the point
-        # of the covariances; the knots' part at the solution.
-        means = pg.session_means(at)
 
         def covariances() -> PositionUncertainty:
+            # The session means' posterior: one more filter pass, with the bias integrals.
             inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes],
-                                   pg.knot0, [th.knots for th in thetas], means,
+                                   pg.knot0, [th.knots for th in thetas], pg.session_means(at),
                                    self.model.timed,
                                    [o.scores for o in outs], keep.window_blocks,
                                    [o.extras.get("term_scores") for o in outs])
@@ -371,8 +370,8 @@ class PositionSolver:
             unc = covariances()
         else:
             unc = PositionUncertainty({}, [TakeUncertainty(
-                {}, np.zeros((t.windows.count, 6)), sm.value(th.knots))
-                for t, th, sm in zip(takes, thetas, means, strict=True)])
+                {}, np.zeros((t.windows.count, 6)), knot_weights(t.windows) @ th.knots)
+                for t, th in zip(takes, thetas, strict=True)])
         res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, refit,
                       keep.series)
         return res if keep.covariance else replace(res, covariances=covariances, cov={})
