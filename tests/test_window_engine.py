@@ -340,6 +340,75 @@ def test_frozen_whitening_is_the_recorded_dense_likelihood(short_session, noise)
         assert np.abs(fresh.e_white[w, :m1] - e_dense).max() > 2e-5
 
 
+@pytest.mark.parametrize("noise", [
+    NoiseModel(accelerometer_random_walk=0.3),
+    NoiseModel(mocap_position_sigma=1e-3, mocap_noise_corr_time=0.05,
+               mocap_noise_corr_fraction=0.7, accelerometer_random_walk=0.3)],
+    ids=["white", "correlated"])
+def test_bias_integral_states_equal_dense_gaussian_conditioning(short_session, noise):
+    """The six states the filter adds for the bias error's time integral (the session-mean
+    bias's posterior): its mean per column of ``[J | r]``, its covariance and its covariance
+    with the end bias equal Gaussian conditioning of the written-out state sequence on all the
+    window's residuals (the integral a left Riemann sum of the bias over the steps; a random
+    walk 100x the data sheet's so that it matters inside a 0.15 s window)."""
+    sim, s, v = short_session
+    win = make_windows(s, s.clock_shift + 0.003, 0.15, 200.0, v, min_samples=10)
+    pp = PositionProblem(s, Model.parse("base+time_offset"), noise, win)
+    pp.weights[0, 3] = 0.3
+    tr = sim.truth
+    knots = np.tile(np.r_[tr["gyro_bias"], tr["accel_bias"]], (win.count, 1)) + 1e-3
+    th = _theta(sim, s, win.count, None, eff={}, knots=knots)
+    out = pp.evaluate(th, store=True, integral=True)
+    plain = pp.evaluate(th)
+    # The integral states change nothing else.
+    np.testing.assert_array_equal(out.gram, plain.gram)
+    np.testing.assert_array_equal(out.term_P, plain.term_P)
+    assert out.int_X is not None and out.int_P is not None and plain.int_X is None
+    ex = out.extras
+    rho = noise.mocap_noise_corr_fraction if noise.mocap_correlated else 0.0
+    for w in range(3):
+        m1 = int(win.mask[w].sum())
+        full = _mocap_noise(win.mask.shape[1], noise, np.ones(6))
+        H = _observation(th, ex["Rbar"][w])
+        C = _dense_cov(ex, w, m1, noise, full, rho, (1.0 - rho) * full, ex["weights"][w], H)
+        # Every pair of states, written out: Cov(x_j, x_k) = Phi(j <- k) P_k for j >= k.
+        F = ex["F"][w]
+        P = np.diag(np.r_[np.full(3, 1.0), np.full(3, 1.0), np.full(3, 0.25), np.zeros(6)])
+        Ps = [P]
+        for k in range(m1 - 1):
+            P = F[k] @ P @ F[k].T + _process_noise(noise, ex["Rbar"][w, k], ex["h"][w, k])
+            Ps.append(P)
+        X = np.zeros((15 * m1, 15 * m1))
+        for k in range(m1):
+            Phi = np.eye(15)
+            for j in range(k, m1):
+                if j > k:
+                    Phi = F[j - 1] @ Phi
+                X[15 * j:15 * j + 15, 15 * k:15 * k + 15] = Phi @ Ps[k]
+                X[15 * k:15 * k + 15, 15 * j:15 * j + 15] = (Phi @ Ps[k]).T
+        Hb = np.zeros((6 * m1, 15 * m1))
+        L = np.zeros((6, 15 * m1))  # the integral: sum of h_k times the bias at sample k
+        for k in range(m1):
+            Hb[6 * k:6 * k + 6, 15 * k:15 * k + 15] = H[k]
+            if k < m1 - 1:
+                L[:, 15 * k + 9:15 * k + 15] = ex["h"][w, k] * np.eye(6)
+        E = np.zeros((6, 15 * m1))  # the bias at the window's last sample
+        E[:, 15 * (m1 - 1) + 9:15 * m1] = np.eye(6)
+        cy = L @ X @ Hb.T
+        ce = E @ X @ Hb.T
+        A = np.concatenate([out.raw_J[w, :m1].reshape(6 * m1, -1),
+                            out.raw_r[w, :m1].reshape(-1, 1)], axis=1)
+        mean = cy @ np.linalg.solve(C, A)
+        cov = L @ X @ L.T - cy @ np.linalg.solve(C, cy.T)
+        cross = L @ X @ E.T - cy @ np.linalg.solve(C, ce.T)
+        np.testing.assert_allclose(out.int_X[w], mean, rtol=1e-6,
+                                   atol=1e-7 * np.abs(mean).max())
+        np.testing.assert_allclose(out.int_P[w, :, 0:6], cov, rtol=1e-6,
+                                   atol=1e-7 * np.abs(cov).max())
+        np.testing.assert_allclose(out.int_P[w, :, 6:12], cross, rtol=1e-6,
+                                   atol=1e-7 * np.abs(cross).max())
+
+
 def test_per_axis_mocap_noise_scale_recovers_a_misscaled_model():
     """At the true parameters of a simulated flight (isotropic mocap noise), a model whose
     mocap variances are wrong by a different factor per axis: the per-axis estimate reads the
