@@ -1,12 +1,12 @@
 """The session-mean biases' sigmas under the bias random walk: the model's and the sandwich's.
 
 The position stage reports, per component, the larger of two statistical sigmas: the model's
-(``H^-1``) and the sandwich's (the windows' own score spread). On simulated sessions the biases'
-error / sigma has an RMS near 0.8 (``scripts/sigma_study.py``), the other parameters near 1.
-This study separates the two covariances on sessions where the noise model is exactly the
-simulator's (clean simulator, white mocap noise, ``--fixed-noise`` with the true densities), once
-with the biases' random walk as the data sheet gives it and once with the walk switched off in
-both the simulator and the calibration. It prints, per bias, the RMS of error / sigma under the
+(``H^-1``) and the sandwich's (the windows' own score spread), both of the bias's mean over
+time (``core/position/session_mean.py``). This study separates the two covariances on
+sessions where the noise model is exactly the simulator's (clean simulator, white mocap noise,
+``--fixed-noise`` with the true densities), once with the biases' random walk as the data
+sheet gives it and once with the walk switched off in both the simulator and the calibration.
+It prints, per bias, the RMS of error / sigma under the
 model's sigma, the sandwich's and the reported statistical one (their larger), and the median
 sandwich / model sigma ratio. And the same sessions' score test of an accelerometer bias drift
 (which none has): how often its p-value falls below 5 % (model-based and as reported, the weaker
@@ -14,8 +14,8 @@ of the model's and the windows' evidence); a calibrated test: about 5 %.
 
 Each window's filter lets the bias wander from the window's knot, and the window's end bias
 meets the next knot with the walk over the gap (the end rows), so the wander counts once. If
-the model covariance of the session-mean bias were right, switching the walk off would leave
-its RMS where it was.
+the model covariance of the session-mean bias is right, switching the walk off leaves its RMS
+where it was.
 
 Usage: python scripts/bias_walk_study.py [--seeds 40] [--first-seed 2000] [--workers 2]
        [--write-doc] [--doc PATH]
