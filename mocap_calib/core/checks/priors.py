@@ -101,7 +101,7 @@ def _refit_alone(pos: PositionResult, opts: CalibrationOptions) -> PositionResul
     adapt = pos.identification is None or not pos.identification.contradicts
     return refit(pos, opts.model, everything(pos), adapt_noise=adapt, reweight=True,
                  priors=None, max_iterations=opts.max_iterations, one_step=DATA_ALONE_STEPS,
-                 settled=settled)
+                 settled=settled, time_mean=True)
 
 
 def _data_alone_of(prior: Prior, fit: PositionResult, model: Model

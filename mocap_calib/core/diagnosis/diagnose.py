@@ -178,7 +178,8 @@ class _Session:
         return solver.solve(
             init, Rounds(robust=False, adapt_noise=False,
                          max_iterations=self.opts.calibration.max_iterations),
-            Weighting(self.weights, base.axis_scale), Keep(covariance, window_blocks=False))
+            Weighting(self.weights, base.axis_scale),
+            Keep(covariance, window_blocks=False, time_mean=False))
 
     def floor_noise(self, identified: NoiseModel) -> NoiseModel:
         """The noise model of the measurement-domain floor: the mocap's as identified (levels

@@ -32,7 +32,7 @@ from mocap_calib.core.model.parameters import (
     UNOBSERVABLE_RATIO,
 )
 from mocap_calib.core.position.graph import key_knot, key_time
-from mocap_calib.core.position.session_mean import SessionMean
+from mocap_calib.core.position.session_mean import SessionMean, knot_weights
 from mocap_calib.core.position.windows import Windows
 
 Array = NDArray[np.float64]
@@ -45,11 +45,15 @@ MIN_BLOCKS = 10
 @dataclass
 class TakeUncertainty:
     """One take's own covariances: ``time_offset`` (when estimated), ``gyro_bias`` and
-    ``accel_bias`` (of the take's session-mean bias), the knots' 1-sigma and the mean bias."""
+    ``accel_bias`` (of the take's session-mean bias against the bias's mean over time, when
+    computed; else of the knots' mean), the knots' 1-sigma and the mean bias; ``cov_knots``:
+    the biases' as the knots' mean's own (how it moves by chance between fits of one
+    session's data)."""
 
     cov: dict[str, Array]
     knot_sigma: Array
     bias_mean: Array
+    cov_knots: dict[str, Array] = field(default_factory=dict)
 
 
 @dataclass
@@ -79,7 +83,8 @@ class CovarianceInputs:
         blocks: (name, dim) of a window's Jacobian columns in order, the knot excluded.
         windows: every take's windows; knot0: every take's first knot index.
         knots: every take's (W, 6) knots.
-        means: every take's session-mean bias (see :mod:`.session_mean`).
+        means: every take's session-mean bias against the bias's mean over time (see
+            :mod:`.session_mean`); None: the biases' covariance is the knots' mean's own.
         timed: the model estimates each take's clock offset.
         scores: every take's (W, B, p) per-window-and-block whitened scores, or None.
         window_blocks: the sandwich's blocks are whole windows when there are enough of them
@@ -91,7 +96,7 @@ class CovarianceInputs:
     windows: list[Windows]
     knot0: list[int]
     knots: list[Array]
-    means: list[SessionMean]
+    means: list[SessionMean] | None
     timed: bool
     scores: list[Array] | None = None
     window_blocks: bool = True
@@ -108,20 +113,22 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
            for name, key in inp.shared_keys.items()}
     takes: list[TakeUncertainty] = []
     H, offsets, n = information_matrix(graph, sol)
-    combos = [_mean_columns(inp, k, offsets, n) for k in range(len(inp.windows))]
+    combos = [_bias_columns(inp, k, offsets, n) for k in range(len(inp.windows))]
     lu = spd_factor(H)
     for k, (win, k0) in enumerate(zip(inp.windows, inp.knot0, strict=True)):
         C = combos[k]
-        # Against the bias's time mean: its posterior (the parameters' part through its
-        # Jacobian, the integrals' own given them) and the reported mean's distance from it.
-        bias_cov = C.T @ lu.solve(C) + _given(inp, k)
-        own = {GYRO_BIAS.name: bias_cov[0:3, 0:3], ACCEL_BIAS.name: bias_cov[3:6, 3:6]}
+        V = C.T @ lu.solve(C)
+        # The knots' mean's own; against the bias's time mean: its posterior (the parameters'
+        # part through its Jacobian, the integrals' own given them) and the reported mean's
+        # distance from it.
+        knots_cov = _bias_blocks(V[0:6, 0:6])
+        own = knots_cov if inp.means is None else _bias_blocks(V[6:12, 6:12] + _given(inp, k))
         if inp.timed:
             own[TIME_OFFSET.name] = np.asarray(marg.marginalCovariance(key_time(k)))
         knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(k0 + w))))
                                for w in range(win.count)])
-        mean = inp.means[k].knots_mean(inp.knots[k])
-        takes.append(TakeUncertainty(own, knot_sigma, mean))
+        mean = knot_weights(win) @ inp.knots[k]
+        takes.append(TakeUncertainty(own, knot_sigma, mean, knots_cov))
     cov_model = {**cov, **takes[0].cov}
     unc = PositionUncertainty(cov, takes, cov_model, {})
     if inp.scores is not None:
@@ -129,12 +136,31 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
     return unc
 
 
+def _bias_blocks(V: Array) -> dict[str, Array]:
+    return {GYRO_BIAS.name: V[0:3, 0:3], ACCEL_BIAS.name: V[3:6, 3:6]}
+
+
 def _given(inp: CovarianceInputs, take: int) -> Array:
-    """What the session mean's covariance adds to its parameters' part: the filters'
-    integrals' own covariance, and the reported mean's distance from the posterior mean."""
+    """What the session mean's covariance against the time mean adds to its parameters' part:
+    the filters' integrals' own covariance, and the reported mean's distance from the
+    posterior mean."""
+    assert inp.means is not None
     sm = inp.means[take]
     d = sm.knots_mean(inp.knots[take]) - sm.value(inp.knots[take])
     return sm.cov_given + np.outer(d, d)
+
+
+def _bias_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int], n: int) -> Array:
+    """(n, 6) or (n, 12): the knots' mean's derivative by every variable of the graph, then
+    (with the time means) the time mean's."""
+    E = np.zeros((n, 6))
+    c = knot_weights(inp.windows[take])
+    for w in range(inp.windows[take].count):
+        o = offsets[key_knot(inp.knot0[take] + w)]
+        E[o:o + 6] = c[w] * np.eye(6)
+    if inp.means is None:
+        return E
+    return np.concatenate([E, _mean_columns(inp, take, offsets, n)], axis=1)
 
 
 def _window_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int]) -> list[Array]:
@@ -150,6 +176,7 @@ def _window_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int]) -
 def _mean_columns(inp: CovarianceInputs, take: int, offsets: dict[int, int], n: int) -> Array:
     """(n, 6) the derivative of the session's time-mean bias (its posterior mean) by every
     variable of the graph."""
+    assert inp.means is not None
     sm, k0 = inp.means[take], inp.knot0[take]
     E = np.zeros((n, 6))
     for w, idx in enumerate(_window_columns(inp, take, offsets)):
@@ -190,10 +217,14 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
             o += 1
         # The windows' end rows carry the wander between knots: no bridge term; the
         # integrals' own covariance and the reported mean's distance are not the scores'.
-        given = _given(inp, k)
-        r[GYRO_BIAS.name] = meat[o:o + 3, o:o + 3] + given[0:3, 0:3]
-        r[ACCEL_BIAS.name] = meat[o + 3:o + 6, o + 3:o + 6] + given[3:6, 3:6]
+        r_knots = _bias_blocks(meat[o:o + 6, o:o + 6])
         o += 6
+        tu.cov_knots, _ = _larger(tu.cov_knots, r_knots)
+        if inp.means is None:
+            r.update(r_knots)
+        else:
+            r.update(_bias_blocks(meat[o:o + 6, o:o + 6] + _given(inp, k)))
+            o += 6
         tu.cov, ratio = _larger(tu.cov, r)
         if k == 0:
             unc.robust_ratio.update(ratio)
@@ -202,7 +233,8 @@ def _with_sandwich(unc: PositionUncertainty, graph: gtsam.NonlinearFactorGraph,
 def _targets(inp: CovarianceInputs, offsets: dict[int, int], n: int,
              combos: list[Array]) -> tuple[Array, list[tuple[str, int]]]:
     """The columns the sandwich is wanted for: every shared block's components, then per take
-    its clock offset and mean bias. Returns them and the shared blocks' (name, dim)."""
+    its clock offset and mean bias (the knots' mean, then the time mean when computed). Returns
+    them and the shared blocks' (name, dim)."""
     dims = dict(inp.blocks)
     shared = [(name, dims[name]) for name in inp.shared_keys]
     parts = []

@@ -79,6 +79,8 @@ class TakeFit:
     cov: dict[str, Array]
     weights: Array
     series: ResidualSeries
+    #: the biases' covariance as the knots' mean's own (see TakeUncertainty)
+    cov_knots: dict[str, Array] = field(default_factory=dict)
 
     @property
     def s(self) -> PreparedSession:
@@ -198,7 +200,7 @@ class PositionResult:
         if self.cov or self.covariances is None:
             return self
         unc = self.covariances()
-        takes = [replace(t, cov=u.cov, knot_sigma=u.knot_sigma)
+        takes = [replace(t, cov=u.cov, knot_sigma=u.knot_sigma, cov_knots=u.cov_knots)
                  for t, u in zip(self.takes, unc.takes, strict=True)]
         return replace(self, cov={**unc.cov, **unc.takes[0].cov}, takes=takes,
                        unobservable=unobservable_blocks(unc.cov_model))
@@ -284,11 +286,14 @@ class Keep:
         window_blocks: the sandwich's blocks are the windows (else their one-second parts:
             the diagnosis' tests, calibrated with those).
         series: every take's residual series (reports; a refit needs none: 40 MB/h).
+        time_mean: the biases' covariance against their mean over time (one more filter pass;
+            what a reported sigma is); else the knots' mean's own (refits that compare).
     """
 
     covariance: bool = True
     window_blocks: bool = True
     series: bool = True
+    time_mean: bool = True
 
 
 class PositionSolver:
@@ -358,9 +363,10 @@ class PositionSolver:
         blocks = [(name, d) for name, d in pg.problem.layout.blocks if name != "knot"]
 
         def covariances() -> PositionUncertainty:
-            # The session means' posterior: one more filter pass, with the bias integrals.
+            # The bias's time mean: one more filter pass, with the bias integrals.
+            means = pg.session_means(at) if keep.time_mean else None
             inp = CovarianceInputs(pg.shared_keys, blocks, [t.windows for t in takes],
-                                   pg.knot0, [th.knots for th in thetas], pg.session_means(at),
+                                   pg.knot0, [th.knots for th in thetas], means,
                                    self.model.timed,
                                    [o.scores for o in outs], keep.window_blocks,
                                    [o.extras.get("term_scores") for o in outs])
@@ -390,7 +396,7 @@ def _result(pg: PositionGraph, fit: Fit, thetas: list[Theta], unc: PositionUncer
         (round(float(fit.noise_scale[0]), 4), round(float(fit.noise_scale[1]), 4)),
         unc.robust_ratio)
     fits = [TakeFit(t, th.delta, th.knots, u.knot_sigma, u.bias_mean[0:3], u.bias_mean[3:6],
-                    u.cov, p.weights, sr)
+                    u.cov, p.weights, sr, u.cov_knots)
             for t, th, u, p, sr in zip(takes, thetas, unc.takes, pg.problems, series,
                                        strict=True)]
     th0 = thetas[0]

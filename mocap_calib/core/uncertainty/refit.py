@@ -46,15 +46,17 @@ def refit(pos: PositionResult, model: Model, which: list[IntArray], *,
           noise: NoiseModel | None = None, adapt_noise: bool = False, reweight: bool = False,
           priors: list[Prior] | None = None, max_iterations: int = 30,
           one_step: bool | int = True,
-          settled: Callable[[Theta, Theta], bool] | None = None) -> PositionResult:
+          settled: Callable[[Theta, Theta], bool] | None = None,
+          time_mean: bool = False) -> PositionResult:
     """The solution refitted on the windows ``which`` of every take, with its robust weights
     (and with ``noise`` instead of its noise model): ``one_step`` Gauss-Newton steps (``True``:
-    one), or with ``one_step`` false LM rounds to convergence."""
+    one), or with ``one_step`` false LM rounds to convergence. The biases' covariance is the
+    knots' mean's own (what comparing two fits needs), with ``time_mean`` the reported kind."""
     kept = [k for k, w in enumerate(which) if len(w)]
     takes = [Take(pos.takes[k].s, pos.takes[k].windows.subset(which[k])) for k in kept]
     weighting = Weighting([pos.takes[k].weights[which[k]] for k in kept], pos.axis_scale)
     solver = PositionSolver(takes, model, noise or pos.noise, priors)
-    init, keep = init_from(pos, which), Keep(series=False)
+    init, keep = init_from(pos, which), Keep(series=False, time_mean=time_mean)
     if not one_step:
         return solver.solve(init, Rounds(robust=False, adapt_noise=adapt_noise,
                                          max_iterations=max_iterations), weighting, keep)

@@ -145,8 +145,8 @@ def _shifts(alt: PositionResult, pos: PositionResult
             ) -> tuple[dict[Parameter, Array], dict[Parameter, Array]]:
     """Per parameter and component, the part of |alt - pos| that the reweighting itself does
     not explain, and the plain |alt - pos|. Two estimates from the same data under different
-    weights differ by chance with variance about |var_alt - var| (Hausman); only the excess is a
-    systematic shift."""
+    weights differ by chance with variance about |var_alt - var| (Hausman; of the biases, the
+    knots' means' own variances); only the excess is a systematic shift."""
     R_alt = alt.R_MI @ gyro_frame(alt).T @ gyro_frame(pos)
     raw = {ROTATION: ROTATION.difference(pos.R_MI, R_alt),
            TRANSLATION: TRANSLATION.difference(pos.p_MI, alt.p_MI),
@@ -155,7 +155,8 @@ def _shifts(alt: PositionResult, pos: PositionResult
            GRAVITY_DIRECTION: GRAVITY_DIRECTION.difference(pos.g_dir, alt.g_dir)}
     if TIME_OFFSET.name in pos.cov:
         raw[TIME_OFFSET] = TIME_OFFSET.difference(pos.delta, alt.delta)
-    return _beyond_chance(raw, alt.cov, pos.cov)
+    return _beyond_chance(raw, {**alt.cov, **alt.takes[0].cov_knots},
+                          {**pos.cov, **pos.takes[0].cov_knots})
 
 
 def _beyond_chance(raw: dict[Parameter, Array], cov_alt: dict[str, Array],
@@ -181,7 +182,7 @@ def _take_shifts(alt: PositionResult, pos: PositionResult
              ACCEL_BIAS: ACCEL_BIAS.difference(b.accel_bias_mean, a.accel_bias_mean)}
         if TIME_OFFSET.name in b.cov:
             d[TIME_OFFSET] = TIME_OFFSET.difference(b.delta, a.delta)
-        s, r = _beyond_chance(d, a.cov, b.cov)
+        s, r = _beyond_chance(d, {**a.cov, **a.cov_knots}, {**b.cov, **b.cov_knots})
         shift.append(s)
         raw.append(r)
     return shift, raw
