@@ -175,11 +175,10 @@ class _Session:
         init = PositionInit(base.R_MI, base.p_MI, base.g_dir, base.g_mag, starts,
                             dict(base.effects))
         solver = PositionSolver(self.takes, m, nz, self.opts.calibration.priors)
-        return solver.solve(
-            init, Rounds(robust=False, adapt_noise=False,
-                         max_iterations=self.opts.calibration.max_iterations),
-            Weighting(self.weights, base.axis_scale),
-            Keep(covariance, window_blocks=False, time_mean=False))
+        rounds = Rounds(robust=False, adapt_noise=False,
+                        max_iterations=self.opts.calibration.max_iterations)
+        return solver.solve(init, rounds, Weighting(self.weights, base.axis_scale),
+                            Keep(covariance, window_blocks=False, time_mean=False))
 
     def floor_noise(self, identified: NoiseModel) -> NoiseModel:
         """The noise model of the measurement-domain floor: the mocap's as identified (levels

@@ -9,9 +9,24 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mocap_calib.core.jit import kernel
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position import kernels as kn
-from mocap_calib.core.position.kernels import DIFFUSE  # noqa: F401  (re-exported)
+from mocap_calib.core.position.kernels import (
+    DIFFUSE,  # noqa: F401  (re-exported)
+    Q_ACCEL,
+    Q_ACCEL_WALK,
+    Q_GYRO,
+    Q_GYRO_WALK,
+    RHO,
+    SIG2,
+    T_CORR,
+    accel_noise,
+    lever,
+    mocap_cov,
+    step_lever,
+    transition_blocks,
+)
 from mocap_calib.core.position.windows import EvalOut
 
 Array = NDArray[np.float64]
@@ -174,10 +189,62 @@ def state_space(h: Array, wh: Whitening, Rbar: Array) -> dict[str, Array]:
     F, Q = np.zeros((W, m, 15, 15)), np.zeros((W, m, 15, 15))
     Rn, Hp = np.zeros((W, m + 1, 6, 6)), np.zeros((W, m + 1, 3, 3))
     Fm, Qm, Pm0 = np.zeros((W, m, 6, 6)), np.zeros((W, m, 6, 6)), np.zeros((W, 6, 6))
-    kn.state_space(_c(wh.inc), _c(Rbar), _c(h), _c(wh.M), _c(wh.par), F, Q, Rn, Hp, Fm, Qm,
+    state_space_kernel(_c(wh.inc), _c(Rbar), _c(h), _c(wh.M), _c(wh.par), F, Q, Rn, Hp, Fm, Qm,
                    Pm0)
     out = {"F": F, "Q": Q, "Rn": Rn, "Hp": Hp, "Rbar": Rbar.copy(), "h": h.copy(),
            "weights": wh.weights.copy()}
     if corr:
         out.update(Fm=Fm, Qm=Qm, Pm0=Pm0)
     return out
+
+
+@kernel
+def state_space_kernel(inc, Rbar, h, M, par, F, Q, Rn, Hp, Fm, Qm,
+                Pm0):  # pragma: no cover  (compiled)
+    """The window filter's state-space model written out (for checks against a dense
+    likelihood): transitions, process noise, white mocap noise, the position rows' attitude
+    block ``Hp`` and the AR(1) states' model."""
+    W, m = h.shape
+    ns = 21 if (par[RHO] > 0.0 and par[T_CORR] > 0.0) else 15
+    Fb = np.zeros((8, 3, 3))
+    Lk, Qa = np.zeros((3, 3)), np.zeros((3, 3))
+    for w in range(W):
+        lever(Rbar[w, 0], M, Lk)
+        Hp[w, 0] = Lk
+        mocap_cov(par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, 0])
+        if ns == 21:
+            mocap_cov(par[SIG2:SIG2 + 6], par[RHO], Pm0[w])
+        for j in range(m):
+            hk = h[w, j]
+            a = step_lever(Rbar[w, j + 1], M, Lk, hk, ns, par)
+            Hp[w, j + 1] = Lk
+            transition_blocks(inc[w, j], Rbar[w, j], Fb)
+            F[w, j] = 0.0
+            for i in range(15):
+                F[w, j, i, i] = 1.0
+            for i in range(3):
+                F[w, j, 3 + i, 6 + i] = hk
+                for t in range(3):
+                    for b, (r0, c0) in enumerate(((0, 0), (0, 9), (3, 0), (3, 9), (3, 12),
+                                                  (6, 0), (6, 9), (6, 12))):
+                        F[w, j, r0 + i, c0 + t] = Fb[b, i, t]
+            Q[w, j] = 0.0
+            if not accel_noise(par, Rbar[w, j], Qa):
+                for i in range(3):
+                    for t in range(3):
+                        Qa[i, t] = par[Q_ACCEL] if i == t else 0.0
+            for i in range(3):
+                Q[w, j, i, i] = par[Q_GYRO] * hk
+                Q[w, j, 9 + i, 9 + i] = par[Q_GYRO_WALK] * hk
+                Q[w, j, 12 + i, 12 + i] = par[Q_ACCEL_WALK] * hk
+                for t in range(3):
+                    Q[w, j, 3 + i, 3 + t] = Qa[i, t] * hk ** 3 / 3.0
+                    Q[w, j, 6 + i, 6 + t] = Qa[i, t] * hk
+                    Q[w, j, 3 + i, 6 + t] = Qa[i, t] * hk ** 2 / 2.0
+                    Q[w, j, 6 + i, 3 + t] = Qa[i, t] * hk ** 2 / 2.0
+            mocap_cov(par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, j + 1])
+            if ns == 21:
+                Fm[w, j] = 0.0
+                for i in range(6):
+                    Fm[w, j, i, i] = a
+                mocap_cov(par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), Qm[w, j])
