@@ -122,7 +122,8 @@ def position_covariances(graph: gtsam.NonlinearFactorGraph, sol: gtsam.Values,
         # part through its Jacobian, the integrals' own given them) and the reported mean's
         # distance from it.
         knots_cov = _bias_blocks(V[0:6, 0:6])
-        own = knots_cov if inp.means is None else _bias_blocks(V[6:12, 6:12] + _given(inp, k))
+        own = dict(knots_cov) if inp.means is None else _bias_blocks(V[6:12, 6:12]
+                                                                     + _given(inp, k))
         if inp.timed:
             own[TIME_OFFSET.name] = np.asarray(marg.marginalCovariance(key_time(k)))
         knot_sigma = np.stack([np.sqrt(np.diag(marg.marginalCovariance(key_knot(k0 + w))))
