@@ -3,9 +3,9 @@
 ``run`` calibrates a fixed set of sessions through the command line (EuRoC V2_03, BROAD 15/21/27
 and the Crazyflie flights from ``../shared/data``, and simulated sessions written once to
 ``--sessions``) and keeps every result YAML in OUT; ``compare`` reads two such folders and
-prints, per session and parameter, the largest difference and the largest |difference| / sigma
-(the "after" sigma). A refactor must give identical results; a speed change must stay within 0.1
-sigma.
+prints, per session and parameter, the largest difference, the largest |difference| / sigma
+(the "after" sigma) and the range of the sigmas' ratio after / before. A refactor must give
+identical results; a speed change must stay within 0.1 sigma.
 
 Usage:
     python scripts/before_after.py run OUT [--sessions DIR] [--only euroc,sim1]
@@ -125,7 +125,7 @@ def compare(before: Path, after: Path, limit: float) -> int:
                 print(f"  {k:<28} only {'before' if k in b else 'after'}")
                 worst = np.inf
                 continue
-            vb, _ = b[k]
+            vb, sb = b[k]
             va, sa = a[k]
             if k == "rotation":  # quaternions: the angle between them (atan2: exact near 0)
                 qa, qb = va / np.linalg.norm(va), vb / np.linalg.norm(vb)
@@ -140,8 +140,12 @@ def compare(before: Path, after: Path, limit: float) -> int:
             zmax = float(np.max(z)) if z is not None else float("nan")
             if z is not None:
                 worst = max(worst, zmax)
+            ratio = ""
+            if sa is not None and sb is not None and sa.shape == sb.shape:
+                r = sa / np.maximum(sb, 1e-300)
+                ratio = f"   sigma after/before {float(np.min(r)):.3g}-{float(np.max(r)):.3g}"
             print(f"  {k:<28} max |diff| {float(np.max(diff)):.3g}   max |diff|/sigma "
-                  f"{zmax:.3g}")
+                  f"{zmax:.3g}{ratio}")
     print(f"largest |diff|/sigma: {worst:.3g} (limit {limit})")
     return 0 if worst <= limit else 1
 
