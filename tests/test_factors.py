@@ -59,6 +59,20 @@ def test_velocity_factor_jacobians_with_gtsam_unit3():
                                    Hg[:, :, i], atol=1e-4)
 
 
+def _short_flight():
+    """A 12 s simulated flight (seed 3, a 3 ms clock offset) prepared and cut into 3 s windows
+    at a clock offset 0.2 ms from the truth: (simulation, session, windows, offset)."""
+    from mocap_calib.core.position.engine import make_windows
+    from mocap_calib.core.prepare.session import local_derivative, prepare
+    from mocap_calib.sim.flight import SimConfig, simulate_flight
+
+    sim = simulate_flight(SimConfig(seed=3, duration=12.0, effects={"time_offset": [0.003]}))
+    s = prepare(sim.imu, sim.mocap)
+    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
+    delta = s.clock_shift + 0.0032
+    return sim, s, make_windows(s, delta, 3.0, 200.0, v), delta
+
+
 def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
     """End to end through GTSAM: the linearised window factors (compressed, per key) give the
     gradient of the graph's nonlinear cost in each variable's tangent space.
@@ -74,7 +88,6 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
     far more."""
     from mocap_calib.core.model.effects import Model
     from mocap_calib.core.model.types import NoiseModel
-    from mocap_calib.core.position.engine import make_windows
     from mocap_calib.core.position.graph import (
         KEY_G,
         KEY_P,
@@ -88,14 +101,8 @@ def test_position_graph_gradient_matches_numerical_derivative_of_its_cost():
         key_knot,
         key_time,
     )
-    from mocap_calib.core.prepare.session import local_derivative, prepare
-    from mocap_calib.sim.flight import SimConfig, simulate_flight
 
-    sim = simulate_flight(SimConfig(seed=3, duration=12.0, effects={"time_offset": [0.003]}))
-    s = prepare(sim.imu, sim.mocap)
-    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
-    delta = s.clock_shift + 0.0032
-    win = make_windows(s, delta, 3.0, 200.0, v)
+    sim, s, win, delta = _short_flight()
     tr = sim.truth
     rng = np.random.default_rng(2)
     init = PositionInit(
@@ -139,7 +146,6 @@ def test_session_mean_jacobian_matches_numerical_derivative():
     from mocap_calib.core.model.effects import Model
     from mocap_calib.core.model.types import NoiseModel
     from mocap_calib.core.position.covariance import CovarianceInputs, _mean_columns
-    from mocap_calib.core.position.engine import make_windows
     from mocap_calib.core.position.graph import (
         KEY_G,
         KEY_P,
@@ -151,14 +157,8 @@ def test_session_mean_jacobian_matches_numerical_derivative():
         build_position_graph,
         key_knot,
     )
-    from mocap_calib.core.prepare.session import local_derivative, prepare
-    from mocap_calib.sim.flight import SimConfig, simulate_flight
 
-    sim = simulate_flight(SimConfig(seed=3, duration=12.0, effects={"time_offset": [0.003]}))
-    s = prepare(sim.imu, sim.mocap)
-    _, v, _ = local_derivative(s.tau, s.p_WM, 5, s.gap)
-    delta = s.clock_shift + 0.0032
-    win = make_windows(s, delta, 3.0, 200.0, v)
+    sim, s, win, delta = _short_flight()
     tr = sim.truth
     init = PositionInit(
         so3.quat_to_rotmat(np.array(tr["T_marker_imu"]["rotation_wxyz"])) @ so3.exp([1e-3, 0, 0]),

@@ -201,11 +201,10 @@ def _process_noise(noise: NoiseModel, R: np.ndarray, h: float) -> np.ndarray:
     return Q
 
 
-def _dense_cov(ex: dict, w: int, m1: int, noise: NoiseModel, full: np.ndarray, rho: float,
-               Rn: np.ndarray, wt: np.ndarray, H: np.ndarray) -> np.ndarray:
-    """Dense covariance of all residuals of window ``w`` from the filter's state-space model
-    (``ex``, the engine's extras), the observation rows ``H`` and the mocap noise written out
-    (``full``, ``Rn``)."""
+def _state_covs(ex: dict, w: int, m1: int, noise: NoiseModel) -> list[np.ndarray]:
+    """The error state's covariance at every sample of window ``w`` from its diffuse start,
+    through the filter's transitions and the process noise written out (checked against the
+    engine's)."""
     F = ex["F"][w]
     P = np.diag(np.r_[np.full(3, 1.0), np.full(3, 1.0), np.full(3, 0.25), np.zeros(6)])
     Ps = [P]
@@ -214,6 +213,16 @@ def _dense_cov(ex: dict, w: int, m1: int, noise: NoiseModel, full: np.ndarray, r
         np.testing.assert_allclose(ex["Q"][w, k], Q, rtol=1e-9, atol=1e-12 * np.abs(Q).max())
         P = F[k] @ P @ F[k].T + Q
         Ps.append(P)
+    return Ps
+
+
+def _dense_cov(ex: dict, w: int, m1: int, noise: NoiseModel, full: np.ndarray, rho: float,
+               Rn: np.ndarray, wt: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """Dense covariance of all residuals of window ``w`` from the filter's state-space model
+    (``ex``, the engine's extras), the observation rows ``H`` and the mocap noise written out
+    (``full``, ``Rn``)."""
+    F = ex["F"][w]
+    Ps = _state_covs(ex, w, m1, noise)
     # The correlated mocap noise, written out as its own Gauss-Markov sequence.
     if noise.mocap_correlated:
         Fm, Qm, Pm = ex["Fm"][w], ex["Qm"][w], [ex["Pm0"][w]]
@@ -373,11 +382,7 @@ def test_bias_integral_states_equal_dense_gaussian_conditioning(short_session, n
         C = _dense_cov(ex, w, m1, noise, full, rho, (1.0 - rho) * full, ex["weights"][w], H)
         # Every pair of states, written out: Cov(x_j, x_k) = Phi(j <- k) P_k for j >= k.
         F = ex["F"][w]
-        P = np.diag(np.r_[np.full(3, 1.0), np.full(3, 1.0), np.full(3, 0.25), np.zeros(6)])
-        Ps = [P]
-        for k in range(m1 - 1):
-            P = F[k] @ P @ F[k].T + _process_noise(noise, ex["Rbar"][w, k], ex["h"][w, k])
-            Ps.append(P)
+        Ps = _state_covs(ex, w, m1, noise)
         X = np.zeros((15 * m1, 15 * m1))
         for k in range(m1):
             Phi = np.eye(15)
