@@ -82,15 +82,20 @@ def _start_runtime(target_context: Any) -> None:
     release_compiler_pages()
 
 
-def kernel(fn: F) -> F:
-    """Compile ``fn`` with numba (no Python objects, GIL released), cached on disk."""
-    disp = numba.njit(**_OPTIONS)(fn)
+def kernel(fn: F | None = None, *, inline: bool = False) -> Any:
+    """Compile ``fn`` with numba (no Python objects, GIL released), cached on disk. With
+    ``inline`` (``@kernel(inline=True)``) a compiled caller gets the function's body in place
+    of a call: a call passes every array argument with two atomic reference counts, which in
+    a per-sample loop cost more than the arithmetic (at most 31 arguments: numba's inliner)."""
+    if fn is None:
+        return lambda f: kernel(f, inline=inline)
+    disp = numba.njit(**_OPTIONS, **({"inline": "always"} if inline else {}))(fn)
     try:
         disp._cache = _TolerantCache(fn)
     except RuntimeError:  # no writable cache folder: compile in every process
         pass
     KERNELS.append(disp)
-    return disp  # type: ignore[return-value]
+    return disp
 
 
 def kernel_name(disp: Any) -> str:

@@ -200,34 +200,38 @@ def integrate_pieces(w_nodes: Array, f_nodes: Array, hs_all: Array) -> StepIncre
                           out[:, 42:51].reshape(m3), out.reshape(lead + (51,)))
 
 
-@kernel
-def _rk_stage(y, w, f, k):  # pragma: no cover  (compiled)
-    """Derivative ``k`` of the state ``y`` = (q, v, p, A, C, B, D) flattened (46 values):
-    ``q (0, w) / 2``, ``R f``, ``v``, ``R``, ``A``, ``[R f]x A``, ``B``."""
+@kernel(inline=True)
+def _rk_stage(y, w, f, s, node, k, st):  # pragma: no cover  (compiled)
+    """Derivative ``k[st]`` of the state ``y`` = (q, v, p, A, C, B, D) flattened (46 values)
+    at node ``node`` of step ``s`` (rates ``w[s, node]``, specific force ``f[s, node]``, read in
+    place): ``q (0, w) / 2``, ``R f``, ``v``, ``R``, ``A``, ``[R f]x A``, ``B``."""
+    w0, w1, w2 = w[s, node, 0], w[s, node, 1], w[s, node, 2]
+    g0, g1, g2 = f[s, node, 0], f[s, node, 1], f[s, node, 2]
     n = np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])
     qw, qx, qy, qz = y[0] / n, y[1] / n, y[2] / n, y[3] / n
     R0, R1, R2 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
     R3, R4, R5 = 2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)
     R6, R7, R8 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
-    f0, f1, f2 = R0 * f[0] + R1 * f[1] + R2 * f[2], R3 * f[0] + R4 * f[1] + R5 * f[2], \
-        R6 * f[0] + R7 * f[1] + R8 * f[2]
-    k[0] = 0.5 * (-y[1] * w[0] - y[2] * w[1] - y[3] * w[2])
-    k[1] = 0.5 * (y[0] * w[0] + y[2] * w[2] - y[3] * w[1])
-    k[2] = 0.5 * (y[0] * w[1] - y[1] * w[2] + y[3] * w[0])
-    k[3] = 0.5 * (y[0] * w[2] + y[1] * w[1] - y[2] * w[0])
-    k[4], k[5], k[6] = f0, f1, f2
+    f0, f1, f2 = R0 * g0 + R1 * g1 + R2 * g2, R3 * g0 + R4 * g1 + R5 * g2, \
+        R6 * g0 + R7 * g1 + R8 * g2
+    k[st, 0] = 0.5 * (-y[1] * w0 - y[2] * w1 - y[3] * w2)
+    k[st, 1] = 0.5 * (y[0] * w0 + y[2] * w2 - y[3] * w1)
+    k[st, 2] = 0.5 * (y[0] * w1 - y[1] * w2 + y[3] * w0)
+    k[st, 3] = 0.5 * (y[0] * w2 + y[1] * w1 - y[2] * w0)
+    k[st, 4], k[st, 5], k[st, 6] = f0, f1, f2
     for a in range(3):
-        k[7 + a] = y[4 + a]
-    k[10], k[11], k[12], k[13], k[14], k[15], k[16], k[17], k[18] = R0, R1, R2, R3, R4, R5, R6, \
-        R7, R8
+        k[st, 7 + a] = y[4 + a]
+    k[st, 10], k[st, 11], k[st, 12] = R0, R1, R2
+    k[st, 13], k[st, 14], k[st, 15] = R3, R4, R5
+    k[st, 16], k[st, 17], k[st, 18] = R6, R7, R8
     for a in range(9):
-        k[19 + a] = y[10 + a]  # dC = A
-        k[37 + a] = y[28 + a]  # dD = B
+        k[st, 19 + a] = y[10 + a]  # dC = A
+        k[st, 37 + a] = y[28 + a]  # dD = B
     for j in range(3):  # dB = [Rf]x A, column by column
         a0, a1, a2 = y[10 + j], y[13 + j], y[16 + j]
-        k[28 + j] = f1 * a2 - f2 * a1
-        k[31 + j] = f2 * a0 - f0 * a2
-        k[34 + j] = f0 * a1 - f1 * a0
+        k[st, 28 + j] = f1 * a2 - f2 * a1
+        k[st, 31 + j] = f2 * a0 - f0 * a2
+        k[st, 34 + j] = f0 * a1 - f1 * a0
 
 
 @kernel
@@ -256,7 +260,7 @@ def _integrate_kernel(w, f, hs, out):  # pragma: no cover  (compiled)
                     for a in range(46):
                         ys[a] = y[a] + ch * k[st - 1, a]
                 node = 2 * i + at[st]
-                _rk_stage(ys, w[s, node], f[s, node], k[st])
+                _rk_stage(ys, w, f, s, node, k, st)
             h6 = h / 6.0
             for a in range(46):
                 y[a] += h6 * (k[0, a] + 2.0 * k[1, a] + 2.0 * k[2, a] + k[3, a])
@@ -264,18 +268,17 @@ def _integrate_kernel(w, f, hs, out):  # pragma: no cover  (compiled)
             for a in range(4):
                 y[a] /= n
         qw, qx, qy, qz = y[0], y[1], y[2], y[3]
-        o = out[s]
-        o[0] = 1 - 2 * (qy * qy + qz * qz)
-        o[1] = 2 * (qx * qy - qw * qz)
-        o[2] = 2 * (qx * qz + qw * qy)
-        o[3] = 2 * (qx * qy + qw * qz)
-        o[4] = 1 - 2 * (qx * qx + qz * qz)
-        o[5] = 2 * (qy * qz - qw * qx)
-        o[6] = 2 * (qx * qz - qw * qy)
-        o[7] = 2 * (qy * qz + qw * qx)
-        o[8] = 1 - 2 * (qx * qx + qy * qy)
+        out[s, 0] = 1 - 2 * (qy * qy + qz * qz)
+        out[s, 1] = 2 * (qx * qy - qw * qz)
+        out[s, 2] = 2 * (qx * qz + qw * qy)
+        out[s, 3] = 2 * (qx * qy + qw * qz)
+        out[s, 4] = 1 - 2 * (qx * qx + qz * qz)
+        out[s, 5] = 2 * (qy * qz - qw * qx)
+        out[s, 6] = 2 * (qx * qz - qw * qy)
+        out[s, 7] = 2 * (qy * qz + qw * qx)
+        out[s, 8] = 1 - 2 * (qx * qx + qy * qy)
         for a in range(42):
-            o[9 + a] = y[4 + a]
+            out[s, 9 + a] = y[4 + a]
 
 
 _IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])

@@ -19,7 +19,6 @@ from mocap_calib.core.position.kernels import (
     Q_GYRO,
     Q_GYRO_WALK,
     RHO,
-    SIG2,
     T_CORR,
     accel_noise,
     lever,
@@ -211,14 +210,14 @@ def state_space_kernel(inc, Rbar, h, M, par, F, Q, Rn, Hp, Fm, Qm,
     for w in range(W):
         lever(Rbar[w, 0], M, Lk)
         Hp[w, 0] = Lk
-        mocap_cov(par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, 0])
+        mocap_cov(par, 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, 0])
         if ns == 21:
-            mocap_cov(par[SIG2:SIG2 + 6], par[RHO], Pm0[w])
+            mocap_cov(par, par[RHO], Pm0[w])
         for j in range(m):
             hk = h[w, j]
             a = step_lever(Rbar[w, j + 1], M, Lk, hk, ns, par)
             Hp[w, j + 1] = Lk
-            transition_blocks(inc[w, j], Rbar[w, j], Fb)
+            transition_blocks(inc, w, j, Rbar[w, j], Fb)
             F[w, j] = 0.0
             for i in range(15):
                 F[w, j, i, i] = 1.0
@@ -242,9 +241,9 @@ def state_space_kernel(inc, Rbar, h, M, par, F, Q, Rn, Hp, Fm, Qm,
                     Q[w, j, 6 + i, 6 + t] = Qa[i, t] * hk
                     Q[w, j, 3 + i, 6 + t] = Qa[i, t] * hk ** 2 / 2.0
                     Q[w, j, 6 + i, 3 + t] = Qa[i, t] * hk ** 2 / 2.0
-            mocap_cov(par[SIG2:SIG2 + 6], 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, j + 1])
+            mocap_cov(par, 1.0 - par[RHO] if ns == 21 else 1.0, Rn[w, j + 1])
             if ns == 21:
                 Fm[w, j] = 0.0
                 for i in range(6):
                     Fm[w, j, i, i] = a
-                mocap_cov(par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), Qm[w, j])
+                mocap_cov(par, par[RHO] * (1.0 - a * a), Qm[w, j])

@@ -35,25 +35,27 @@ DIFFUSE = (1.0, 1.0, 0.5)
 # ruff: noqa: N803, N806  (matrix names)
 
 
-@kernel
-def transition_blocks(inc, Rk, Fb):  # pragma: no cover  (compiled)
-    """The non-trivial 3x3 blocks of a step's error-state transition, into ``Fb`` (8, 3, 3):
+@kernel(inline=True)
+def transition_blocks(inc, w, s, Rk, Fb):  # pragma: no cover  (compiled)
+    """The non-trivial 3x3 blocks of the error-state transition of step ``s`` of window ``w``
+    (increments ``inc[w, s]``, read in place: a view costs two atomic reference counts), into
+    ``Fb`` (8, 3, 3):
     F00 = dR^T, F03 = -dR^T A, F10 = -Rk [dp]x, F13 = Rk D, F14 = -Rk C, F20 = -Rk [dv]x,
     F23 = Rk B, F24 = -Rk A (block rows: attitude, position, velocity; columns also gyro and
     accel bias). The others: identity on the diagonal, ``h I`` at position/velocity."""
     for i in range(3):
         for j in range(3):
-            Fb[0, i, j] = inc[3 * j + i]
+            Fb[0, i, j] = inc[w, s, 3 * j + i]
     for i in range(3):
         for j in range(3):
             f03 = 0.0
             f13 = f14 = f23 = f24 = 0.0
             for t in range(3):
-                f03 -= Fb[0, i, t] * inc[15 + 3 * t + j]
-                f13 += Rk[i, t] * inc[42 + 3 * t + j]
-                f14 -= Rk[i, t] * inc[24 + 3 * t + j]
-                f23 += Rk[i, t] * inc[33 + 3 * t + j]
-                f24 -= Rk[i, t] * inc[15 + 3 * t + j]
+                f03 -= Fb[0, i, t] * inc[w, s, 15 + 3 * t + j]
+                f13 += Rk[i, t] * inc[w, s, 42 + 3 * t + j]
+                f14 -= Rk[i, t] * inc[w, s, 24 + 3 * t + j]
+                f23 += Rk[i, t] * inc[w, s, 33 + 3 * t + j]
+                f24 -= Rk[i, t] * inc[w, s, 15 + 3 * t + j]
             Fb[1, i, j] = f03
             Fb[3, i, j] = f13
             Fb[4, i, j] = f14
@@ -61,13 +63,22 @@ def transition_blocks(inc, Rk, Fb):  # pragma: no cover  (compiled)
             Fb[7, i, j] = f24
         # -Rk [x]x: column j of [x]x is e_j x x.
         for k, base in ((2, 12), (5, 9)):
-            x0, x1, x2 = inc[base], inc[base + 1], inc[base + 2]
+            x0, x1, x2 = inc[w, s, base], inc[w, s, base + 1], inc[w, s, base + 2]
             Fb[k, i, 0] = -(Rk[i, 1] * x2 - Rk[i, 2] * x1)
             Fb[k, i, 1] = -(-Rk[i, 0] * x2 + Rk[i, 2] * x0)
             Fb[k, i, 2] = -(Rk[i, 0] * x1 - Rk[i, 1] * x0)
 
 
-@kernel
+@kernel(inline=True)
+def copy33(A, w, k, out):  # pragma: no cover  (compiled)
+    """``out`` (3, 3) = ``A[w, k]`` element by element (no view: see
+    :func:`transition_blocks`)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[w, k, i, j]
+
+
+@kernel(inline=True)
 def phi_rows(Mx, nc, Fb, hk, ns, ni, a, tmp):  # pragma: no cover  (compiled)
     """``Mx[:, :nc] <- Phi Mx[:, :nc]`` in place: the error-state rows through the transition
     blocks ``Fb``; with AR(1) mocap states (ns 21) those decay by ``a``; the ``ni`` bias
@@ -98,17 +109,18 @@ def phi_rows(Mx, nc, Fb, hk, ns, ni, a, tmp):  # pragma: no cover  (compiled)
             Mx[ns + i, c] += hk * Mx[9 + i, c]
 
 
-@kernel
-def mocap_cov(sig2, scale, out):  # pragma: no cover  (compiled)
+@kernel(inline=True)
+def mocap_cov(par, scale, out):  # pragma: no cover  (compiled)
     """``out`` (6, 6) = scale times the covariance of a residual's mocap noise: attitude
-    variances ``sig2[0:3]`` (IMU frame), position ``sig2[3:6]`` (world frame), independent (the
-    lever arm acts through the filter's attitude, not through the measured one)."""
+    variances ``par[SIG2:SIG2 + 3]`` (IMU frame), position ``par[SIG2 + 3:SIG2 + 6]`` (world
+    frame), independent (the lever arm acts through the filter's attitude, not through the
+    measured one)."""
     for i in range(6):
         for j in range(6):
-            out[i, j] = scale * sig2[i] if i == j else 0.0
+            out[i, j] = scale * par[SIG2 + i] if i == j else 0.0
 
 
-@kernel
+@kernel(inline=True)
 def lever(R, M, L):  # pragma: no cover  (compiled)
     """``L = R M`` (3x3) with ``R`` the nominal IMU attitude and ``M = [R_MI^T p_MI]x``: the
     position residual's rows on the attitude error (the marker origin sits at ``-R_MI^T p_MI``
@@ -118,7 +130,7 @@ def lever(R, M, L):  # pragma: no cover  (compiled)
             L[i, j] = R[i, 0] * M[0, j] + R[i, 1] * M[1, j] + R[i, 2] * M[2, j]
 
 
-@kernel
+@kernel(inline=True)
 def accel_noise(par, R, Qa):  # pragma: no cover  (compiled)
     """``Qa`` (3, 3) = the accelerometer's white-noise variance in the world frame at the
     nominal attitude ``R``: ``R diag(q) R^T`` with the per-axis factors; returns False when
@@ -133,7 +145,7 @@ def accel_noise(par, R, Qa):  # pragma: no cover  (compiled)
     return True
 
 
-@kernel
+@kernel(inline=True)
 def predict_cov(P, ns, ni, Fb, hk, a, par, tmp, cov, R):  # pragma: no cover  (compiled)
     """Filter covariance through a step: ``Phi P Phi^T`` plus the process noise (the
     accelerometer's at the step's start attitude ``R``) and the AR(1) states' innovation,
@@ -158,13 +170,13 @@ def predict_cov(P, ns, ni, Fb, hk, a, par, tmp, cov, R):  # pragma: no cover  (c
             P[3 + i, 6 + j] += q * hk * hk / 2.0
             P[6 + i, 3 + j] += q * hk * hk / 2.0
     if ns == 21:
-        mocap_cov(par[SIG2:SIG2 + 6], par[RHO] * (1.0 - a * a), cov)
+        mocap_cov(par, par[RHO] * (1.0 - a * a), cov)
         for i in range(6):
             for j in range(6):
                 P[15 + i, 15 + j] += cov[i, j]
 
 
-@kernel
+@kernel(inline=True)
 def cholesky6(A, Lc):  # pragma: no cover  (compiled)
     """Lower Cholesky factor of the 6x6 ``A``; returns log det A."""
     det = 1.0
@@ -185,7 +197,7 @@ def cholesky6(A, Lc):  # pragma: no cover  (compiled)
     return np.log(det)
 
 
-@kernel
+@kernel(inline=True)
 def forward(Lc, B, nc, out):  # pragma: no cover  (compiled)
     """``out[:, :nc] = Lc^-1 B[:, :nc]`` (forward substitution, 6 rows)."""
     for i in range(6):
@@ -197,17 +209,17 @@ def forward(Lc, B, nc, out):  # pragma: no cover  (compiled)
             out[i, c] = s * d
 
 
-@kernel
-def propagate(Y, X, P, p, ns, ni, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp, cov,
+@kernel(inline=True)
+def propagate(Y, X, P, p, ns, ni, hk, Fc, Fo, dwf, w, s, dg, gcols, a, par, tmp, cov,
               R):  # pragma: no cover  (compiled)
     """One step: the sensitivities ``S`` (rows 0:9 of ``Y``) through the current transition
     ``Fc`` with the parameters' inputs (``-d(w, f)/dtheta`` as bias rows, gravity directly),
     the filter mean and covariance through the whitening's transition ``Fo`` (``R``: its
-    attitude at the step's start)."""
+    attitude at the step's start); ``dwf[w, s]``: step ``s`` of window ``w``."""
     if p > 0:
         for i in range(6):
             for c in range(p):
-                Y[9 + i, c] = -dwf[i, c]
+                Y[9 + i, c] = -dwf[w, s, i, c]
         phi_rows(Y, p, Fc, hk, min(ns, 15), 0 * ni, 0.0, tmp)  # (no literal: one compile)
         for g in range(gcols.shape[0]):
             col = gcols[g]
@@ -218,25 +230,28 @@ def propagate(Y, X, P, p, ns, ni, hk, Fc, Fo, dwf, dg, gcols, a, par, tmp, cov,
     predict_cov(P, ns, ni, Fo, hk, a, par, tmp, cov, R)
 
 
-@kernel
-def residual_rows(N, Y, X, p, ns, rs, ts, r, Jinv, Pm_rot, Jp, Hq):  # pragma: no cover
+@kernel(inline=True)
+def residual_rows(N, Y, X, p, ns, rs, ts, w, k, r, Jinv, Pm_rot, Jp,
+                  Hq):  # pragma: no cover  (compiled)
     """A sample's ``[J | r]`` rows (``J``: the direct part minus the nominal's sensitivity;
-    the position rows see the nominal attitude through ``Hq = R_bar [R_MI^T p_MI]x``)."""
+    the position rows see the nominal attitude through ``Hq = R_bar [R_MI^T p_MI]x``); the
+    direct parts are sample ``k`` of window ``w``'s."""
     for i in range(3):
+        q0, q1, q2 = Hq[w, k, i, 0], Hq[w, k, i, 1], Hq[w, k, i, 2]
+        m0, m1, m2 = Pm_rot[w, k, i, 0], Pm_rot[w, k, i, 1], Pm_rot[w, k, i, 2]
         for c in range(p):
-            N[i, c] = -(Pm_rot[i, 0] * Y[0, c] + Pm_rot[i, 1] * Y[1, c] + Pm_rot[i, 2] * Y[2, c])
-            N[3 + i, c] = -Y[3 + i, c] - (Hq[i, 0] * Y[0, c] + Hq[i, 1] * Y[1, c]
-                                          + Hq[i, 2] * Y[2, c])
+            N[i, c] = -(m0 * Y[0, c] + m1 * Y[1, c] + m2 * Y[2, c])
+            N[3 + i, c] = -Y[3 + i, c] - (q0 * Y[0, c] + q1 * Y[1, c] + q2 * Y[2, c])
         if p > 0:
             for j in range(3):
-                N[i, rs + j] += Jinv[i, j]
-                N[3 + i, rs + j] += Hq[i, j]
-                N[3 + i, ts + j] += Jp[i, j]
+                N[i, rs + j] += Jinv[w, k, i, j]
+                N[3 + i, rs + j] += Hq[w, k, i, j]
+                N[3 + i, ts + j] += Jp[w, k, i, j]
     for i in range(6):
-        N[i, p] = r[i]
+        N[i, p] = r[w, k, i]
 
 
-@kernel
+@kernel(inline=True)
 def innovate(N, X, P, PHt, S, ns, nt, p, Lk):  # pragma: no cover  (compiled)
     """``N -= H X``; ``PHt = P H^T`` (all ``nt`` states); ``S = H P H^T``. ``H`` picks the
     error state's attitude for the attitude rows and position plus ``Lk`` times attitude for the
@@ -258,7 +273,7 @@ def innovate(N, X, P, PHt, S, ns, nt, p, Lk):  # pragma: no cover  (compiled)
                            + Lk[i, 2] * PHt[2, j] + (PHt[18 + i, j] if ns == 21 else 0.0))
 
 
-@kernel
+@kernel(inline=True)
 def gain_update(X, P, Nw, PHt, Lc, U, ns, p):  # pragma: no cover  (compiled)
     """Kalman update of mean and covariance in square-root form: with ``U = P H^T Lc^-T``
     (``Lc`` the innovation covariance's Cholesky factor, ``Nw = Lc^-1 N`` the whitened rows),
@@ -284,9 +299,9 @@ def gain_update(X, P, Nw, PHt, Lc, U, ns, p):  # pragma: no cover  (compiled)
                 P[j, i] = P[i, j]
 
 
-@kernel
+@kernel(inline=True)
 def accumulate(w, k, Nw, p, blocks, G, scores, e_white, whitened):  # pragma: no cover
-    """A sample's whitened rows into the window's Gram matrix ``G`` (upper triangle) and
+    """A sample's whitened rows into the window's Gram matrix ``G[w]`` (upper triangle) and
     scores."""
     for i in range(6):
         e_white[w, k, i] = Nw[i, p]
@@ -295,7 +310,7 @@ def accumulate(w, k, Nw, p, blocks, G, scores, e_white, whitened):  # pragma: no
             s = 0.0
             for t in range(6):
                 s += Nw[t, a] * Nw[t, b]
-            G[a, b] += s
+            G[w, a, b] += s
     if scores.shape[1] > 0:
         blk = blocks[k]
         for c in range(p):
@@ -309,7 +324,7 @@ def accumulate(w, k, Nw, p, blocks, G, scores, e_white, whitened):  # pragma: no
                 whitened[w, k, t, c] = Nw[t, c]
 
 
-@kernel
+@kernel(inline=True)
 def start_window(Y, X, P, p, ns, rs, ts, R0, Ratt, M_op, Lk, par, cov):  # pragma: no cover
     """A window's start: the diffuse prior, the AR(1) states' stationary covariance, the
     sensitivities of the start pose to ``R_MI`` and ``p_MI`` (``R0``: the first mocap
@@ -326,11 +341,11 @@ def start_window(Y, X, P, p, ns, rs, ts, R0, Ratt, M_op, Lk, par, cov):  # pragm
                 Y[3 + i, ts + j] = R0[i, j]
     lever(Ratt, M_op, Lk)
     if ns == 21:
-        mocap_cov(par[SIG2:SIG2 + 6], par[RHO], cov)
+        mocap_cov(par, par[RHO], cov)
         P[15:21, 15:21] = cov
 
 
-@kernel
+@kernel(inline=True)
 def step_lever(R, M_op, Lk, hk, ns, par):  # pragma: no cover  (compiled)
     """The position rows' attitude block at the step's end sample (nominal attitude ``R``)
     into ``Lk``; with AR(1) states their decay over the step: returns ``a``."""
@@ -340,13 +355,62 @@ def step_lever(R, M_op, Lk, hk, ns, par):  # pragma: no cover  (compiled)
     return np.exp(-hk / par[T_CORR])
 
 
-@kernel
-def chain(R, inc, Rnext):  # pragma: no cover  (compiled)
-    """``R <- R dR`` (the next nominal attitude), with ``compose``'s arithmetic."""
+@kernel(inline=True)
+def chain(R, inc, w, s, Rnext):  # pragma: no cover  (compiled)
+    """``R <- R dR`` (the next nominal attitude; ``dR`` of step ``s`` of window ``w``), with
+    ``compose``'s arithmetic."""
     for i in range(3):
         for j in range(3):
-            Rnext[i, j] = R[i, 0] * inc[j] + R[i, 1] * inc[3 + j] + R[i, 2] * inc[6 + j]
+            Rnext[i, j] = (R[i, 0] * inc[w, s, j] + R[i, 1] * inc[w, s, 3 + j]
+                           + R[i, 2] * inc[w, s, 6 + j])
     R[:, :] = Rnext
+
+
+@kernel(inline=True)
+def whiten_sample(w, k, Y, X, P, N, Nw, PHt, HPHt, Sk, Lc, cov, Lk, p, ns, ni, rs, ts, white,
+                  op_wt, par, r, Jinv, Pm_rot, Jp, Hq, raw_J):  # pragma: no cover  (compiled)
+    """Sample ``k`` of window ``w``: its residual rows ``N`` less the filter's prediction,
+    their innovation covariance's Cholesky factor ``Lc`` and the whitened rows ``Nw``; returns
+    the log det of the innovation covariance."""
+    residual_rows(N, Y, X, p, ns, rs, ts, w, k, r, Jinv, Pm_rot, Jp, Hq)
+    if raw_J.shape[0] > 0:
+        for i in range(6):
+            for c in range(p):
+                raw_J[w, k, i, c] = N[i, c]
+    innovate(N, X, P, PHt, HPHt, ns, ns + ni, p, Lk)
+    mocap_cov(par, white, cov)
+    for i in range(6):
+        for j in range(6):
+            Sk[i, j] = HPHt[i, j] + cov[i, j] / op_wt
+    ld = cholesky6(Sk, Lc)
+    forward(Lc, N, p + 1, Nw)
+    return ld
+
+
+@kernel(inline=True)
+def use_sample(w, k, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, p, nt, wt, blocks, gram, innov,
+               e_white, d_raw, scores, whitened):  # pragma: no cover  (compiled)
+    """Sample ``k`` of window ``w`` after :func:`whiten_sample`: its whitened rows into the
+    sums and statistics, then the filter's update."""
+    accumulate(w, k, Nw, p, blocks, gram, scores, e_white, whitened)
+    q = 0.0
+    for i in range(6):
+        innov[w, k, i] = N[i, p]
+        q += Nw[i, p] * Nw[i, p]
+    d_raw[w, k] = np.sqrt(q)
+    if wt < 1.0:  # the robust weight's own test: the innovation against the unweighted noise
+        for i in range(6):
+            for j in range(6):
+                Sk[i, j] = HPHt[i, j] + cov[i, j]
+        cholesky6(Sk, Li)
+        for i in range(6):  # the innovation column into a C array: forward compiles once
+            cov[i, 0] = N[i, p]
+        forward(Li, cov, N.shape[1] - p, Sk)
+        q = 0.0
+        for i in range(6):
+            q += Sk[i, 0] * Sk[i, 0]
+        d_raw[w, k] = np.sqrt(q)
+    gain_update(X, P, Nw, PHt, Lc, K, nt, p)
 
 
 @kernel
@@ -378,7 +442,8 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
     HPHt, Sk, Lc, Li, cov = (np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6)),
                              np.zeros((6, 6)), np.zeros((6, 6)))
     Lk = np.zeros((3, 3))
-    Rop, Rnext, Rstart = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    Rop, Rnext, Rstart, Rk = (np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)),
+                              np.zeros((3, 3)))
     for w in range(W):
         last = -1
         for k in range(m + 1):
@@ -393,22 +458,25 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
             if k > 0:
                 j = k - 1
                 hk = h[w, j]
-                transition_blocks(inc[w, j], Rbar[w, j], Fc)
+                copy33(Rbar, w, j, Rk)
+                transition_blocks(inc, w, j, Rk, Fc)
                 Rstart[:, :] = Rop
                 if frozen:
-                    transition_blocks(op_inc[w, j], Rop, Fo)
-                    chain(Rop, op_inc[w, j], Rnext)
+                    transition_blocks(op_inc, w, j, Rop, Fo)
+                    chain(Rop, op_inc, w, j, Rnext)
                 else:
                     Fo[:, :, :] = Fc
-                    Rop[:, :] = Rbar[w, k]
+                    copy33(Rbar, w, k, Rop)
                 a = step_lever(Rop, M_op, Lk, hk, ns, par)
-                propagate(Y, X, P, p, ns, ni, hk, Fc, Fo, dwf[w, j], dg, gcols, a, par, tmp,
+                propagate(Y, X, P, p, ns, ni, hk, Fc, Fo, dwf, w, j, dg, gcols, a, par, tmp,
                           cov, Rstart)
             if not mask[w, k]:
                 continue
-            ld += measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, ni,
-                          rs, ts, white, wts[w, k], op_wts[w, k], par, r, Jinv, Pm_rot, Jp, Hq,
-                          blocks, gram, innov, e_white, d_raw, scores, raw_J, whitened)
+            ld += whiten_sample(w, k, Y, X, P, N, Nw, PHt, HPHt, Sk, Lc, cov, Lk, p, ns, ni,
+                                rs, ts, white, op_wts[w, k], par, r, Jinv, Pm_rot, Jp, Hq,
+                                raw_J)
+            use_sample(w, k, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, p, nt, wts[w, k],
+                       blocks, gram, innov, e_white, d_raw, scores, whitened)
         logdet[w] = ld
         if term_X.shape[0] > 0:  # the bias states at the window's end (mean per column, cov)
             term_X[w] = X[9:15, :p + 1]
@@ -420,44 +488,3 @@ def filter_windows(h, mask, wts, inc, Rbar, op_inc, op_R0, op_wts, frozen, dwf, 
         for a in range(p + 1):
             for b in range(a):
                 gram[w, a, b] = gram[w, b, a]
-
-
-@kernel
-def measure(w, k, Y, X, P, N, Nw, PHt, K, HPHt, Sk, Lc, Li, cov, Lk, p, ns, ni, rs, ts, white,
-            wt, op_wt, par, r, Jinv, Pm_rot, Jp, Hq, blocks, gram, innov, e_white, d_raw,
-            scores, raw_J, whitened):  # pragma: no cover  (compiled)
-    """Sample ``k`` of window ``w``: residual rows, whitening, sums, filter update; returns
-    the log det of the innovation covariance."""
-    residual_rows(N, Y, X, p, ns, rs, ts, r[w, k], Jinv[w, k], Pm_rot[w, k], Jp[w, k],
-                  Hq[w, k])
-    if raw_J.shape[0] > 0:
-        for i in range(6):
-            for c in range(p):
-                raw_J[w, k, i, c] = N[i, c]
-    innovate(N, X, P, PHt, HPHt, ns, ns + ni, p, Lk)
-    mocap_cov(par[SIG2:SIG2 + 6], white, cov)
-    for i in range(6):
-        for j in range(6):
-            Sk[i, j] = HPHt[i, j] + cov[i, j] / op_wt
-    ld = cholesky6(Sk, Lc)
-    forward(Lc, N, p + 1, Nw)
-    accumulate(w, k, Nw, p, blocks, gram[w], scores, e_white, whitened)
-    q = 0.0
-    for i in range(6):
-        innov[w, k, i] = N[i, p]
-        q += Nw[i, p] * Nw[i, p]
-    d_raw[w, k] = np.sqrt(q)
-    if wt < 1.0:  # the robust weight's own test: the innovation against the unweighted noise
-        for i in range(6):
-            for j in range(6):
-                Sk[i, j] = HPHt[i, j] + cov[i, j]
-        cholesky6(Sk, Li)
-        for i in range(6):  # the innovation column into a C array: forward compiles once
-            cov[i, 0] = N[i, p]
-        forward(Li, cov, N.shape[1] - p, Sk)
-        q = 0.0
-        for i in range(6):
-            q += Sk[i, 0] * Sk[i, 0]
-        d_raw[w, k] = np.sqrt(q)
-    gain_update(X, P, Nw, PHt, Lc, K, ns + ni, p)
-    return ld
