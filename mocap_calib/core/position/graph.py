@@ -160,6 +160,8 @@ class PositionGraph:
         knot0: index of each take's first knot among all knots.
         shared_keys: block name -> key of the shared parameters.
         evals: the latest evaluations, each a list of per-take outputs.
+        integrals: evaluations also carry the windows' bias integrals (the final one of a
+            solve, whose covariance's session means then need no pass of their own).
     """
 
     graph: gtsam.NonlinearFactorGraph
@@ -172,6 +174,7 @@ class PositionGraph:
     init: PositionInit
     shared_keys: dict[str, int]
     evals: list[list[Any]]
+    integrals: bool = False
 
     @property
     def problem(self) -> PositionProblem:
@@ -187,10 +190,16 @@ class PositionGraph:
 
     def session_means(self, values: gtsam.Values) -> list[SessionMean]:
         """Every take's session-mean bias from one filter pass with the bias integrals at
-        ``values`` (not kept as the graph's latest evaluation)."""
+        ``values`` (not kept as the graph's latest evaluation); the latest evaluation's when it
+        was at ``values`` with them."""
+        at = self.batch.evaluated_at
+        latest = self.evals[-1] if self.evals and at is not None and values.equals(at, 0.0) \
+            else None
         out = []
-        for pp, th, t in zip(self.problems, self.thetas(values), self.takes, strict=True):
-            o = pp.evaluate(th, integral=True)
+        for k, (pp, th, t) in enumerate(zip(self.problems, self.thetas(values), self.takes,
+                                             strict=True)):
+            o = latest[k] if latest is not None and latest[k].int_X is not None else None
+            o = pp.evaluate(th, integral=True) if o is None else o
             out.append(session_mean(o, th.knots, t.windows, pp.noise))
         return out
 
@@ -247,8 +256,9 @@ def build_position_graph(takes: list[Take], model: Model, noise: NoiseModel,
         # Only the latest evaluation is kept (who needs an earlier one holds it): the old one
         # goes first, so that two sets of (windows x samples) outputs never coexist here.
         evals.clear()
-        outs = [pp.evaluate(th) for pp, th in zip(problems, _alive(pg_ref[0]).thetas(values),
-                                                   strict=True)]
+        integral = _alive(pg_ref[0]).integrals
+        outs = [pp.evaluate(th, integral=integral)
+                for pp, th in zip(problems, _alive(pg_ref[0]).thetas(values), strict=True)]
         evals.append(outs)
         errs: list[Array] = []
         Hs: list[Array] = []

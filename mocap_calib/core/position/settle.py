@@ -6,6 +6,7 @@ PositionSolver` calls them; the identification of every level from the windows' 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -18,7 +19,9 @@ from mocap_calib.core import interrupt
 from mocap_calib.core.gtsam_tools import (
     PREDICTED_TOL,
     RELATIVE_TOL,
+    SolveReport,
     huber_weight,
+    predicted_decrease,
     require_converged,
     run_lm,
 )
@@ -84,12 +87,33 @@ def settle(pg: PositionGraph, outs: list[Any], adapt_noise: bool, robust: bool,
     return changed, moved
 
 
-def evaluate_at(pg: PositionGraph, values: gtsam.Values) -> list[Any]:
-    """A full (unfrozen) evaluation at ``values``: whitening, statistics, scores there."""
+def evaluate_at(pg: PositionGraph, values: gtsam.Values, integrals: bool = False) -> list[Any]:
+    """A full (unfrozen) evaluation at ``values``: whitening, statistics, scores there (with
+    ``integrals``: the bias integrals too)."""
     pg.for_each("freeze_whitening", False)
+    pg.integrals = integrals
     pg.batch.invalidate()
     pg.batch.output(values, 0)
+    pg.integrals = False
     return pg.evals[-1]
+
+
+def converged_at(pg: PositionGraph, values: gtsam.Values, hook: History,
+                 integrals: bool) -> SolveReport | None:
+    """The last round's first question asked of the full (unfrozen) evaluation at
+    ``values``: would a Gauss-Newton step still lower the cost by :data:`PREDICTED_TOL`? If
+    not, the round is over and that evaluation is the solution's (what :func:`evaluate_at`
+    would compute again); else None (the round's LM runs, frozen). A frozen whitening replays
+    its record, which differs from the full one only by the record's single-precision
+    increments."""
+    t0 = time.perf_counter()
+    evaluate_at(pg, values, integrals)
+    if predicted_decrease(pg.graph, values) >= PREDICTED_TOL:
+        return None
+    err = float(pg.graph.error(values))
+    hook(0, values, err)  # the round's start, as LM records it
+    return SolveReport(0, err, err, time.perf_counter() - t0, converged=True,
+                       reason="converged", last_decrease=0.0)
 
 
 def innovations_near(pg: PositionGraph, sol: gtsam.Values, cost: float) -> list[Any]:
@@ -173,12 +197,15 @@ def gauss_newton_steps(pg: PositionGraph, adapt_noise: bool = False, steps: int 
 
 def solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bool,
                  adapt_noise: bool, hook: History,
-                 progress: Callable[[str], None] | None, identify_noise: bool = False) -> Fit:
+                 progress: Callable[[str], None] | None, identify_noise: bool = False,
+                 integrals: bool = False) -> Fit:
     """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
     are re-estimated from the innovations and the robust weights updated. The first run goes
     to convergence from the start values; the settling rounds after it are short; once nothing
     changes (or the cost moves by less than :data:`COST_SETTLED`) one LM run goes to
-    convergence."""
+    convergence (after settling rounds, its start is first checked on the full evaluation
+    there: see :func:`converged_at`). The solution's final evaluation carries the bias
+    integrals with ``integrals``."""
     graph, batch = pg.graph, pg.batch
     iterations, sol = 0, pg.values
     inn0: list[Array] | None = None
@@ -195,6 +222,12 @@ def solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bo
             n = sum(p.win.count for p in pg.problems)
             progress(f"position factors: {'final solve' if final else 'settling'} round {rnd} "
                      f"({n} windows)")
+        if final and rnd > 1:
+            done = converged_at(pg, sol, hook, integrals)
+            if done is not None:
+                rep = done
+                outs = pg.evals[-1]
+                break
         pg.for_each("freeze_whitening", True)
         batch.invalidate()
         # The first run converges (from stages 1-2, unit weights); later ones only settle the
@@ -204,7 +237,7 @@ def solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bo
         inn0 = hook.first_innovations if inn0 is None else inn0
         iterations += rep.iterations
         if final:
-            outs = evaluate_at(pg, sol)
+            outs = evaluate_at(pg, sol, integrals)
             break
         outs = innovations_near(pg, sol, float(rep.final_error))
         changed, moved = settle(pg, outs, adapt_noise and ident is None, robust, noise_scale)

@@ -324,11 +324,11 @@ class PositionSolver:
         pg = self._graph(init, weighting)
         robust = rounds.robust and weighting.weights is None
         history = History(pg, self.on_iteration)
+        keep = keep or Keep()
         n = rounds.rounds if (robust or rounds.adapt_noise or rounds.identify_noise) else 1
         fit = solve_rounds(pg, rounds.max_iterations, n, robust, rounds.adapt_noise, history,
-                           self.progress, rounds.identify_noise)
-        return self._finish(pg, fit, fit.values, history.records, keep or Keep(), t_start,
-                            refit=False)
+                           self.progress, rounds.identify_noise, integrals=keep.time_mean)
+        return self._finish(pg, fit, fit.values, history.records, keep, t_start, refit=False)
 
     def refit(self, init: PositionInit, steps: Steps | None = None,
               weighting: Weighting | None = None, keep: Keep | None = None) -> PositionResult:
