@@ -257,3 +257,41 @@ def test_angle_deg_and_tilt_basis() -> None:
         assert B.shape == (3, 2)
         np.testing.assert_allclose(B.T @ B, np.eye(2), atol=1e-15)
         np.testing.assert_allclose(B.T @ g, 0.0, atol=1e-15)
+
+
+def test_the_filters_residual_rows_match_the_numpy_formulas():
+    """The compiled residual pass (attitude log, lever arm, the Jacobian parts) against the
+    formulas written with this module's functions, at random attitudes and at errors near
+    zero and near pi (where the log switches its branches)."""
+    from mocap_calib.core.position.kalman import residual_rows
+
+    rng = np.random.default_rng(3)
+    W, m1 = 3, 7
+    R_WM = so3.exp(rng.normal(size=(W, m1, 3)))
+    R_MI = so3.exp(rng.normal(size=3))
+    p_MI = rng.normal(size=3) * 0.1
+    errors = rng.normal(size=(W, m1, 3)) * 0.05
+    errors[0, 0] = [1e-10, -2e-10, 0.0]  # the series branches
+    errors[0, 1] = [0.0, 0.0, 0.0]
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    errors[1, 0] = axis * (np.pi - 1e-4)  # Shepperd's other cases
+    errors[1, 1] = -axis * (np.pi - 1e-3)
+    errors[2, 2] = [0.0, 3.0, 0.1]
+    errors[2, 3] = [3.1, 0.2, 0.0]
+    Rbar = R_WM @ R_MI @ np.swapaxes(so3.exp(errors), -1, -2)
+    p_WM, pbar = rng.normal(size=(W, m1, 3)), rng.normal(size=(W, m1, 3))
+
+    rows = residual_rows(R_MI, p_MI, R_WM, p_WM, Rbar, pbar)
+    E = np.swapaxes(Rbar, -1, -2) @ R_WM @ R_MI
+    r_rot = so3.log(E)
+    np.testing.assert_allclose(r_rot, errors, atol=1e-9)  # the construction's own error
+    np.testing.assert_allclose(rows.r[..., 0:3], r_rot, rtol=0, atol=1e-13)
+    Jp = Rbar @ R_MI.T
+    np.testing.assert_allclose(rows.r[..., 3:6], p_WM - pbar + Jp @ p_MI, rtol=0, atol=1e-13)
+    Jinv = so3.right_jacobian_inv(r_rot)
+    np.testing.assert_allclose(rows.Jinv, Jinv, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(rows.Pm_rot, Jinv @ np.swapaxes(E, -1, -2), rtol=0, atol=1e-11)
+    np.testing.assert_allclose(rows.Jp, Jp, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(rows.Hq, Rbar @ so3.hat(R_MI.T @ p_MI), rtol=0, atol=1e-14)
+    alone = residual_rows(R_MI, p_MI, R_WM, p_WM, Rbar, pbar, jacobians=False)
+    assert np.array_equal(alone.r, rows.r) and alone.Jinv.size == 0

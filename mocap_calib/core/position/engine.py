@@ -33,7 +33,6 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap_calib.core.model import so3
 from mocap_calib.core.model.effects import EFFECTS, GRAVITY_MAGNITUDE, Model
 from mocap_calib.core.model.imu_model import (
     Corrected,
@@ -53,7 +52,6 @@ from mocap_calib.core.model.preint import (
 from mocap_calib.core.model.stats import chi2_median, chi2_ppf
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.kalman import (
-    Rows,
     Whitening,
     empty_output,
     filter_pass,
@@ -61,6 +59,7 @@ from mocap_calib.core.position.kalman import (
     likelihood_pass,
     noise_params,
     output_slice,
+    residual_rows,
     signals_at,
     step_mean,
 )
@@ -170,7 +169,7 @@ class PositionProblem:
         R0 = R_WM[:, 0] @ th.R_MI
         Rbar, pbar, _ = compose(inc, h, R0, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI, win.v0[c],
                                 th.g_mag * th.g_dir)
-        rows = self._residuals(th, R_WM, p_WM, Rbar, pbar)
+        rows = residual_rows(th.R_MI, th.p_MI, R_WM, p_WM, Rbar, pbar)
         current = self._whitening(th, c, inc.pack(), R0)
         # A frozen whitening (see freeze_whitening) is the recorded one; the first evaluation
         # after freezing records its own. The record keeps the increments in single precision
@@ -224,7 +223,7 @@ class PositionProblem:
             R0 = R_WM[:, 0] @ th.R_MI
             Rbar, pbar, _ = compose(inc, h, R0, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI,
                                     win.v0[c], th.g_mag * th.g_dir)
-            r = self._residuals(th, R_WM, p_WM, Rbar, pbar).r
+            r = residual_rows(th.R_MI, th.p_MI, R_WM, p_WM, Rbar, pbar, jacobians=False).r
             packed = inc.pack()
 
             def model(i: int) -> None:
@@ -368,19 +367,6 @@ class PositionProblem:
         cm = correct(self.model, intr, *signals_at(gyro, accel, hermite(ut, x), x, rates),
                      sensitivities=False)
         return cm.w, cm.f
-
-    @staticmethod
-    def _residuals(th: Theta, R_WM: Array, p_WM: Array, Rbar: Array, pbar: Array) -> Rows:
-        """Residuals at every sample and the parts of their Jacobians not through S."""
-        R_meas = R_WM @ th.R_MI
-        E = np.einsum("wkji,wkjl->wkil", Rbar, R_meas)
-        r_rot = so3.log(E)
-        q = th.R_MI.T @ th.p_MI  # p_MI in IMU axes (the marker origin is at -q)
-        Jp = Rbar @ th.R_MI.T
-        r = np.concatenate([r_rot, p_WM - pbar + Jp @ th.p_MI], axis=-1)  # (W, m+1, 6)
-        Jinv = so3.right_jacobian_inv(r_rot)
-        Pm_rot = Jinv @ np.swapaxes(E, -1, -2)  # d r_rot / d (nominal attitude perturbation)
-        return Rows(r, Jinv, Pm_rot, Jp, Rbar @ so3.hat(q), np.ascontiguousarray(R_WM[:, 0]))
 
     def _gravity_inputs(self, th: Theta) -> tuple[list[int], Array]:
         """Columns of the gravity parameters and their directions: a step of length ``h`` adds

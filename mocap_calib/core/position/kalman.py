@@ -247,3 +247,123 @@ def state_space_kernel(inc, Rbar, h, M, par, F, Q, Rn, Hp, Fm, Qm,
                 for i in range(6):
                     Fm[w, j, i, i] = a
                 mocap_cov(par, par[RHO] * (1.0 - a * a), Qm[w, j])
+
+
+def residual_rows(R_MI: Array, p_MI: Array, R_WM: Array, p_WM: Array, Rbar: Array,
+                  pbar: Array, jacobians: bool = True) -> Rows:
+    """Residuals (attitude ``Log(Rbar^T R_WM R_MI)``, position ``p_WM + Rbar R_MI^T p_MI -
+    pbar``) at every sample of a chunk's windows and the parts of their Jacobians not through
+    the sensitivities (without ``jacobians`` only the residuals; the rest is empty), in one
+    compiled pass (the numpy formulas' temporaries cost more than the arithmetic)."""
+    W, m1 = Rbar.shape[:2]
+    shape = (W, m1, 3, 3) if jacobians else (0, 0, 3, 3)
+    r = np.empty((W, m1, 6))
+    Jinv, Pm_rot, Jp, Hq = (np.empty(shape) for _ in range(4))
+    residual_kernel(_c(R_MI), _c(p_MI), _c(R_WM), _c(p_WM), _c(Rbar), _c(pbar), jacobians, r,
+                    Jinv, Pm_rot, Jp, Hq)
+    return Rows(r, Jinv, Pm_rot, Jp, Hq, np.ascontiguousarray(R_WM[:, 0]))
+
+
+@kernel(inline=True)
+def jacobian_parts(E, J, Q, K, Rbar, r, w, k, Jinv, Pm_rot, Jp,
+                   Hq):  # pragma: no cover  (compiled)
+    """Sample ``k`` of window ``w``'s Jacobian parts (see :func:`residual_kernel`): ``E`` the
+    attitude error, ``J = Rbar R_MI^T``, ``Q = [R_MI^T p_MI]x``, ``K`` work space."""
+    p0, p1, p2 = r[w, k, 0], r[w, k, 1], r[w, k, 2]
+    t2 = p0 * p0 + p1 * p1 + p2 * p2
+    if t2 < 1e-8:
+        d = 1.0 / 12.0 + t2 / 720.0
+    else:
+        t = np.sqrt(t2)
+        d = 1.0 / t2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t))
+    K[0, 0], K[0, 1], K[0, 2] = 0.0, -p2, p1
+    K[1, 0], K[1, 1], K[1, 2] = p2, 0.0, -p0
+    K[2, 0], K[2, 1], K[2, 2] = -p1, p0, 0.0
+    for i in range(3):
+        for j in range(3):
+            kk = K[i, 0] * K[0, j] + K[i, 1] * K[1, j] + K[i, 2] * K[2, j]
+            Jinv[w, k, i, j] = (1.0 if i == j else 0.0) + 0.5 * K[i, j] + d * kk
+    for i in range(3):
+        for j in range(3):
+            Pm_rot[w, k, i, j] = (Jinv[w, k, i, 0] * E[j, 0] + Jinv[w, k, i, 1] * E[j, 1]
+                                  + Jinv[w, k, i, 2] * E[j, 2])
+            Jp[w, k, i, j] = J[i, j]
+            Hq[w, k, i, j] = (Rbar[w, k, i, 0] * Q[0, j] + Rbar[w, k, i, 1] * Q[1, j]
+                              + Rbar[w, k, i, 2] * Q[2, j])
+
+
+@kernel
+def residual_kernel(R_MI, p_MI, R_WM, p_WM, Rbar, pbar, jacobians, r, Jinv, Pm_rot, Jp,
+                    Hq):  # pragma: no cover  (compiled)
+    """See :func:`residual_rows`: ``E = Rbar^T R_WM R_MI``, its log through the quaternion
+    (Shepperd's method, as :func:`~mocap_calib.core.model.so3.log`), the inverse right
+    Jacobian there, ``Pm_rot = Jinv E^T``, ``Jp = Rbar R_MI^T``, ``Hq = Rbar [R_MI^T p_MI]x``."""
+    W, m1 = Rbar.shape[:2]
+    q = np.zeros(3)
+    for i in range(3):
+        q[i] = R_MI[0, i] * p_MI[0] + R_MI[1, i] * p_MI[1] + R_MI[2, i] * p_MI[2]
+    Q = np.zeros((3, 3))
+    Q[0, 1], Q[0, 2], Q[1, 0], Q[1, 2], Q[2, 0], Q[2, 1] = -q[2], q[1], q[2], -q[0], -q[1], q[0]
+    M, E, J, K = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
+    qt = np.zeros(4)
+    for w in range(W):
+        for k in range(m1):
+            for i in range(3):
+                for j in range(3):
+                    M[i, j] = (R_WM[w, k, i, 0] * R_MI[0, j] + R_WM[w, k, i, 1] * R_MI[1, j]
+                               + R_WM[w, k, i, 2] * R_MI[2, j])
+            for i in range(3):
+                for j in range(3):
+                    E[i, j] = (Rbar[w, k, 0, i] * M[0, j] + Rbar[w, k, 1, i] * M[1, j]
+                               + Rbar[w, k, 2, i] * M[2, j])
+            rot_log(E, qt, r, w, k)
+            for i in range(3):
+                jp = 0.0
+                for j in range(3):
+                    J[i, j] = (Rbar[w, k, i, 0] * R_MI[j, 0] + Rbar[w, k, i, 1] * R_MI[j, 1]
+                               + Rbar[w, k, i, 2] * R_MI[j, 2])
+                for j in range(3):
+                    jp += J[i, j] * p_MI[j]
+                r[w, k, 3 + i] = p_WM[w, k, i] - pbar[w, k, i] + jp
+            if not jacobians:
+                continue
+            jacobian_parts(E, J, Q, K, Rbar, r, w, k, Jinv, Pm_rot, Jp, Hq)
+
+
+@kernel(inline=True)
+def rot_log(m, q, out, w, k):  # pragma: no cover  (compiled)
+    """``out[w, k, 0:3] = Log(m)``: Shepperd's quaternion (``w >= 0``), then its rotation
+    vector (as :func:`~mocap_calib.core.model.so3.rotmat_to_quat` and ``quat_to_rotvec``)."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    case, best = 0, tr
+    for i in range(3):
+        if m[i, i] > best:
+            case, best = i + 1, m[i, i]
+    if case == 0:
+        s = np.sqrt(1.0 + tr) * 2.0
+        q[0], q[1], q[2], q[3] = (0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s,
+                                  (m[1, 0] - m[0, 1]) / s)
+    elif case == 1:
+        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2.0
+        q[0], q[1], q[2], q[3] = ((m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s,
+                                  (m[0, 2] + m[2, 0]) / s)
+    elif case == 2:
+        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2.0
+        q[0], q[1], q[2], q[3] = ((m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s,
+                                  (m[1, 2] + m[2, 1]) / s)
+    else:
+        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2.0
+        q[0], q[1], q[2], q[3] = ((m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s,
+                                  (m[1, 2] + m[2, 1]) / s, 0.25 * s)
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = -1.0 if q[0] / n < 0.0 else 1.0
+    for i in range(4):
+        q[i] = sign * (q[i] / n)
+    sv = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    c = min(max(q[0], -1.0), 1.0)
+    if sv < 1e-12:
+        scale = 2.0 / (1.0 if c == 0.0 else c)
+    else:
+        scale = 2.0 * np.arctan2(sv, c) / sv
+    for i in range(3):
+        out[w, k, i] = q[1 + i] * scale
