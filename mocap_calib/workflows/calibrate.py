@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
+
 import mocap_calib
+from mocap_calib.core.model.preint import search_sorted
 from mocap_calib.core.options import CalibrationOptions
 from mocap_calib.core.params import group, param
 from mocap_calib.core.pipeline.calibrate import (
@@ -76,6 +80,7 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
     opts = request.options
     t0 = time.perf_counter()
     startup = t0 - mocap_calib.IMPORTED_AT
+    _warm_kernels()
     sessions = [load_session(spec, opts.time_offset) for spec in request.inputs.takes()]
     t_read = time.perf_counter() - t0
     for session in sessions:
@@ -107,6 +112,19 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
         progress("time per step: " + ", ".join(
             f"{k.replace('_', ' ')} {v:.1f} s" for k, v in result.solver.step_seconds.items()))
     return result, first
+
+
+def _warm_kernels() -> None:
+    """Start numba's runtime while the inputs are read: the first kernel a process loads
+    starts it (0.2-0.3 s, mostly imports), and the readers spend much of their time outside
+    the GIL. A failure here is left to the calibration's first kernel to report."""
+    def load() -> None:
+        try:
+            search_sorted(np.zeros(2), np.zeros(1))
+        except Exception:  # noqa: BLE001  (reported by the first real call)
+            pass
+
+    threading.Thread(target=load, name="kernel-warm-up", daemon=True).start()
 
 
 def _names(spec: InputSpec) -> tuple[str, str]:

@@ -305,12 +305,11 @@ def accumulate(w, k, Nw, p, blocks, G, scores, e_white, whitened):  # pragma: no
     scores."""
     for i in range(6):
         e_white[w, k, i] = Nw[i, p]
-    for a in range(p + 1):
+    for a in range(p + 1):  # row a's six factors held, the b loop runs along the rows
+        n0, n1, n2, n3, n4, n5 = Nw[0, a], Nw[1, a], Nw[2, a], Nw[3, a], Nw[4, a], Nw[5, a]
         for b in range(a, p + 1):
-            s = 0.0
-            for t in range(6):
-                s += Nw[t, a] * Nw[t, b]
-            G[w, a, b] += s
+            G[w, a, b] += (n0 * Nw[0, b] + n1 * Nw[1, b] + n2 * Nw[2, b] + n3 * Nw[3, b]
+                           + n4 * Nw[4, b] + n5 * Nw[5, b])
     if scores.shape[1] > 0:
         blk = blocks[k]
         for c in range(p):
