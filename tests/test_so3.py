@@ -295,3 +295,21 @@ def test_the_filters_residual_rows_match_the_numpy_formulas():
     np.testing.assert_allclose(rows.Hq, Rbar @ so3.hat(R_MI.T @ p_MI), rtol=0, atol=1e-14)
     alone = residual_rows(R_MI, p_MI, R_WM, p_WM, Rbar, pbar, jacobians=False)
     assert np.array_equal(alone.r, rows.r) and alone.Jinv.size == 0
+
+
+def test_the_compiled_log_of_many_rotations_matches_scipy():
+    """From :data:`so3.COMPILED_LOG` rotations on, the log runs compiled: against scipy's
+    rotation vectors, at random rotations and at angles near zero and near pi (every branch of
+    Shepperd's method)."""
+    rng = np.random.default_rng(11)
+    phi = rng.normal(size=(so3.COMPILED_LOG + 40, 3))
+    axes = np.eye(3)
+    for i in range(3):
+        phi[i] = axes[i] * (np.pi - 1e-5)  # the three diagonal cases
+    phi[3] = [1e-13, 0.0, -2e-13]
+    phi[4] = 0.0
+    R = Rotation.from_rotvec(phi).as_matrix()
+    got = so3.log(R.reshape(2, -1, 3, 3)).reshape(-1, 3)
+    np.testing.assert_allclose(got, Rotation.from_matrix(R).as_rotvec(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got, so3.quat_to_rotvec(so3.rotmat_to_quat(R)), rtol=0,
+                               atol=1e-14)

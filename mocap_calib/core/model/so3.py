@@ -16,6 +16,9 @@ Array = NDArray[np.float64]
 _SMALL = 1e-8
 #: Rotations per block of :func:`log` on the threads (more than two blocks' worth are split).
 LOG_BLOCK = 32768
+#: From this many rotations :func:`log` runs compiled (one pass instead of numpy's temporaries;
+#: fewer stay in numpy, so that a command that logs a few rotations does not load numba).
+COMPILED_LOG = 256
 
 
 def hat(v: Array) -> Array:
@@ -53,17 +56,22 @@ def exp(phi: Array) -> Array:
 
 
 def log(R: Array) -> Array:
-    """Rotation vectors ``Log(R)``, robust near 0 and pi (a session's worth in blocks on the
-    threads: each rotation on its own, so the same numbers)."""
+    """Rotation vectors ``Log(R)``, robust near 0 and pi (many compiled, a session's worth in
+    blocks on the threads: each rotation on its own, so the same numbers)."""
     R = np.asarray(R, dtype=float)
     n = R.size // 9
-    if n < 2 * LOG_BLOCK:
+    if n < COMPILED_LOG:
         return quat_to_rotvec(rotmat_to_quat(R))
-    flat = R.reshape(n, 3, 3)
+    from mocap_calib.core.model.so3_compiled import log_kernel
+
+    flat = np.ascontiguousarray(R.reshape(n, 3, 3))
     out = np.empty((n, 3))
+    if n < 2 * LOG_BLOCK:
+        log_kernel(flat, out)
+        return out.reshape(R.shape[:-2] + (3,))
 
     def block(a: int) -> None:
-        out[a:a + LOG_BLOCK] = quat_to_rotvec(rotmat_to_quat(flat[a:a + LOG_BLOCK]))
+        log_kernel(flat[a:a + LOG_BLOCK], out[a:a + LOG_BLOCK])
 
     map_blocks(block, range(0, n, LOG_BLOCK))
     return out.reshape(R.shape[:-2] + (3,))

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.jit import kernel
+from mocap_calib.core.model.so3_compiled import rot_log
 from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position import kernels as kn
 from mocap_calib.core.position.kernels import (
@@ -305,7 +306,7 @@ def residual_kernel(R_MI, p_MI, R_WM, p_WM, Rbar, pbar, jacobians, r, Jinv, Pm_r
     Q = np.zeros((3, 3))
     Q[0, 1], Q[0, 2], Q[1, 0], Q[1, 2], Q[2, 0], Q[2, 1] = -q[2], q[1], q[2], -q[0], -q[1], q[0]
     M, E, J, K = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3))
-    qt = np.zeros(4)
+    qt, v = np.zeros(4), np.zeros(3)
     for w in range(W):
         for k in range(m1):
             for i in range(3):
@@ -316,7 +317,9 @@ def residual_kernel(R_MI, p_MI, R_WM, p_WM, Rbar, pbar, jacobians, r, Jinv, Pm_r
                 for j in range(3):
                     E[i, j] = (Rbar[w, k, 0, i] * M[0, j] + Rbar[w, k, 1, i] * M[1, j]
                                + Rbar[w, k, 2, i] * M[2, j])
-            rot_log(E, qt, r, w, k)
+            rot_log(E, qt, v)
+            for i in range(3):
+                r[w, k, i] = v[i]
             for i in range(3):
                 jp = 0.0
                 for j in range(3):
@@ -328,42 +331,3 @@ def residual_kernel(R_MI, p_MI, R_WM, p_WM, Rbar, pbar, jacobians, r, Jinv, Pm_r
             if not jacobians:
                 continue
             jacobian_parts(E, J, Q, K, Rbar, r, w, k, Jinv, Pm_rot, Jp, Hq)
-
-
-@kernel(inline=True)
-def rot_log(m, q, out, w, k):  # pragma: no cover  (compiled)
-    """``out[w, k, 0:3] = Log(m)``: Shepperd's quaternion (``w >= 0``), then its rotation
-    vector (as :func:`~mocap_calib.core.model.so3.rotmat_to_quat` and ``quat_to_rotvec``)."""
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    case, best = 0, tr
-    for i in range(3):
-        if m[i, i] > best:
-            case, best = i + 1, m[i, i]
-    if case == 0:
-        s = np.sqrt(1.0 + tr) * 2.0
-        q[0], q[1], q[2], q[3] = (0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s,
-                                  (m[1, 0] - m[0, 1]) / s)
-    elif case == 1:
-        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2.0
-        q[0], q[1], q[2], q[3] = ((m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s,
-                                  (m[0, 2] + m[2, 0]) / s)
-    elif case == 2:
-        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2.0
-        q[0], q[1], q[2], q[3] = ((m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s,
-                                  (m[1, 2] + m[2, 1]) / s)
-    else:
-        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2.0
-        q[0], q[1], q[2], q[3] = ((m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s,
-                                  (m[1, 2] + m[2, 1]) / s, 0.25 * s)
-    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    sign = -1.0 if q[0] / n < 0.0 else 1.0
-    for i in range(4):
-        q[i] = sign * (q[i] / n)
-    sv = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    c = min(max(q[0], -1.0), 1.0)
-    if sv < 1e-12:
-        scale = 2.0 / (1.0 if c == 0.0 else c)
-    else:
-        scale = 2.0 * np.arctan2(sv, c) / sv
-    for i in range(3):
-        out[w, k, i] = q[1 + i] * scale
