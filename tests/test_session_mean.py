@@ -43,3 +43,40 @@ def test_only_the_biases_covariance_depends_on_which_mean(fitted) -> None:
     # The comparison covariance holds the biases only: the other blocks' (sandwich-raised)
     # covariances are never shadowed by it.
     assert set(a.takes[0].cov_knots) == set(b.takes[0].cov_knots) == set(biases)
+
+
+def test_a_segment_refit_reuses_the_solutions_evaluation(fitted, monkeypatch) -> None:
+    """A refit of a third of the windows from the solution, under its noise model, takes the
+    solution's evaluation for its first step: the same answer as running the filter on those
+    windows again (within rounding: the batches differ), and under another noise model no
+    reuse."""
+    from mocap_calib.core.position.windows import Seed
+
+    pos, model = fitted.pos, fitted.opts.model
+    n = pos.takes[0].windows.count
+    which = [np.arange(n // 3, 2 * n // 3)]
+    hits: list[bool] = []
+    reuse = Seed.reuse
+
+    def counted(self, *args):
+        out = reuse(self, *args)
+        hits.append(out is not None)
+        return out
+
+    monkeypatch.setattr(Seed, "reuse", counted)
+    seeded = refit(pos, model, which)
+    assert hits == [True]
+    monkeypatch.setattr(Seed, "reuse", lambda self, *args: None)
+    again = refit(pos, model, which)
+    np.testing.assert_allclose(seeded.takes[0].knots, again.takes[0].knots, rtol=1e-9,
+                               atol=1e-15)
+    for a, b in ((seeded.R_MI, again.R_MI), (seeded.p_MI, again.p_MI)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert seeded.takes[0].delta == pytest.approx(again.takes[0].delta, abs=1e-12)
+    for name in seeded.cov:
+        np.testing.assert_allclose(seeded.cov[name], again.cov[name], rtol=1e-8, atol=0.0,
+                                   err_msg=name)
+    monkeypatch.setattr(Seed, "reuse", counted)
+    hits.clear()
+    refit(pos, model, which, noise=pos.noise.imu_scaled(3.0))
+    assert not any(hits)

@@ -68,6 +68,7 @@ from mocap_calib.core.position.threads import split_windows
 from mocap_calib.core.position.windows import (  # noqa: F401  (re-exported)
     EvalOut,
     Layout,
+    Seed,
     Theta,
     Windows,
     layout_for,
@@ -118,6 +119,7 @@ class PositionProblem:
         self.weights = np.ones(windows.idx.shape)
         self._local = threading.local()  # per-thread work buffers
         self.freeze = False
+        self.seed: Seed | None = None  # an evaluation of these windows to reuse (see Seed)
         self.collect_scores = False  # per-block scores in unfrozen evaluations (sandwich)
         # Mocap noise variance multipliers per axis: attitude x, y, z (IMU frame), position
         # x, y, z (world frame), on top of the noise model's two levels.
@@ -135,6 +137,10 @@ class PositionProblem:
         evaluation holds nothing twice."""
         W, m1 = self.win.mask.shape
         n_blocks = int(self._score_blocks(m1 - 1)[-1]) + 1 if self.collect_scores else None
+        if self.seed is not None and not (store or integral or self.freeze):
+            hit = self.seed.reuse(th, self.noise, self.weights, self.mocap_axis_scale, n_blocks)
+            if hit is not None:
+                return hit
         out = empty_output(W, m1, self.layout.dim, n_blocks, store, integral)
         pool = chunk_pool()
         jobs = list(enumerate(self.chunks))
@@ -146,6 +152,19 @@ class PositionProblem:
         if store:
             out.extras.update({k: np.concatenate([x[k] for x in parts]) for k in parts[0]})
         return out
+
+    @property
+    def motion(self) -> tuple[Array, Array] | None:
+        """The motion signals, once an evaluation has computed them (see motion_samples)."""
+        return self._motion
+
+    def use_seed(self, seed: Seed | None) -> None:
+        """Evaluate as the problem ``seed`` comes from did: its evaluation where the parameters
+        are as they were, the session's motion signals (whose band follows the first window's
+        rate) always."""
+        self.seed = seed
+        if seed is not None and seed.motion is not None:
+            self._motion = seed.motion
 
     def freeze_whitening(self, on: bool) -> None:
         """With ``on``, the next evaluation records its whitening operator (filter transition,

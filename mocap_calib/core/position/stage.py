@@ -57,12 +57,15 @@ from mocap_calib.core.position.settle import (
     gauss_newton_steps,
     solve_rounds,
 )
-from mocap_calib.core.position.windows import Windows
+from mocap_calib.core.position.windows import Seed, Windows
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.stages.figures import ResidualSeries, StageStats
 
 Array = NDArray[np.float64]
 T = TypeVar("T")
+
+#: The memo key of the solution's own evaluation (per take, a :class:`Seed`).
+FINAL_EVALUATION = "final evaluation"
 
 
 @dataclass
@@ -331,12 +334,17 @@ class PositionSolver:
         return self._finish(pg, fit, fit.values, history.records, keep, t_start, refit=False)
 
     def refit(self, init: PositionInit, steps: Steps | None = None,
-              weighting: Weighting | None = None, keep: Keep | None = None) -> PositionResult:
+              weighting: Weighting | None = None, keep: Keep | None = None,
+              seeds: list[Seed | None] | None = None) -> PositionResult:
         """Gauss-Newton steps from ``init``, a nearby solution. The covariance is that of the
-        last linearisation point (no further evaluation), the cost NaN."""
+        last linearisation point (no further evaluation), the cost NaN. ``seeds``: per take,
+        an evaluation of its windows to reuse where the first step evaluates (see
+        :class:`~mocap_calib.core.position.windows.Seed`)."""
         steps = steps or Steps()
         t_start = time.perf_counter()
         pg = self._graph(init, weighting or Weighting())
+        for pp, seed in zip(pg.problems, seeds or [], strict=False):
+            pp.use_seed(seed)
         fit = gauss_newton_steps(pg, steps.adapt_noise, steps.steps, steps.reweight,
                                  steps.settled)
         assert fit.linearized_at is not None
@@ -380,6 +388,11 @@ class PositionSolver:
                 for t, th in zip(takes, thetas, strict=True)])
         res = _result(pg, fit, thetas, unc, time.perf_counter() - t_start, history, refit,
                       keep.series)
+        if not refit:  # the solution's own evaluation, for refits of parts of it
+            res.memo.get(FINAL_EVALUATION, lambda: [
+                Seed(th, o, np.arange(t.windows.count), pp.noise, pp.weights.copy(),
+                     pp.mocap_axis_scale.copy(), pp.motion)
+                for th, o, t, pp in zip(thetas, outs, takes, pg.problems, strict=True)])
         return res if keep.covariance else replace(res, covariances=covariances, cov={})
 
 

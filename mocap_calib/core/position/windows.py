@@ -223,3 +223,49 @@ class EvalOut:
     def q_pos(self) -> Array:
         """(W, m+1) squared whitened position innovation (3 dof)."""
         return np.einsum("wki,wki->wk", self.e_white[..., 3:6], self.e_white[..., 3:6])
+
+
+@dataclass(frozen=True)
+class Seed:
+    """An evaluation a problem on more windows made at ``th`` (these windows are ``which``
+    among its own), with the noise model, robust weights (its windows') and mocap axis scale
+    it ran under. The windows' filters are independent of each other, so a problem on the
+    windows ``which`` evaluating at the same parameters under the same noise and weights
+    (a refit of a segment or a take from the solution) takes its windows' outputs instead of
+    running the filter again (and its later evaluations use the same motion signals)."""
+
+    th: Theta
+    out: EvalOut
+    which: NDArray[np.int64]
+    noise: object
+    weights: Array
+    axis_scale: Array
+    #: The session's motion signals the evaluation used (see ``PositionProblem.use_seed``).
+    motion: tuple[Array, Array] | None = None
+
+    def reuse(self, th: Theta, noise: object, weights: Array, axis_scale: Array,
+              n_blocks: int | None) -> EvalOut | None:
+        """The windows' outputs when everything they depend on is as it was (exactly; the
+        gravity direction to rounding: a refit's start renormalises the unit vector), else
+        None."""
+        a, w = self.th, self.which
+        scores = self.out.scores
+        same = (noise == self.noise and th.g_mag == a.g_mag and th.delta == a.delta
+                and th.t_mid == a.t_mid and th.effects.keys() == a.effects.keys()
+                and (scores is None) == (n_blocks is None)
+                and (scores is None or scores.shape[1] == n_blocks)
+                and np.allclose(th.g_dir, a.g_dir, rtol=0.0, atol=1e-15)
+                and np.allclose(th.g_basis, a.g_basis, rtol=0.0, atol=1e-15)
+                and all(np.array_equal(x, y) for x, y in (
+                    (th.R_MI, a.R_MI), (th.p_MI, a.p_MI), (th.knots, a.knots[w]),
+                    (weights, self.weights[w]), (axis_scale, self.axis_scale),
+                    *((th.effects[k], a.effects[k]) for k in th.effects))))
+        if not same:
+            return None
+        o = self.out
+
+        def pick(x: Array | None) -> Array | None:
+            return None if x is None else x[w]
+        return EvalOut(o.gram[w], o.innovation[w], o.d_raw[w], o.chi2[w], o.logdet[w],
+                       o.e_white[w], pick(o.scores), term_X=pick(o.term_X),
+                       term_P=pick(o.term_P))

@@ -5,7 +5,7 @@ them (largest pairwise |difference| / combined sigma)."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,7 @@ from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.position.engine import Theta
 from mocap_calib.core.position.graph import PositionInit, Prior, Take, TakeStart
 from mocap_calib.core.position.stage import (
+    FINAL_EVALUATION,
     Keep,
     PositionResult,
     PositionSolver,
@@ -60,8 +61,12 @@ def refit(pos: PositionResult, model: Model, which: list[IntArray], *,
     if not one_step:
         return solver.solve(init, Rounds(robust=False, adapt_noise=adapt_noise,
                                          max_iterations=max_iterations), weighting, keep)
+    # The first step evaluates at the solution: under its own noise model the windows'
+    # outputs are the solution's (its evaluation, kept for this).
+    full = pos.memo.get(FINAL_EVALUATION, lambda: []) if noise is None else []
+    seeds = [replace(full[k], which=which[k]) if full else None for k in kept]
     return solver.refit(init, Steps(int(one_step), adapt_noise, reweight, settled), weighting,
-                        keep)
+                        keep, seeds)
 
 
 def everything(pos: PositionResult) -> list[IntArray]:
