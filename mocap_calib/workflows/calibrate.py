@@ -20,6 +20,7 @@ from mocap_calib.core.pipeline.calibrate import (
     calibrate_takes,
 )
 from mocap_calib.core.result.calibration import CalibrationResult
+from mocap_calib.errors import Interrupted
 from mocap_calib.io.atomic import write_with
 from mocap_calib.io.yaml_io import load_plausible, save_result, save_text
 from mocap_calib.report.text import summary_table
@@ -121,6 +122,8 @@ def _warm_kernels() -> None:
     def load() -> None:
         try:
             search_sorted(np.zeros(2), np.zeros(1))
+        except Interrupted:
+            raise
         except Exception:  # noqa: BLE001  (reported by the first real call)
             pass
 
