@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mocap_calib.core.model.effects import Model
+from mocap_calib.core.model.types import NoiseModel
 from mocap_calib.core.prepare.session import PreparedSession
 
 Array = NDArray[np.float64]
@@ -237,13 +238,13 @@ class Seed:
     th: Theta
     out: EvalOut
     which: NDArray[np.int64]
-    noise: object
+    noise: NoiseModel
     weights: Array
     axis_scale: Array
     #: The session's motion signals the evaluation used (see ``PositionProblem.use_seed``).
     motion: tuple[Array, Array] | None = None
 
-    def reuse(self, th: Theta, noise: object, weights: Array, axis_scale: Array,
+    def reuse(self, th: Theta, noise: NoiseModel, weights: Array, axis_scale: Array,
               n_blocks: int | None) -> EvalOut | None:
         """The windows' outputs when everything they depend on is as it was (exactly; the
         gravity direction to rounding: a refit's start renormalises the unit vector), else
