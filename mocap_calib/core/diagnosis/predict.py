@@ -29,6 +29,7 @@ from mocap_calib.core.policy import gap_threshold
 from mocap_calib.core.prepare.session import PreparedSession
 from mocap_calib.core.result.series import ImuPrediction, ResidualAnalysis
 from mocap_calib.core.result.state import ModelState
+from mocap_calib.core.threads import map_blocks
 
 Array = NDArray[np.float64]
 
@@ -230,11 +231,9 @@ def _noise_floor(s: PreparedSession, st: ModelState, pred: ImuPrediction, noise:
     source (RMS), and its Welch PSD. ``bands``: IMU rate, low-pass cutoff, knot spacing."""
     rate, cutoff, spacing = bands
     n = len(pred.u)
-    parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
-    floor2 = np.zeros(6)
-    psd_floor: Any = 0.0
     draws = 4
-    for _ in range(draws):
+
+    def draw() -> tuple[Array, Array, Array, Array]:
         white = np.concatenate([
             rng.normal(0.0, noise.gyroscope_noise_density * np.sqrt(rate), (n, 3)),
             rng.normal(0.0, noise.accelerometer_noise_density * np.sqrt(rate), (n, 3))], axis=1)
@@ -244,18 +243,29 @@ def _noise_floor(s: PreparedSession, st: ModelState, pred: ImuPrediction, noise:
             err = rng.normal(size=st.bias_sigma.shape) * st.bias_sigma
             walk += np.stack([np.interp(pred.u + st.delta, st.bias_t, err[:, i])
                               for i in range(6)], axis=1)
-        R_noisy = s.R_WM @ so3.exp(mocap_noise(rng, s.tau, noise.mocap_rotation_sigma, noise))
-        p_noisy = s.p_WM + mocap_noise(rng, s.tau, noise.mocap_position_sigma, noise)
-        pn = predict_imu(s, st, mocap=(R_noisy, p_noisy))
+        rot = mocap_noise(rng, s.tau, noise.mocap_rotation_sigma, noise)
+        return white, walk, rot, mocap_noise(rng, s.tau, noise.mocap_position_sigma, noise)
+
+    def through(draw: tuple[Array, Array, Array, Array]) -> tuple[list[Array], Array, Array]:
+        white, walk, rot, pos = draw
+        pn = predict_imu(s, st, mocap=(s.R_WM @ so3.exp(rot), s.p_WM + pos))
         moc = -np.concatenate([pn.gyro_pred - pred.gyro_pred, pn.accel_pred - pred.accel_pred],
                               axis=1)
-        total = 0.0
-        for name, x in (("white", white), ("bias_walk", walk), ("mocap", moc)):
-            lp = lowpass(x, rate, cutoff, pred.segments)  # linear: the parts add up
-            parts[name] += rms(lp) ** 2 / draws
-            total = total + lp
-        floor2 += rms(total) ** 2 / draws
-        psd_floor = psd_floor + _welch(white + walk + moc, rate, pred.segments)[1] / draws
+        lps = [lowpass(x, rate, cutoff, pred.segments) for x in (white, walk, moc)]
+        return lps, rms(lps[0] + lps[1] + lps[2]), _welch(white + walk + moc, rate,
+                                                          pred.segments)[1]
+
+    parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
+    floor2 = np.zeros(6)
+    psd_floor: Any = 0.0
+    # The random parts are drawn in order (the seed fixes them), two draws at a time
+    # processed on the threads and summed in order: the same numbers as one after the other.
+    for _ in range(draws // 2):
+        for lps, total_rms, psd in map_blocks(through, [draw(), draw()]):
+            for name, lp in zip(parts, lps, strict=True):  # linear: the parts add up
+                parts[name] += rms(lp) ** 2 / draws
+            floor2 += total_rms ** 2 / draws
+            psd_floor = psd_floor + psd / draws
     return floor2, {k: np.sqrt(v) for k, v in parts.items()}, psd_floor
 
 

@@ -128,6 +128,9 @@ class PositionProblem:
         self._motion: tuple[Array, Array] | None = None  # see motion_samples
         self._motion_lock = threading.Lock()
         self._lag_cache: dict[tuple[str, float, float, float], Array] = {}
+        # The trajectory of every chunk at the parameters of the last likelihoods call: a
+        # noise search asks for many noise models at the same parameters, batch after batch.
+        self._paths: tuple[Theta | None, dict[int, tuple[Array, ...]]] = (None, {})
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, th: Theta, store: bool = False, integral: bool = False) -> EvalOut:
@@ -235,15 +238,23 @@ class PositionProblem:
         win = self.win
         out = [(np.zeros(win.count), np.zeros(win.count)) for _ in noises]
 
+        if self._paths[0] is not th:
+            self._paths = (th, {})
+        paths = self._paths[1]
+
         def chunk(c: NDArray[np.int64]) -> None:  # writes only its windows' entries
-            tau, (R_WM, p_WM) = win.tau[c], win.poses(c)
-            h = np.diff(tau, axis=1)
-            inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
-            R0 = R_WM[:, 0] @ th.R_MI
-            Rbar, pbar, _ = compose(inc, h, R0, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI,
-                                    win.v0[c], th.g_mag * th.g_dir)
-            r = residual_rows(th.R_MI, th.p_MI, R_WM, p_WM, Rbar, pbar, jacobians=False).r
-            packed = inc.pack()
+            key = int(c[0])
+            if key not in paths:
+                tau, (R_WM, p_WM) = win.tau[c], win.poses(c)
+                h = np.diff(tau, axis=1)
+                inc, _, _ = self._imu_steps(th, c, tau, h, sensitivities=False)
+                R0 = R_WM[:, 0] @ th.R_MI
+                Rbar, pbar, _ = compose(inc, h, R0, p_WM[:, 0] + R_WM[:, 0] @ th.p_MI,
+                                        win.v0[c], th.g_mag * th.g_dir)
+                r = residual_rows(th.R_MI, th.p_MI, R_WM, p_WM, Rbar, pbar,
+                                  jacobians=False).r
+                paths[key] = (h, R0, Rbar, r, inc.pack())
+            h, R0, Rbar, r, packed = paths[key]
 
             def model(i: int) -> None:
                 wh = self._whitening(th, c, packed, R0, noises[i])
