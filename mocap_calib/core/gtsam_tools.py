@@ -149,15 +149,6 @@ ABS_TOL = 5e-3
 #: would move no parameter by more than sqrt(2e-3) = 0.045 of its (statistical) sigma. Saves
 #: the evaluation of a step that only confirms convergence (a window solve's: 1.1 s at 60 min).
 PREDICTED_TOL = 1e-3
-#: Near the solution (the next Gauss-Newton step predicted to lower the cost by less than
-#: this, a step under 1.4 sigma) an iteration tries LM's damping from 1e-3 to 1 only: these
-#: steps are the Gauss-Newton step to 0.1 % down to half of it; when none lowers the cost the
-#: linearisation no longer describes the cost at that scale (its Jacobians are approximate)
-#: and the solve has converged. From LM's smallest damping up to its largest, such an
-#: iteration cost ten evaluations of nearly the same step, and larger damping only finds
-#: steps under a tenth of it (0.14 sigma).
-NEAR_DECREASE = 1.0
-NEAR_DAMPING = (1e-3, 1.0)
 
 
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
@@ -193,8 +184,17 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
              tols: tuple[float, float, float], it0: int
              ) -> tuple[gtsam.Values, int, float, float, str]:
     relative_tol, absolute_tol, predicted_tol = tols
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial,
-                                            _lm_params(max_iterations, relative_tol))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(relative_tol)
+    params.setAbsoluteErrorTol(1e-12)
+    params.setVerbosityLM("SILENT")
+    # Marquardt's scaling: damping proportional to the Hessian's diagonal. The parameters'
+    # scales differ by many orders (radians, metres, scale factors, seconds), so a plain
+    # lambda * I either does nothing for some or freezes others.
+    params.setDiagonalDamping(True)
+    params.setlambdaUpperBound(1e12)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     err = float(graph.error(initial))
     if on_iteration is not None and it0 == 0:
         on_iteration(0, initial, err)
@@ -203,15 +203,9 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
     reason = "iteration limit"
     while it < max_iterations:
         prev = err
-        if predicted_tol > 0.0:
-            predicted = predicted_decrease(graph, opt.values())
-            if predicted < predicted_tol:
-                reason = "converged"
-                break
-            if predicted < NEAR_DECREASE:  # see NEAR_DAMPING
-                lam = max(opt.lambda_(), NEAR_DAMPING[0])
-                opt = gtsam.LevenbergMarquardtOptimizer(graph, opt.values(), _lm_params(
-                    max_iterations, relative_tol, lam, max(NEAR_DAMPING[1], lam)))
+        if predicted_tol > 0.0 and predicted_decrease(graph, opt.values()) < predicted_tol:
+            reason = "converged"
+            break
         try:
             opt.iterate()
         except RuntimeError:  # the stop's zero errors can leave GTSAM nothing to solve
@@ -230,22 +224,6 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
             reason = "no decreasing step at the largest damping"
             break
     return opt.values(), it, err, rel, reason
-
-
-def _lm_params(max_iterations: int, relative_tol: float, damping: float = 1e-5,
-               max_damping: float = 1e12) -> gtsam.LevenbergMarquardtParams:
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(relative_tol)
-    params.setAbsoluteErrorTol(1e-12)
-    params.setVerbosityLM("SILENT")
-    # Marquardt's scaling: damping proportional to the Hessian's diagonal. The parameters'
-    # scales differ by many orders (radians, metres, scale factors, seconds), so a plain
-    # lambda * I either does nothing for some or freezes others.
-    params.setDiagonalDamping(True)
-    params.setlambdaInitial(damping)
-    params.setlambdaUpperBound(max_damping)
-    return params
 
 
 def predicted_decrease(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:
