@@ -95,3 +95,21 @@ def test_quoted_fields_are_read_like_pandas(tmp_path: Path) -> None:
         np.testing.assert_array_equal(table.numbers[c], ref[c].to_numpy(dtype=float))
     assert parse_stamps(table.text[0], "s", "t", Lines("x")).tolist() == [1_500_000_000,
                                                                          2_500_000_000]
+
+
+@pytest.mark.parametrize(("cells", "unit", "scale"), [
+    (["1413394881575760384", "9223372036854775807", "0000000000000000001"], "ns", 1),
+    (["9223372036", "1000000000", "0000000009"], "ns", 1),
+    (["12", "13", "99"], "ms", 10**6),
+    (["1", "12", "123"], "us", 10**3),  # cells of several widths: the general path
+    (["١٢", "١٣"], "ms", 10**6),  # other decimal digits: the general path
+])
+def test_whole_number_stamps_are_exact(cells: list[str], unit: str, scale: int) -> None:
+    got = parse_stamps(np.array(cells), unit, "t", Lines("x"))
+    assert got.tolist() == [int(Decimal(c)) * scale for c in cells]
+
+
+@pytest.mark.parametrize("cell", ["9223372036854775808", "9999999999999999999"])
+def test_nineteen_digits_beyond_int64_are_refused(cell: str) -> None:
+    with pytest.raises(InputError, match="overflow"):
+        parse_stamps(np.array(["1000000000000000000", cell]), "ns", "t", Lines("x"))

@@ -36,6 +36,9 @@ def parse_stamps(raw: Text, unit: str, label: str, lines: Lines,
     digits = len(str(factor)) - 1
     if len(raw) == 0:
         return np.zeros(0, dtype=np.int64)
+    fixed = _fixed_width_digits(raw)
+    if fixed is not None:
+        return _scaled(fixed, factor, unit, lines)
     s = np.strings.strip(np.asarray(raw, dtype=str), ' \t\r\n\v\f"')  # spaces and quotes
     if decimal != ".":
         s = np.strings.replace(s, decimal, ".")
@@ -69,6 +72,31 @@ def parse_stamps(raw: Text, unit: str, label: str, lines: Lines,
             raise _overflow(s, unit, lines)
         out[~is_dec] = np.round(scaled).astype(np.int64)
     return out
+
+
+def _fixed_width_digits(raw: Text) -> IntArray | None:
+    """The usual time column at once: every cell the same number of ASCII digits (at most 19,
+    within int64), read from the characters' codes (None: any other column, left to the
+    general path, which also names an overflow)."""
+    raw = np.asarray(raw)
+    width = raw.dtype.itemsize // 4
+    if raw.dtype.kind != "U" or raw.ndim != 1 or not 0 < width <= 19:
+        return None
+    codes = np.ascontiguousarray(raw).view(np.uint32).reshape(len(raw), width)
+    if not ((codes >= 48) & (codes <= 57)).all():  # also a shorter cell (NUL padding)
+        return None
+    if width == 19:
+        high = codes[:, 0] == 57
+        if high.any() and (raw[high] > str(_INT64_MAX)).any():
+            return None
+    # Exact in int64: the digits below the cut are under 1e9, those above under 1e10.
+    digits = (codes - 48).astype(np.int64)
+    low = min(width, 9)
+    value = digits[:, width - low:] @ 10 ** np.arange(low - 1, -1, -1, dtype=np.int64)
+    if width > low:
+        value += (digits[:, :width - low] @ 10 ** np.arange(width - low - 1, -1, -1,
+                                                            dtype=np.int64)) * 10**9
+    return value
 
 
 def _digits(s: Text) -> NDArray[np.bool_]:
