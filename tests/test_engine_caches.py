@@ -1,8 +1,10 @@
 """The window engine's shortcuts return what the plain computation does: the stamp search
 against numpy's, the per-session smoothed signals, the lagged accelerometer resampled once per
-evaluation, and noise models run on the threads."""
+evaluation, noise models run on the threads and the trajectory kept between noise batches."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import gtsam
 import numpy as np
@@ -113,3 +115,29 @@ def test_noise_models_on_threads_do_not_change_the_likelihoods(short_session) ->
         np.testing.assert_array_equal(c2, c1)
         np.testing.assert_array_equal(l2, l1)
     assert not np.array_equal(two[0][0], two[2][0])  # the models differ
+
+
+def test_the_trajectory_kept_between_noise_batches_is_the_parameters_own(short_session) -> None:
+    """Likelihoods at the same parameters reuse the windows' trajectory: the numbers of a
+    problem that integrates it afresh; other parameters get their own, not the kept one."""
+    sim, s, v = short_session
+    win = make_windows(s, s.clock_shift + 0.003, 0.5, 200.0, v, min_samples=10)
+    model = Model.parse("base+time_offset")
+
+    def fresh() -> PositionProblem:
+        return PositionProblem(s, model, NoiseModel(), win, split=False)
+
+    pp = fresh()
+    th = _theta(sim, s, win.count, 0.0)
+    moved = replace(th, p_MI=th.p_MI + 0.01)
+    models = [NoiseModel(), NoiseModel(accelerometer_noise_density=0.02)]
+    pp.likelihoods(th, models[:1])
+    again = pp.likelihoods(th, models)  # the kept trajectory, another batch of models
+    other = pp.likelihoods(moved, models)
+    for (c, ld), (c0, ld0) in zip(again, fresh().likelihoods(th, models), strict=True):
+        np.testing.assert_array_equal(c, c0)
+        np.testing.assert_array_equal(ld, ld0)
+    for (c, ld), (c0, ld0) in zip(other, fresh().likelihoods(moved, models), strict=True):
+        np.testing.assert_array_equal(c, c0)
+        np.testing.assert_array_equal(ld, ld0)
+    assert not np.array_equal(again[0][0], other[0][0])  # the parameters matter
