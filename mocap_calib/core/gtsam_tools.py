@@ -149,29 +149,37 @@ ABS_TOL = 5e-3
 #: would move no parameter by more than sqrt(2e-3) = 0.045 of its (statistical) sigma. Saves
 #: the evaluation of a step that only confirms convergence (a window solve's: 1.1 s at 60 min).
 PREDICTED_TOL = 1e-3
+#: A solve is near its solution when the next Gauss-Newton step is predicted to lower the cost
+#: by less than this (a step under 1.4 sigma); see ``run_lm``'s ``near_damping``.
+NEAR_DECREASE = 1.0
 
 
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
            on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
            relative_tol: float = RELATIVE_TOL, retry: bool = True, absolute_tol: float = 0.0,
-           predicted_tol: float = 0.0) -> tuple[gtsam.Values, SolveReport]:
+           predicted_tol: float = 0.0, near_damping: tuple[float, float] | None = None
+           ) -> tuple[gtsam.Values, SolveReport]:
     """Levenberg-Marquardt with an optional per-iteration hook (values and error).
 
     A run cut off by the iteration limit while the cost still falls is retried once from where
     it stopped (with LM's damping reset, which is what usually stalls it); the report says
     whether the cost finally stopped falling (``converged``). With ``absolute_tol`` (see
     :data:`ABS_TOL`) it has also converged when an iteration lowers the cost by less; with
-    ``predicted_tol`` (see :data:`PREDICTED_TOL`) when the next Gauss-Newton step would.
+    ``predicted_tol`` (see :data:`PREDICTED_TOL`) when the next Gauss-Newton step would. With
+    ``near_damping`` (and ``predicted_tol``) an iteration near the solution (see
+    :data:`NEAR_DECREASE`) tries Marquardt's damping in that range only, and the solve has
+    converged when none of it lowers the cost: LM's own damping starts at 1e-7 after a run of
+    successful steps and rises tenfold per failed trial, each an evaluation.
     """
     t0 = time.perf_counter()
     initial_error = float(graph.error(initial))
     interrupt.check()
     tols = (relative_tol, absolute_tol, predicted_tol)
     values, it, err, rel, reason = _lm_pass(graph, initial, max_iterations, on_iteration,
-                                            tols, 0)
+                                            tols, 0, near_damping)
     if reason == "iteration limit" and retry:
         values, it2, err, rel, reason = _lm_pass(graph, values, max_iterations, on_iteration,
-                                                 tols, it)
+                                                 tols, it, near_damping)
         it += it2
     report = SolveReport(it, initial_error, float(err), time.perf_counter() - t0,
                          converged=reason != "iteration limit", reason=reason,
@@ -181,20 +189,12 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
 
 def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int,
              on_iteration: Callable[[int, gtsam.Values, float], None] | None,
-             tols: tuple[float, float, float], it0: int
+             tols: tuple[float, float, float], it0: int,
+             near_damping: tuple[float, float] | None = None
              ) -> tuple[gtsam.Values, int, float, float, str]:
     relative_tol, absolute_tol, predicted_tol = tols
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(relative_tol)
-    params.setAbsoluteErrorTol(1e-12)
-    params.setVerbosityLM("SILENT")
-    # Marquardt's scaling: damping proportional to the Hessian's diagonal. The parameters'
-    # scales differ by many orders (radians, metres, scale factors, seconds), so a plain
-    # lambda * I either does nothing for some or freezes others.
-    params.setDiagonalDamping(True)
-    params.setlambdaUpperBound(1e12)
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial,
+                                            _lm_params(max_iterations, relative_tol))
     err = float(graph.error(initial))
     if on_iteration is not None and it0 == 0:
         on_iteration(0, initial, err)
@@ -203,9 +203,15 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
     reason = "iteration limit"
     while it < max_iterations:
         prev = err
-        if predicted_tol > 0.0 and predicted_decrease(graph, opt.values()) < predicted_tol:
-            reason = "converged"
-            break
+        if predicted_tol > 0.0:
+            predicted = predicted_decrease(graph, opt.values())
+            if predicted < predicted_tol:
+                reason = "converged"
+                break
+            if near_damping is not None and predicted < NEAR_DECREASE:
+                low = max(opt.lambda_(), near_damping[0])
+                opt = gtsam.LevenbergMarquardtOptimizer(graph, opt.values(), _lm_params(
+                    max_iterations, relative_tol, low, max(near_damping[1], low)))
         try:
             opt.iterate()
         except RuntimeError:  # the stop's zero errors can leave GTSAM nothing to solve
@@ -224,6 +230,22 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
             reason = "no decreasing step at the largest damping"
             break
     return opt.values(), it, err, rel, reason
+
+
+def _lm_params(max_iterations: int, relative_tol: float, damping: float = 1e-5,
+               max_damping: float = 1e12) -> gtsam.LevenbergMarquardtParams:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(relative_tol)
+    params.setAbsoluteErrorTol(1e-12)
+    params.setVerbosityLM("SILENT")
+    # Marquardt's scaling: damping proportional to the Hessian's diagonal. The parameters'
+    # scales differ by many orders (radians, metres, scale factors, seconds), so a plain
+    # lambda * I either does nothing for some or freezes others.
+    params.setDiagonalDamping(True)
+    params.setlambdaInitial(damping)
+    params.setlambdaUpperBound(max_damping)
+    return params
 
 
 def predicted_decrease(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:

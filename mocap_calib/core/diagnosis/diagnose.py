@@ -175,8 +175,7 @@ class _Session:
         init = PositionInit(base.R_MI, base.p_MI, base.g_dir, base.g_mag, starts,
                             dict(base.effects))
         solver = PositionSolver(self.takes, m, nz, self.opts.calibration.priors)
-        rounds = Rounds(robust=False, adapt_noise=False,
-                        max_iterations=self.opts.calibration.max_iterations)
+        rounds = Rounds.effect_test(self.opts.calibration.max_iterations)
         return solver.solve(init, rounds, Weighting(self.weights, base.axis_scale),
                             Keep(covariance, window_blocks=False, time_mean=False))
 
