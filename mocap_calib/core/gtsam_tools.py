@@ -150,14 +150,14 @@ ABS_TOL = 5e-3
 #: the evaluation of a step that only confirms convergence (a window solve's: 1.1 s at 60 min).
 PREDICTED_TOL = 1e-3
 #: A solve is near its solution when the next Gauss-Newton step is predicted to lower the cost
-#: by less than this (a step under 1.4 sigma); see ``run_lm``'s ``near_damping``.
+#: by less than this (a step under 1.4 sigma); see ``run_lm``'s ``near_trials``.
 NEAR_DECREASE = 1.0
 
 
 def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 50,
            on_iteration: Callable[[int, gtsam.Values, float], None] | None = None,
            relative_tol: float = RELATIVE_TOL, retry: bool = True, absolute_tol: float = 0.0,
-           predicted_tol: float = 0.0, near_damping: tuple[float, float] | None = None
+           predicted_tol: float = 0.0, near_trials: int | None = None
            ) -> tuple[gtsam.Values, SolveReport]:
     """Levenberg-Marquardt with an optional per-iteration hook (values and error).
 
@@ -166,20 +166,20 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
     whether the cost finally stopped falling (``converged``). With ``absolute_tol`` (see
     :data:`ABS_TOL`) it has also converged when an iteration lowers the cost by less; with
     ``predicted_tol`` (see :data:`PREDICTED_TOL`) when the next Gauss-Newton step would. With
-    ``near_damping`` (and ``predicted_tol``) an iteration near the solution (see
-    :data:`NEAR_DECREASE`) tries Marquardt's damping in that range only, and the solve has
-    converged when none of it lowers the cost: LM's own damping starts at 1e-7 after a run of
-    successful steps and rises tenfold per failed trial, each an evaluation.
+    ``near_trials`` (and ``predicted_tol``) an iteration near the solution (see
+    :data:`NEAR_DECREASE`) tries that many dampings, and the solve has converged when none
+    lowers the cost: each trial is an evaluation, and LM raises its damping tenfold per failed
+    one from where its successful steps left it (1e-7: ten trials before it damps at all).
     """
     t0 = time.perf_counter()
     initial_error = float(graph.error(initial))
     interrupt.check()
     tols = (relative_tol, absolute_tol, predicted_tol)
     values, it, err, rel, reason = _lm_pass(graph, initial, max_iterations, on_iteration,
-                                            tols, 0, near_damping)
+                                            tols, 0, near_trials)
     if reason == "iteration limit" and retry:
         values, it2, err, rel, reason = _lm_pass(graph, values, max_iterations, on_iteration,
-                                                 tols, it, near_damping)
+                                                 tols, it, near_trials)
         it += it2
     report = SolveReport(it, initial_error, float(err), time.perf_counter() - t0,
                          converged=reason != "iteration limit", reason=reason,
@@ -190,7 +190,7 @@ def run_lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterati
 def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int,
              on_iteration: Callable[[int, gtsam.Values, float], None] | None,
              tols: tuple[float, float, float], it0: int,
-             near_damping: tuple[float, float] | None = None
+             near_trials: int | None = None
              ) -> tuple[gtsam.Values, int, float, float, str]:
     relative_tol, absolute_tol, predicted_tol = tols
     opt = gtsam.LevenbergMarquardtOptimizer(graph, initial,
@@ -208,10 +208,10 @@ def _lm_pass(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_itera
             if predicted < predicted_tol:
                 reason = "converged"
                 break
-            if near_damping is not None and predicted < NEAR_DECREASE:
-                low = max(opt.lambda_(), near_damping[0])
+            if near_trials is not None and predicted < NEAR_DECREASE:
+                lam = opt.lambda_()
                 opt = gtsam.LevenbergMarquardtOptimizer(graph, opt.values(), _lm_params(
-                    max_iterations, relative_tol, low, max(near_damping[1], low)))
+                    max_iterations, relative_tol, lam, lam * 10.0**near_trials))
         try:
             opt.iterate()
         except RuntimeError:  # the stop's zero errors can leave GTSAM nothing to solve

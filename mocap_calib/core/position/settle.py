@@ -199,14 +199,14 @@ def solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bo
                  adapt_noise: bool, hook: History,
                  progress: Callable[[str], None] | None, identify_noise: bool = False,
                  integrals: bool = False,
-                 near_damping: tuple[float, float] | None = None) -> Fit:
+                 near_trials: int | None = None) -> Fit:
     """Rounds of LM on a fixed cost (whitening frozen); between rounds the mocap noise levels
     are re-estimated from the innovations and the robust weights updated. The first run goes
     to convergence from the start values; the settling rounds after it are short; once nothing
     changes (or the cost moves by less than :data:`COST_SETTLED`) one LM run goes to
     convergence (after settling rounds, its start is first checked on the full evaluation
     there: see :func:`converged_at`). The solution's final evaluation carries the bias
-    integrals with ``integrals``; ``near_damping``: see :func:`run_lm`."""
+    integrals with ``integrals``; ``near_trials``: see :func:`run_lm`."""
     graph, batch = pg.graph, pg.batch
     iterations, sol = 0, pg.values
     inn0: list[Array] | None = None
@@ -235,7 +235,7 @@ def solve_rounds(pg: PositionGraph, max_iterations: int, rounds: int, robust: bo
         # levels and weights, until the last.
         limit = max_iterations if (final or rnd == 1) else SETTLING_ITERATIONS
         sol, rep = run_lm(graph, sol, limit, hook, predicted_tol=PREDICTED_TOL,
-                          near_damping=near_damping)
+                          near_trials=near_trials)
         inn0 = hook.first_innovations if inn0 is None else inn0
         iterations += rep.iterations
         if final:

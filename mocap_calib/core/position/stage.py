@@ -241,8 +241,8 @@ class Rounds:
             solve (:mod:`.noise`), used from then on where it contradicts the given noise.
         rounds: at most this many LM runs when the levels or weights move (else one).
         max_iterations: LM iterations of the first and the last run.
-        near_damping: near the solution, the range of LM's damping an iteration tries (see
-            :func:`~mocap_calib.core.gtsam_tools.run_lm`; None: LM's own).
+        near_trials: near the solution, the dampings an LM iteration tries (see
+            :func:`~mocap_calib.core.gtsam_tools.run_lm`; None: as many as LM's range holds).
     """
 
     robust: bool = True
@@ -250,16 +250,16 @@ class Rounds:
     identify_noise: bool = False
     rounds: int = 6
     max_iterations: int = 30
-    near_damping: tuple[float, float] | None = None
+    near_trials: int | None = None
 
     @classmethod
     def effect_test(cls, max_iterations: int) -> Rounds:
         """One LM run with the noise model and weights held (a refit that tests an effect),
-        near its solution with damping from 1e-3 (the Gauss-Newton step) to 1 (half of it):
-        what its test and estimate need. Larger damping finds steps under a tenth of a sigma,
-        and LM's own way there costs up to ten evaluations per iteration."""
+        done near its solution (steps under 1.4 sigma) when four dampings find no lower cost:
+        the rest of LM's range costs up to ten evaluations an iteration for steps its test and
+        estimate do not need."""
         return cls(robust=False, adapt_noise=False, max_iterations=max_iterations,
-                   near_damping=(1e-3, 1.0))
+                   near_trials=4)
 
 
 @dataclass(frozen=True)
@@ -343,7 +343,7 @@ class PositionSolver:
         n = rounds.rounds if (robust or rounds.adapt_noise or rounds.identify_noise) else 1
         fit = solve_rounds(pg, rounds.max_iterations, n, robust, rounds.adapt_noise, history,
                            self.progress, rounds.identify_noise, integrals=keep.time_mean,
-                           near_damping=rounds.near_damping)
+                           near_trials=rounds.near_trials)
         return self._finish(pg, fit, fit.values, history.records, keep, t_start, refit=False)
 
     def refit(self, init: PositionInit, steps: Steps | None = None,
