@@ -353,3 +353,42 @@ def test_predicted_decrease_is_half_the_squared_mahalanobis_step() -> None:
     sol, rep = run_lm(graph, far, predicted_tol=1e-3)
     assert rep.iterations >= 1 and rep.converged
     np.testing.assert_allclose(sol.atVector(key), 0.0, atol=0.1)
+
+
+def test_near_trials_end_an_iteration_whose_dampings_all_fail() -> None:
+    """Near the solution with ``near_trials`` an LM iteration tries that many dampings: with a
+    Jacobian of the wrong sign no step lowers the cost, and the solve ends where it started
+    after a few cost evaluations instead of LM's whole damping range; where steps succeed it
+    reaches the same solution as LM alone."""
+    import gtsam
+
+    from mocap_calib.core.gtsam_tools import run_lm
+
+    key, calls = 3, {"cost": 0}
+
+    def bad(sign: float):
+        def fn(this: gtsam.CustomFactor, v: gtsam.Values, H: list | None) -> np.ndarray:
+            x = np.asarray(v.atVector(key))
+            if H is None:
+                calls["cost"] += 1
+            else:
+                H[0] = sign * np.eye(1)
+            return x - 1.0
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [key], fn))
+        return graph
+
+    start = gtsam.Values()
+    start.insert(key, np.array([1.5]))  # predicted decrease 0.125: near
+    counts = []
+    for trials in (None, 4):
+        calls["cost"] = 0
+        sol, rep = run_lm(bad(-1.0), start, predicted_tol=1e-3, near_trials=trials)
+        assert rep.converged and rep.iterations == 1
+        np.testing.assert_array_equal(sol.atVector(key), [1.5])
+        counts.append(calls["cost"])
+    # Four trials plus the costs at the start (the solve's, the pass's, each optimizer's).
+    assert counts[1] <= 4 + 4 and counts[0] >= counts[1] + 8
+    sols = [run_lm(bad(1.0), start, predicted_tol=1e-3, near_trials=t)[0] for t in (None, 4)]
+    np.testing.assert_allclose(sols[0].atVector(key), 1.0, atol=1e-6)
+    np.testing.assert_allclose(sols[1].atVector(key), sols[0].atVector(key), atol=1e-12)
