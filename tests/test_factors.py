@@ -390,5 +390,5 @@ def test_near_trials_end_an_iteration_whose_dampings_all_fail() -> None:
     # Four trials plus the costs at the start (the solve's, the pass's, each optimizer's).
     assert counts[1] <= 4 + 4 and counts[0] >= counts[1] + 8
     sols = [run_lm(bad(1.0), start, predicted_tol=1e-3, near_trials=t)[0] for t in (None, 4)]
-    np.testing.assert_allclose(sols[0].atVector(key), 1.0, atol=1e-6)
+    np.testing.assert_allclose(sols[0].atVector(key), 1.0, atol=1e-4)
     np.testing.assert_allclose(sols[1].atVector(key), sols[0].atVector(key), atol=1e-12)
