@@ -247,13 +247,16 @@ def _noise_floor(s: PreparedSession, st: ModelState, pred: ImuPrediction, noise:
         return white, walk, rot, mocap_noise(rng, s.tau, noise.mocap_position_sigma, noise)
 
     def through(draw: tuple[Array, Array, Array, Array]) -> tuple[list[Array], Array, Array]:
+        """A draw's mean squares per source and in all, and its PSD (no series kept)."""
         white, walk, rot, pos = draw
         pn = predict_imu(s, st, mocap=(s.R_WM @ so3.exp(rot), s.p_WM + pos))
         moc = -np.concatenate([pn.gyro_pred - pred.gyro_pred, pn.accel_pred - pred.accel_pred],
                               axis=1)
+        del pn
         lps = [lowpass(x, rate, cutoff, pred.segments) for x in (white, walk, moc)]
-        return lps, rms(lps[0] + lps[1] + lps[2]), _welch(white + walk + moc, rate,
-                                                          pred.segments)[1]
+        total = rms(lps[0] + lps[1] + lps[2]) ** 2
+        return [rms(lp) ** 2 for lp in lps], total, _welch(white + walk + moc, rate,
+                                                            pred.segments)[1]
 
     parts = {"white": np.zeros(6), "bias_walk": np.zeros(6), "mocap": np.zeros(6)}
     floor2 = np.zeros(6)
@@ -261,10 +264,10 @@ def _noise_floor(s: PreparedSession, st: ModelState, pred: ImuPrediction, noise:
     # The random parts are drawn in order (the seed fixes them), two draws at a time
     # processed on the threads and summed in order: the same numbers as one after the other.
     for _ in range(draws // 2):
-        for lps, total_rms, psd in map_blocks(through, [draw(), draw()]):
-            for name, lp in zip(parts, lps, strict=True):  # linear: the parts add up
-                parts[name] += rms(lp) ** 2 / draws
-            floor2 += total_rms ** 2 / draws
+        for squares, total, psd in map_blocks(through, [draw(), draw()]):
+            for name, sq in zip(parts, squares, strict=True):  # linear: the parts add up
+                parts[name] += sq / draws
+            floor2 += total / draws
             psd_floor = psd_floor + psd / draws
     return floor2, {k: np.sqrt(v) for k, v in parts.items()}, psd_floor
 
