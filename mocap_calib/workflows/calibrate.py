@@ -118,12 +118,14 @@ def run_calibration(request: CalibrateRequest, progress: ProgressFn | None = Non
 def _warm_kernels() -> None:
     """Start numba's runtime while the inputs are read: the first kernel a process loads
     starts it (0.2-0.3 s, mostly imports), and the readers spend much of their time outside
-    the GIL. A failure here is left to the calibration's first kernel to report."""
+    the GIL. A failure here is left to the calibration's first kernel to report, a stop to
+    the main thread's next check (the request stays set; raised here, it would only print a
+    thread's traceback)."""
     def load() -> None:
         try:
             search_sorted(np.zeros(2), np.zeros(1))
         except Interrupted:
-            raise
+            return
         except Exception:  # noqa: BLE001  (reported by the first real call)
             pass
 
